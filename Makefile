@@ -1,0 +1,43 @@
+# Everything installs into ./.venv from scratch: `make test` on a fresh clone needs only python3.
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+# The CPU wheel of torch; override on machines with another torch source, e.g. make TORCH_SPEC="torch>=2.3".
+TORCH_SPEC ?= torch==2.13.0
+PYTEST_ARGS ?=
+
+.PHONY: install run test test-slow lint format type bench clean
+
+install: $(VENV)/.installed
+
+$(VENV)/.installed: setup.cfg pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet "$(TORCH_SPEC)"
+	$(PY) -m pip install --quiet -e ".[dev]"
+	touch $@
+
+run: install
+	$(PY) -m sb3_eps.run_main
+
+test: install
+	$(PY) -m pytest -m "not slow" --durations=15 -p no:cacheprovider $(PYTEST_ARGS)
+
+test-slow: install
+	$(PY) -m pytest -m slow --durations=15 $(PYTEST_ARGS)
+
+lint: install
+	$(VENV)/bin/ruff check sb3_eps envs tests benchmarks
+
+format: install
+	$(VENV)/bin/ruff format sb3_eps envs tests benchmarks
+	$(VENV)/bin/ruff check --fix sb3_eps envs tests benchmarks
+
+type: install
+	$(VENV)/bin/mypy sb3_eps envs
+
+bench: install
+	$(PY) benchmarks/env_throughput.py
+
+clean:
+	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build dist *.egg-info
