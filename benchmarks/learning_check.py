@@ -1,0 +1,85 @@
+"""Train an algorithm for a tick budget and evaluate it greedily at fixed tick intervals, per seed.
+
+Writes one JSON line per evaluation to ``<out>/<algo>_<env>_seed<k>.jsonl`` and skips seeds whose file already
+holds the final evaluation, so an interrupted run resumes where it stopped (per seed). Example (issue 3's
+acceptance check)::
+
+    python benchmarks/learning_check.py --algo gdq --env MultiRobotNav-2-v0 --ticks 100000 --seeds 0 1 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import time
+from typing import Any
+
+import torch as th
+from stable_baselines3.common.callbacks import BaseCallback
+
+import envs  # noqa: F401
+from sb3_eps import GDQ, IQL, QMIX, VDN, make_vec_env
+from sb3_eps.common.evaluation import evaluate_team
+
+ALGORITHMS = {"iql": IQL, "gdq": GDQ, "qmix": QMIX, "vdn": VDN}
+
+
+class PeriodicTeamEval(BaseCallback):
+    """Greedy team evaluation every ``eval_every`` training ticks; results appended to a JSON-lines file."""
+
+    def __init__(self, env_id: str, eval_every: int, n_episodes: int, path: pathlib.Path, seed: int) -> None:
+        super().__init__()
+        self.env_id, self.eval_every, self.n_episodes, self.path, self.seed = env_id, eval_every, n_episodes, path, seed
+        self.next_eval = eval_every
+        self.start = time.time()
+
+    def _on_step(self) -> bool:
+        ticks = self.model.ticks  # type: ignore[attr-defined]
+        if ticks >= self.next_eval:
+            self.next_eval += self.eval_every
+            self.evaluate(ticks)
+        return True
+
+    def evaluate(self, ticks: int) -> dict[str, Any]:
+        summary = evaluate_team(self.model, self.env_id, self.n_episodes, n_envs=4, seed=10_000 + self.seed)
+        summary.pop("episodes")
+        record = {"ticks": ticks, "wall_s": round(time.time() - self.start, 1), **summary}
+        with self.path.open("a") as file:
+            file.write(json.dumps(record) + "\n")
+        print(json.dumps({k: record[k] for k in ("ticks", "wall_s", "success_rate", "team_return_mean")}), flush=True)
+        return record
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--algo", choices=sorted(ALGORITHMS), default="gdq")
+    parser.add_argument("--env", default="MultiRobotNav-2-v0")
+    parser.add_argument("--ticks", type=int, default=100_000)
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--n-envs", type=int, default=4)
+    parser.add_argument("--eval-every", type=int, default=10_000)
+    parser.add_argument("--eval-episodes", type=int, default=100)
+    parser.add_argument("--out", default="docs/results/learning_check")
+    parser.add_argument("--hyperparams", type=json.loads, default={}, help="JSON dict of algorithm arguments")
+    args = parser.parse_args()
+    th.set_num_threads(1)
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for seed in args.seeds:
+        path = out / f"{args.algo}_{args.env}_seed{seed}.jsonl"
+        if path.exists() and any(json.loads(line)["ticks"] >= args.ticks for line in path.read_text().splitlines()):
+            print(f"seed {seed}: done already ({path})")
+            continue
+        path.unlink(missing_ok=True)  # an unfinished seed restarts from scratch
+        venv = make_vec_env(args.env, n_envs=args.n_envs, seed=seed)
+        model = ALGORITHMS[args.algo]("MlpPolicy", venv, seed=seed, **args.hyperparams)
+        callback = PeriodicTeamEval(args.env, args.eval_every, args.eval_episodes, path, seed)
+        model.learn(args.ticks * venv.n_agents, callback=callback)
+        if callback.next_eval - callback.eval_every < args.ticks:
+            callback.evaluate(model.ticks)
+        venv.close()
+
+
+if __name__ == "__main__":
+    main()

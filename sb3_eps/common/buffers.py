@@ -1,0 +1,395 @@
+"""Joint replay buffers: one row is one world's step for all of its agents.
+
+Multi-agent algorithms need the agents of one world together (GDQ's global value head, the QMIX/VDN
+mixers), and the per-agent end-of-life logic needs to know which agents were acting. A row therefore holds
+the joint observation, the agents' actions and individual n-step returns, their terminal flags, an ``alive``
+mask (the agent acted at the row's first tick, so its transition is real) and a ``next_alive`` mask (the
+agent still acts in the bootstrap observation), the team n-step return and the global states.
+
+The n-step logic lives in :class:`NStepJointCollector`: it keeps the last ``n_steps`` ticks of every world
+and writes a row once its window is full or the world's episode ended.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+
+
+class JointReplayBufferSamples(NamedTuple):
+    """A batch of joint rows as torch tensors; ``B`` rows of ``n`` agents.
+
+    ``observations`` / ``next_observations`` (B, n, obs_dim); ``actions`` (B, n) long; ``rewards``,
+    ``dones``, ``discounts`` (B, n): individual n-step returns, terminal flags and ``gamma ** k`` of the
+    bootstrap; ``alive`` / ``next_alive`` (B, n) float masks; ``team_rewards``, ``team_dones``,
+    ``team_discounts`` (B,); ``states`` / ``next_states`` (B, state_dim); ``weights`` (B,) importance weights
+    (ones without prioritisation); ``indices`` (B,) numpy row indices, for priority updates.
+    """
+
+    observations: th.Tensor
+    actions: th.Tensor
+    next_observations: th.Tensor
+    rewards: th.Tensor
+    dones: th.Tensor
+    discounts: th.Tensor
+    alive: th.Tensor
+    next_alive: th.Tensor
+    team_rewards: th.Tensor
+    team_dones: th.Tensor
+    team_discounts: th.Tensor
+    states: th.Tensor
+    next_states: th.Tensor
+    weights: th.Tensor
+    indices: np.ndarray
+
+
+class JointReplayBuffer:
+    """Uniform replay buffer of joint rows.
+
+    :param buffer_size: capacity in rows (one row = one world's tick for all its agents)
+    :param observation_space: one agent's observation space (a flat Box)
+    :param n_agents: agents per world
+    :param state_dim: length of the global state vector (0 when the env has none)
+    :param device: torch device of the sampled tensors
+    """
+
+    def __init__(
+        self,
+        buffer_size: int,
+        observation_space: spaces.Space,
+        n_agents: int,
+        state_dim: int = 0,
+        device: th.device | str = "cpu",
+    ) -> None:
+        if buffer_size < 1:
+            raise ValueError(f"buffer_size must be >= 1, got {buffer_size}")
+        obs_shape = observation_space.shape
+        if obs_shape is None or len(obs_shape) != 1:
+            raise ValueError(f"joint buffers need flat observations, got shape {obs_shape}")
+        self.buffer_size = int(buffer_size)
+        self.n_agents = int(n_agents)
+        self.obs_dim = int(obs_shape[0])
+        self.state_dim = int(state_dim)
+        self.device = th.device(device)
+        self.pos = 0
+        self.full = False
+        size, n = self.buffer_size, self.n_agents
+        self.observations = np.zeros((size, n, self.obs_dim), dtype=np.float32)
+        self.next_observations = np.zeros((size, n, self.obs_dim), dtype=np.float32)
+        self.actions = np.zeros((size, n), dtype=np.int64)
+        self.rewards = np.zeros((size, n), dtype=np.float32)
+        self.dones = np.zeros((size, n), dtype=np.float32)
+        self.discounts = np.zeros((size, n), dtype=np.float32)
+        self.alive = np.zeros((size, n), dtype=np.float32)
+        self.next_alive = np.zeros((size, n), dtype=np.float32)
+        self.team_rewards = np.zeros(size, dtype=np.float32)
+        self.team_dones = np.zeros(size, dtype=np.float32)
+        self.team_discounts = np.zeros(size, dtype=np.float32)
+        self.states = np.zeros((size, self.state_dim), dtype=np.float32)
+        self.next_states = np.zeros((size, self.state_dim), dtype=np.float32)
+
+    def size(self) -> int:
+        """:return: the number of rows stored."""
+        return self.buffer_size if self.full else self.pos
+
+    def add_row(self, row: JointRow) -> int:
+        """Store one joint row and return its index.
+
+        :param row: the row, as made by :class:`NStepJointCollector`
+        """
+        index = self.pos
+        self.observations[index] = row.observations
+        self.next_observations[index] = row.next_observations
+        self.actions[index] = row.actions
+        self.rewards[index] = row.rewards
+        self.dones[index] = row.dones
+        self.discounts[index] = row.discounts
+        self.alive[index] = row.alive
+        self.next_alive[index] = row.next_alive
+        self.team_rewards[index] = row.team_reward
+        self.team_dones[index] = row.team_done
+        self.team_discounts[index] = row.team_discount
+        if self.state_dim:
+            self.states[index] = row.state
+            self.next_states[index] = row.next_state
+        self.pos = (self.pos + 1) % self.buffer_size
+        self.full = self.full or self.pos == 0
+        return index
+
+    def sample(self, batch_size: int, beta: float = 1.0) -> JointReplayBufferSamples:
+        """Sample ``batch_size`` rows uniformly with replacement.
+
+        :param batch_size: number of rows
+        :param beta: unused here (importance-sampling exponent of the prioritised variant)
+        """
+        if self.size() == 0:
+            raise RuntimeError("cannot sample from an empty replay buffer")
+        indices = np.random.randint(0, self.size(), size=batch_size)
+        return self._to_samples(indices, np.ones(batch_size, dtype=np.float32))
+
+    def update_priorities(self, indices: np.ndarray, td_errors: np.ndarray) -> None:
+        """No-op for uniform replay (the prioritised variant overrides it)."""
+
+    def _to_samples(self, indices: np.ndarray, weights: np.ndarray) -> JointReplayBufferSamples:
+        def tensor(array: np.ndarray) -> th.Tensor:
+            return th.as_tensor(array[indices], device=self.device)
+
+        return JointReplayBufferSamples(
+            observations=tensor(self.observations),
+            actions=tensor(self.actions),
+            next_observations=tensor(self.next_observations),
+            rewards=tensor(self.rewards),
+            dones=tensor(self.dones),
+            discounts=tensor(self.discounts),
+            alive=tensor(self.alive),
+            next_alive=tensor(self.next_alive),
+            team_rewards=tensor(self.team_rewards),
+            team_dones=tensor(self.team_dones),
+            team_discounts=tensor(self.team_discounts),
+            states=tensor(self.states),
+            next_states=tensor(self.next_states),
+            weights=th.as_tensor(weights, device=self.device),
+            indices=indices,
+        )
+
+
+class SumTree:
+    """Binary sum tree over ``capacity`` leaves, vectorised over batches of indices.
+
+    :param capacity: number of leaves (rounded up to a power of two internally)
+    """
+
+    def __init__(self, capacity: int) -> None:
+        self.capacity = int(capacity)
+        self.n_leaves = 1 << max(0, (self.capacity - 1).bit_length())
+        self.tree = np.zeros(2 * self.n_leaves, dtype=np.float64)
+
+    @property
+    def total(self) -> float:
+        """:return: the sum of all leaves."""
+        return float(self.tree[1])
+
+    def update(self, indices: np.ndarray, values: np.ndarray) -> None:
+        """Set the leaves ``indices`` to ``values`` and refresh their ancestors."""
+        nodes = np.asarray(indices, dtype=np.int64) + self.n_leaves
+        self.tree[nodes] = values
+        nodes = np.unique(nodes // 2)
+        while nodes[0] >= 1:
+            self.tree[nodes] = self.tree[2 * nodes] + self.tree[2 * nodes + 1]
+            if nodes[0] == 1:
+                break
+            nodes = np.unique(nodes // 2)
+
+    def leaves(self, indices: np.ndarray) -> np.ndarray:
+        """:return: the values of the leaves ``indices``."""
+        return self.tree[np.asarray(indices, dtype=np.int64) + self.n_leaves]
+
+    def find(self, prefix_sums: np.ndarray) -> np.ndarray:
+        """:return: for each value u in [0, total), the leaf whose cumulative range holds u."""
+        nodes = np.ones(len(prefix_sums), dtype=np.int64)
+        remaining = np.array(prefix_sums, dtype=np.float64)
+        while nodes[0] < self.n_leaves:
+            left = self.tree[2 * nodes]
+            go_right = remaining >= left
+            remaining -= left * go_right
+            nodes = 2 * nodes + go_right
+        return np.minimum(nodes - self.n_leaves, self.capacity - 1)
+
+
+class PrioritizedJointReplayBuffer(JointReplayBuffer):
+    """Proportional prioritised replay (Schaul et al., 2016) over joint rows.
+
+    A row's priority is ``(|delta| + eps) ** alpha`` where ``|delta|`` is the largest absolute TD error among
+    its alive agents (or the team TD error for mixing algorithms); new rows get the current maximum priority.
+    Sampling probability ``P(i) = p_i / sum_j p_j``; importance weight ``(N * P(i)) ** -beta`` normalised by
+    the largest weight of the batch.
+
+    :param alpha: prioritisation exponent (0 = uniform)
+    :param priority_eps: added to ``|delta|`` so no row has zero probability
+    :param kwargs: as :class:`JointReplayBuffer`
+    """
+
+    def __init__(self, *args: Any, alpha: float = 0.6, priority_eps: float = 1e-6, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        if alpha < 0:
+            raise ValueError(f"PER alpha must be >= 0, got {alpha}")
+        self.alpha = float(alpha)
+        self.priority_eps = float(priority_eps)
+        self.tree = SumTree(self.buffer_size)
+        self.max_priority = 1.0
+
+    def add_row(self, row: JointRow) -> int:
+        index = super().add_row(row)
+        self.tree.update(np.array([index]), np.array([self.max_priority]))
+        return index
+
+    def sample(self, batch_size: int, beta: float = 0.4) -> JointReplayBufferSamples:
+        """Stratified proportional sampling: one draw in each of ``batch_size`` equal slices of the mass.
+
+        :param batch_size: number of rows
+        :param beta: importance-sampling exponent (annealed to 1 by the algorithm)
+        """
+        size = self.size()
+        if size == 0:
+            raise RuntimeError("cannot sample from an empty replay buffer")
+        total = self.tree.total
+        bounds = np.linspace(0.0, total, batch_size + 1)
+        draws = np.random.uniform(bounds[:-1], bounds[1:])
+        indices = np.minimum(self.tree.find(np.minimum(draws, np.nextafter(total, 0))), size - 1)
+        probabilities = self.tree.leaves(indices) / total
+        weights = (size * probabilities) ** (-beta)
+        weights = (weights / weights.max()).astype(np.float32)
+        return self._to_samples(indices, weights)
+
+    def update_priorities(self, indices: np.ndarray, td_errors: np.ndarray) -> None:
+        """Set the rows' priorities from their absolute TD errors.
+
+        :param indices: row indices of the sampled batch
+        :param td_errors: one non-negative error per row
+        """
+        priorities = (np.abs(td_errors) + self.priority_eps) ** self.alpha
+        self.tree.update(indices, priorities)
+        self.max_priority = max(self.max_priority, float(priorities.max()))
+
+
+@dataclass
+class JointRow:
+    """One joint row before storage (numpy; ``n`` agents)."""
+
+    observations: np.ndarray
+    actions: np.ndarray
+    rewards: np.ndarray
+    next_observations: np.ndarray
+    dones: np.ndarray
+    discounts: np.ndarray
+    alive: np.ndarray
+    next_alive: np.ndarray
+    team_reward: float
+    team_done: float
+    team_discount: float
+    state: np.ndarray
+    next_state: np.ndarray
+
+
+@dataclass
+class _Tick:
+    """One raw tick of one world, as observed by the rollout."""
+
+    observations: np.ndarray  # (n, d)
+    actions: np.ndarray  # (n,)
+    rewards: np.ndarray  # (n,)
+    next_observations: np.ndarray  # (n, d), terminal observations where an agent ended
+    terminated: np.ndarray  # (n,) bool: the agent's episode ended by termination at this tick
+    ended: np.ndarray  # (n,) bool: the agent's episode ended at this tick (terminated or truncated)
+    alive: np.ndarray  # (n,) bool: the agent acted at this tick
+    state: np.ndarray
+    next_state: np.ndarray
+    world_ended: bool
+    world_terminated: bool
+
+
+def n_step_row(ticks: list[_Tick], gamma: float, team_reward_mode: str = "sum") -> JointRow:
+    """Fold the ticks ``t0 .. t0+K-1`` of one world into the n-step row of tick ``t0``.
+
+    Individual return of agent i: ``G_i = sum_{k < K_i} gamma^k r_i(t0+k)`` where ``K_i <= K`` stops at the
+    tick where the agent's own episode ended; it bootstraps with ``gamma^K_i`` from the observation after
+    tick ``t0+K-1`` unless it terminated inside the window (``done_i``). Team return: the same sum over the
+    whole window of the team reward (sum, or mean, of the alive agents' rewards), bootstrapped from the
+    global state after the window unless the world terminated in it.
+
+    :param ticks: the window, oldest first, ``1 <= K <= n_steps`` ticks; only the last may end the world
+    :param gamma: discount factor
+    :param team_reward_mode: ``"sum"`` or ``"mean"`` of the alive agents' rewards
+    """
+    first, last = ticks[0], ticks[-1]
+    rewards = np.stack([tick.rewards for tick in ticks])  # (K, n)
+    alive_k = np.stack([tick.alive for tick in ticks])  # (K, n)
+    ended = np.stack([tick.ended for tick in ticks])  # (K, n)
+    terminated = np.stack([tick.terminated for tick in ticks])
+    n_ticks = len(ticks)
+    # in_window[k, i]: agent i's episode has not ended before tick k of the window.
+    ended_before = np.zeros_like(ended)
+    ended_before[1:] = np.cumsum(ended[:-1], axis=0) > 0
+    in_window = ~ended_before
+    discount_powers = gamma ** np.arange(n_ticks, dtype=np.float64)[:, None]
+    individual = (discount_powers * rewards * in_window * alive_k).sum(axis=0)
+    horizon = in_window.sum(axis=0)  # K_i
+    dones = (terminated & in_window).any(axis=0)
+    alive_rewards = rewards * alive_k
+    if team_reward_mode == "sum":
+        team_per_tick = alive_rewards.sum(axis=1)
+    else:
+        team_per_tick = alive_rewards.sum(axis=1) / np.maximum(alive_k.sum(axis=1), 1)
+    team_reward = float((discount_powers[:, 0] * team_per_tick).sum())
+    return JointRow(
+        observations=first.observations,
+        actions=first.actions,
+        rewards=individual.astype(np.float32),
+        next_observations=last.next_observations,
+        dones=dones.astype(np.float32),
+        discounts=(gamma**horizon).astype(np.float32),
+        alive=first.alive.astype(np.float32),
+        next_alive=(last.alive & ~last.ended).astype(np.float32),
+        team_reward=team_reward,
+        team_done=float(last.world_terminated),
+        team_discount=float(gamma**n_ticks),
+        state=first.state,
+        next_state=last.next_state,
+    )
+
+
+class NStepJointCollector:
+    """Turns the per-tick stream of every world into n-step joint rows and writes them to a buffer.
+
+    :param buffer: where finished rows go
+    :param n_worlds: number of worlds in the vector env
+    :param n_steps: n of the n-step return (1 = one-step TD)
+    :param gamma: discount factor
+    :param team_reward_mode: ``"sum"`` or ``"mean"`` of the alive agents' rewards
+    """
+
+    def __init__(
+        self,
+        buffer: JointReplayBuffer,
+        n_worlds: int,
+        n_steps: int = 1,
+        gamma: float = 0.99,
+        team_reward_mode: str = "sum",
+    ) -> None:
+        if n_steps < 1:
+            raise ValueError(f"n_steps must be >= 1, got {n_steps}")
+        if team_reward_mode not in ("sum", "mean"):
+            raise ValueError(f"team_reward_mode must be 'sum' or 'mean', got {team_reward_mode!r}")
+        self.buffer = buffer
+        self.n_steps = int(n_steps)
+        self.gamma = float(gamma)
+        self.team_reward_mode = team_reward_mode
+        self.pending: list[list[_Tick]] = [[] for _ in range(n_worlds)]
+
+    def add(self, world: int, tick: _Tick) -> None:
+        """Append one world's tick; write every row whose window is complete.
+
+        Rows whose first tick has no alive agent carry no real transition and are dropped.
+        """
+        window = self.pending[world]
+        window.append(tick)
+        if tick.world_ended:
+            while window:
+                self._write(window)
+                window.pop(0)
+        elif len(window) == self.n_steps:
+            self._write(window)
+            window.pop(0)
+
+    def _write(self, window: list[_Tick]) -> None:
+        if window[0].alive.any():
+            self.buffer.add_row(n_step_row(window, self.gamma, self.team_reward_mode))
+
+    def reset(self) -> None:
+        """Forget the unfinished windows (when the env is reset outside of an episode end)."""
+        for window in self.pending:
+            window.clear()

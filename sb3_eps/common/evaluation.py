@@ -1,0 +1,84 @@
+"""Team-level evaluation: episodes are counted per world (team), never per agent."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env
+
+# Episode keys averaged into the summary when the env reports them.
+_OPTIONAL_KEYS = ("success", "collision", "n_arrived", "distance_travelled", "min_dist_sum", "occupied_landmarks")
+
+
+def evaluate_team(
+    model: Any,
+    env: str | MultiAgentVecEnv,
+    n_eval_episodes: int = 100,
+    n_envs: int = 4,
+    deterministic: bool = True,
+    seed: int | None = 0,
+    env_kwargs: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Run the model's decentralised policy for ``n_eval_episodes`` world episodes.
+
+    Each world runs a fixed quota of episodes (so short episodes are not over-represented, unlike a
+    first-come count over several worlds).
+
+    :param model: anything with ``predict(obs, deterministic=...)`` over a batch of agent observations
+    :param env: an env id (a vector env of ``n_envs`` worlds is made and closed) or a :class:`MultiAgentVecEnv`
+    :param n_eval_episodes: world episodes to run
+    :param n_envs: worlds run side by side when ``env`` is an id
+    :param deterministic: greedy actions (True) or the model's exploration
+    :param seed: seed of the evaluation worlds (world ``w`` gets ``seed + w``)
+    :param env_kwargs: constructor arguments of the worlds when ``env`` is an id
+    :return: ``episodes`` (list of the episode dicts) and the mean/std of ``team_return`` and ``length``, plus
+        the rates of ``success`` and ``collision`` and the means of the other metrics the env reports
+    """
+    if n_eval_episodes < 1:
+        raise ValueError(f"n_eval_episodes must be >= 1, got {n_eval_episodes}")
+    owned = isinstance(env, str)
+    venv = make_vec_env(env, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs) if owned else env
+    assert isinstance(venv, MultiAgentVecEnv)
+    if not owned and seed is not None:
+        venv.seed(seed)
+    n_worlds, n_agents = venv.n_worlds, venv.n_agents
+    quotas = [n_eval_episodes // n_worlds + (1 if w < n_eval_episodes % n_worlds else 0) for w in range(n_worlds)]
+    counts = [0] * n_worlds
+    episodes: list[dict[str, Any]] = []
+    try:
+        observations = venv.reset()
+        while sum(counts) < n_eval_episodes:
+            actions, _ = model.predict(observations, deterministic=deterministic)
+            observations, _, _, infos = venv.step(actions)
+            for world in range(n_worlds):
+                episode = infos[world * n_agents].get("episode")
+                if episode is not None and counts[world] < quotas[world]:
+                    counts[world] += 1
+                    episodes.append(dict(episode))
+    finally:
+        if owned:
+            venv.close()
+    return summarize_episodes(episodes)
+
+
+def summarize_episodes(episodes: list[dict[str, Any]]) -> dict[str, Any]:
+    """Mean and std of the team metrics over episode dicts (``r`` team return, ``l`` length in ticks)."""
+    returns = np.array([episode["r"] for episode in episodes], dtype=float)
+    lengths = np.array([episode["l"] for episode in episodes], dtype=float)
+    summary: dict[str, Any] = {
+        "n_episodes": len(episodes),
+        "team_return_mean": float(returns.mean()),
+        "team_return_std": float(returns.std()),
+        "length_mean": float(lengths.mean()),
+        "length_std": float(lengths.std()),
+        "episodes": episodes,
+    }
+    for key in _OPTIONAL_KEYS:
+        if episodes and key in episodes[0]:
+            values = np.array([float(episode[key]) for episode in episodes])
+            name = f"{key}_rate" if key in ("success", "collision") else f"{key}_mean"
+            summary[name] = float(values.mean())
+            summary[name.replace("_rate", "_std").replace("_mean", "_std")] = float(values.std())
+    return summary

@@ -1,0 +1,519 @@
+"""Multi-agent off-policy base: rollout into joint rows, per-agent epsilon-greedy, n-step, PER, targets.
+
+An algorithm built on :class:`MultiAgentOffPolicyAlgorithm` adds only its loss (:meth:`_compute_loss`) and,
+where it needs them, its joint modules (in its policy). Everything else is shared: the rollout that turns the
+bridge's per-agent stream into joint rows (dropping non-alive agents), the exploration, the replay buffer,
+the optimisation step, the target-network updates, the team-level logging and saving.
+
+Counting: SB3's ``num_timesteps`` (and so ``total_timesteps``, ``learning_starts``) counts agent-steps, as
+SuperSuit makes every agent a sub-env; ``ticks`` counts simulator steps of one world
+(``num_timesteps // n_agents``). ``train_freq`` counts vector-env steps, i.e. ticks of every world.
+"""
+
+from __future__ import annotations
+
+import io
+import pathlib
+from collections import defaultdict
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.noise import ActionNoise
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.save_util import load_from_pkl
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, RolloutReturn, Schedule, TrainFreq
+from stable_baselines3.common.utils import LinearSchedule, safe_mean, should_collect_more_steps
+from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
+
+from sb3_eps.common.buffers import (
+    JointReplayBuffer,
+    JointReplayBufferSamples,
+    NStepJointCollector,
+    PrioritizedJointReplayBuffer,
+    _Tick,
+)
+from sb3_eps.common.policies import MultiAgentQPolicy
+from sb3_eps.common.utils import epsilon_greedy, polyak_update_
+
+SelfMultiAgentOffPolicyAlgorithm = TypeVar("SelfMultiAgentOffPolicyAlgorithm", bound="MultiAgentOffPolicyAlgorithm")
+
+
+def find_multi_agent_env(env: VecEnv) -> Any:
+    """Return the :class:`~sb3_eps.common.vec_env.MultiAgentVecEnv` inside ``env`` (through SB3 wrappers).
+
+    :raises ValueError: when ``env`` is not one of our multi-agent vector envs
+    """
+    from sb3_eps.common.vec_env import MultiAgentVecEnv
+
+    current: Any = env
+    while True:
+        if isinstance(current, MultiAgentVecEnv):
+            return current
+        if isinstance(current, VecEnvWrapper):
+            current = current.venv
+            continue
+        raise ValueError(
+            f"{type(env).__name__} is not a multi-agent vector env: build the env with "
+            "sb3_eps.make_vec_env(env_id, n_envs=...) so the algorithm knows which agents share a world"
+        )
+
+
+class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
+    """Base of the parameter-shared value-based multi-agent algorithms (IQL, GDQ, QMIX, VDN).
+
+    :param policy: policy class or alias (``"MlpPolicy"``)
+    :param env: a vector env from :func:`sb3_eps.make_vec_env` (or None when loading)
+    :param learning_rate: Adam learning rate, constant or schedule (default 3e-4, ALGORITHMS.md section 1)
+    :param buffer_size: replay capacity in joint rows (one row = one world's tick, all its agents)
+    :param learning_starts: agent-steps of uniformly random actions before learning starts
+    :param batch_size: joint rows per gradient step
+    :param tau: Polyak coefficient of the target updates (1 = hard copy)
+    :param gamma: discount factor
+    :param train_freq: train every ``train_freq`` vector-env steps (ticks of every world)
+    :param gradient_steps: gradient steps per training call (-1: as many as agent-steps collected)
+    :param target_update_interval: gradient steps between target updates
+    :param n_steps: n of the n-step returns (1 = one-step TD)
+    :param prioritized_replay: use proportional prioritised replay
+    :param prioritized_replay_alpha: PER priority exponent
+    :param prioritized_replay_beta0: initial PER importance exponent, annealed linearly to 1 over training
+    :param double_q: choose the bootstrap action with the online network and value it with the target one
+        (needs an agent target network, ``policy_kwargs=dict(agent_target=True)``)
+    :param exploration_fraction: fraction of training over which epsilon decays linearly
+    :param exploration_initial_eps: initial epsilon
+    :param exploration_final_eps: final epsilon (0.02, ALGORITHMS.md section 1)
+    :param max_grad_norm: gradient clipping norm
+    :param team_reward_mode: team reward of a tick: ``"sum"`` or ``"mean"`` of the alive agents' rewards
+    :param stats_window_size: episodes (worlds, not agents) averaged in the rollout logs
+    :param tensorboard_log: TensorBoard log folder (None: no TensorBoard)
+    :param policy_kwargs: keyword arguments of the policy (``net_arch``, ``stream_arch``, ``agent_target``...)
+    :param verbose: 0 silent, 1 info, 2 debug
+    :param seed: random seed
+    :param device: torch device
+    :param _init_setup_model: build the networks now (False when loading)
+    """
+
+    policy: MultiAgentQPolicy
+    replay_buffer: JointReplayBuffer | None  # type: ignore[assignment]
+    policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": MultiAgentQPolicy}
+    # Algorithms whose joint modules are sized by the number of agents cannot change it after training.
+    requires_fixed_n_agents: ClassVar[bool] = False
+    default_agent_target: ClassVar[bool] = True
+
+    def __init__(
+        self,
+        policy: str | type[MultiAgentQPolicy],
+        env: GymEnv | str | None,
+        learning_rate: float | Schedule = 3e-4,
+        buffer_size: int = 50_000,
+        learning_starts: int = 2_000,
+        batch_size: int = 64,
+        tau: float = 0.01,
+        gamma: float = 0.99,
+        train_freq: int | tuple[int, str] = 4,
+        gradient_steps: int = 1,
+        target_update_interval: int = 1,
+        n_steps: int = 3,
+        prioritized_replay: bool = True,
+        prioritized_replay_alpha: float = 0.6,
+        prioritized_replay_beta0: float = 0.4,
+        double_q: bool = True,
+        exploration_fraction: float = 0.3,
+        exploration_initial_eps: float = 1.0,
+        exploration_final_eps: float = 0.02,
+        max_grad_norm: float = 10.0,
+        team_reward_mode: str = "sum",
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ) -> None:
+        if isinstance(env, str):
+            raise ValueError(
+                f"pass a vector env, not the id {env!r}: use sb3_eps.make_vec_env({env!r}, n_envs=...)"
+            )
+        self._check_hyperparameters(
+            tau=tau, gamma=gamma, n_steps=n_steps, target_update_interval=target_update_interval,
+            team_reward_mode=team_reward_mode, prioritized_replay_alpha=prioritized_replay_alpha,
+        )  # fmt: skip
+        self.n_agents = 0
+        self.n_worlds = 0
+        self.state_dim = 0
+        if env is not None:
+            self._read_env_layout(env)  # type: ignore[arg-type]
+        super().__init__(
+            policy,
+            env,  # type: ignore[arg-type]
+            learning_rate,
+            buffer_size=buffer_size,
+            learning_starts=learning_starts,
+            batch_size=batch_size,
+            tau=tau,
+            gamma=gamma,
+            train_freq=train_freq,
+            gradient_steps=gradient_steps,
+            n_steps=n_steps,
+            policy_kwargs=policy_kwargs,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            verbose=verbose,
+            device=device,
+            support_multi_env=True,
+            monitor_wrapper=False,
+            seed=seed,
+            sde_support=False,
+            supported_action_spaces=(spaces.Discrete,),
+        )
+        self.target_update_interval = target_update_interval
+        self.prioritized_replay = prioritized_replay
+        self.prioritized_replay_alpha = prioritized_replay_alpha
+        self.prioritized_replay_beta0 = prioritized_replay_beta0
+        self.double_q = double_q
+        self.exploration_fraction = exploration_fraction
+        self.exploration_initial_eps = exploration_initial_eps
+        self.exploration_final_eps = exploration_final_eps
+        self.exploration_rate = exploration_initial_eps
+        self.max_grad_norm = max_grad_norm
+        self.team_reward_mode = team_reward_mode
+        self._collector: NStepJointCollector | None = None
+        self._last_state: np.ndarray | None = None
+        if _init_setup_model:
+            self._setup_model()
+
+    # ------------------------------------------------------------------ set-up
+    @staticmethod
+    def _check_hyperparameters(**values: Any) -> None:
+        if not 0.0 < values["tau"] <= 1.0:
+            raise ValueError(f"tau must be in (0, 1], got {values['tau']}")
+        if not 0.0 <= values["gamma"] <= 1.0:
+            raise ValueError(f"gamma must be in [0, 1], got {values['gamma']}")
+        if values["n_steps"] < 1:
+            raise ValueError(f"n_steps must be >= 1, got {values['n_steps']}")
+        if values["target_update_interval"] < 1:
+            raise ValueError(f"target_update_interval must be >= 1, got {values['target_update_interval']}")
+        if values["team_reward_mode"] not in ("sum", "mean"):
+            raise ValueError(f"team_reward_mode must be 'sum' or 'mean', got {values['team_reward_mode']!r}")
+        if values["prioritized_replay_alpha"] < 0:
+            raise ValueError(f"prioritized_replay_alpha must be >= 0, got {values['prioritized_replay_alpha']}")
+
+    def _read_env_layout(self, env: VecEnv) -> None:
+        """Read the agents-per-world layout from the bridge; check it against a loaded model's."""
+        multi_agent_env = find_multi_agent_env(env)
+        n_agents = int(multi_agent_env.n_agents)
+        if self.requires_fixed_n_agents and self.n_agents and n_agents != self.n_agents:
+            raise ValueError(
+                f"this {type(self).__name__} model was trained with {self.n_agents} agents per world and its "
+                f"joint networks are sized for them; the env has {n_agents}. Use an env with {self.n_agents} "
+                "agents (decentralised prediction alone works on any env: model.predict(obs))"
+            )
+        self.n_agents = n_agents
+        self.n_worlds = int(multi_agent_env.n_worlds)
+        state_space = getattr(multi_agent_env, "state_space", None)
+        state_dim = int(np.prod(state_space.shape)) if state_space is not None else 0
+        if self.state_dim and state_dim != self.state_dim and self.requires_fixed_n_agents:
+            raise ValueError(f"the model's global state has {self.state_dim} entries; the env's has {state_dim}")
+        self.state_dim = state_dim
+
+    @property
+    def multi_agent_env(self) -> Any:
+        """The bridge (:class:`~sb3_eps.common.vec_env.MultiAgentVecEnv`) under ``self.env``."""
+        if self.env is None:
+            raise ValueError("the model has no env: pass env= to load() or call set_env()")
+        return find_multi_agent_env(self.env)
+
+    @property
+    def ticks(self) -> int:
+        """Simulator steps of one world so far (agent-steps / agents per world)."""
+        return self.num_timesteps // max(self.n_agents, 1)
+
+    def set_env(self, env: GymEnv, force_reset: bool = True) -> None:
+        self._read_env_layout(env)  # type: ignore[arg-type]
+        super().set_env(env, force_reset=force_reset)
+        self._collector = None
+        self._last_state = None
+
+    def _policy_constructor_kwargs(self) -> dict[str, Any]:
+        kwargs = {"agent_target": self.default_agent_target, **self.policy_kwargs}
+        kwargs.update(n_agents=self.n_agents, state_dim=self.state_dim)
+        return kwargs
+
+    def _setup_model(self) -> None:
+        self._setup_lr_schedule()
+        self.set_random_seed(self.seed)
+        if self.env is not None:
+            # When loading, n_agents comes from the saved model: check the new env against it.
+            self._read_env_layout(self.env)
+        if self.n_agents < 1:
+            raise ValueError("the model needs an env from sb3_eps.make_vec_env to know its agents")
+        buffer_class = PrioritizedJointReplayBuffer if self.prioritized_replay else JointReplayBuffer
+        buffer_kwargs = {"alpha": self.prioritized_replay_alpha} if self.prioritized_replay else {}
+        self.replay_buffer = buffer_class(
+            self.buffer_size,
+            self.observation_space,
+            n_agents=self.n_agents,
+            state_dim=self.state_dim,
+            device=self.device,
+            **buffer_kwargs,
+        )
+        self.policy = self.policy_class(  # type: ignore[assignment]
+            self.observation_space, self.action_space, self.lr_schedule, **self._policy_constructor_kwargs()
+        ).to(self.device)
+        if self.double_q and self.policy.q_net_target is None and self.verbose >= 1:
+            print("double_q has no effect without an agent target network (policy_kwargs agent_target=False)")
+        self.exploration_schedule = LinearSchedule(
+            self.exploration_initial_eps, self.exploration_final_eps, self.exploration_fraction
+        )
+        self._convert_train_freq()
+
+    def _setup_learn(
+        self,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        reset_num_timesteps: bool = True,
+        tb_log_name: str = "run",
+        progress_bar: bool = False,
+    ) -> tuple[int, BaseCallback]:
+        env_is_reset = reset_num_timesteps or self._last_obs is None
+        total_timesteps, callback = super()._setup_learn(
+            total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
+        )
+        if env_is_reset or self._collector is None or self._last_state is None:
+            assert self.replay_buffer is not None
+            self._collector = NStepJointCollector(
+                self.replay_buffer, self.n_worlds, self.n_steps, self.gamma, self.team_reward_mode
+            )
+            self._last_state = self.multi_agent_env.get_state()
+        return total_timesteps, callback
+
+    # ------------------------------------------------------------------ acting
+    def predict(
+        self,
+        observation: np.ndarray | dict[str, np.ndarray],
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """Decentralised action selection: each row of ``observation`` is one agent's own observation.
+
+        Exploration draws one epsilon coin PER AGENT (SB3's DQN draws one for the whole batch, so all agents
+        would explore on the same steps).
+        """
+        actions, state = self.policy.predict(observation, state, episode_start, deterministic=True)
+        if deterministic or self.exploration_rate <= 0:
+            return actions, state
+        n_actions = int(self.action_space.n)  # type: ignore[attr-defined]
+        flat, _ = epsilon_greedy(np.atleast_1d(actions), self.exploration_rate, n_actions)
+        return flat.reshape(np.shape(actions)), state
+
+    def _sample_action(
+        self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
+        if self.num_timesteps < learning_starts:
+            actions = np.random.randint(int(self.action_space.n), size=n_envs)  # type: ignore[attr-defined]
+        else:
+            assert self._last_obs is not None
+            actions, _ = self.predict(self._last_obs, deterministic=False)  # type: ignore[arg-type]
+        return actions, actions
+
+    def _on_step(self) -> None:
+        self.exploration_rate = self.exploration_schedule(self._current_progress_remaining)
+        self.logger.record("rollout/exploration_rate", self.exploration_rate)
+
+    def collect_rollouts(  # type: ignore[override]
+        self,
+        env: VecEnv,
+        callback: BaseCallback,
+        train_freq: TrainFreq,
+        replay_buffer: JointReplayBuffer,
+        action_noise: ActionNoise | None = None,
+        learning_starts: int = 0,
+        log_interval: int | None = None,
+    ) -> RolloutReturn:
+        """Step every world ``train_freq`` times, store joint rows, count episodes per world (not agent)."""
+        self.policy.set_training_mode(False)
+        n_collected_steps, n_collected_episodes = 0, 0
+        callback.on_rollout_start()
+        while should_collect_more_steps(train_freq, n_collected_steps, n_collected_episodes):
+            actions, _ = self._sample_action(learning_starts, None, env.num_envs)
+            new_obs, rewards, dones, infos = env.step(actions)
+            self.num_timesteps += env.num_envs
+            n_collected_steps += 1
+            callback.update_locals(locals())
+            if not callback.on_step():
+                return RolloutReturn(n_collected_steps * env.num_envs, n_collected_episodes, continue_training=False)
+            self._update_info_buffer(infos, dones)
+            n_ended = self._store_joint_transition(actions, new_obs, rewards, dones, infos)
+            self._update_current_progress_remaining(self.num_timesteps, self._total_timesteps)
+            self._on_step()
+            for _ in range(n_ended):
+                n_collected_episodes += 1
+                self._episode_num += 1
+                if log_interval is not None and self._episode_num % log_interval == 0:
+                    self.dump_logs()
+        callback.on_rollout_end()
+        return RolloutReturn(n_collected_steps * env.num_envs, n_collected_episodes, continue_training=True)
+
+    def _store_joint_transition(
+        self,
+        actions: np.ndarray,
+        new_obs: np.ndarray,
+        rewards: np.ndarray,
+        dones: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> int:
+        """Group the agents' transitions by world and feed them to the n-step collector.
+
+        :return: the number of worlds whose episode ended at this step
+        """
+        assert self._collector is not None and self._last_state is not None and self._last_obs is not None
+        n_worlds, n_agents = self.n_worlds, self.n_agents
+        next_obs = np.array(new_obs, dtype=np.float32, copy=True)
+        for index in np.flatnonzero(dones):
+            next_obs[index] = infos[index]["terminal_observation"]
+        alive = np.fromiter((info.get("alive", True) for info in infos), dtype=bool, count=len(infos))
+        truncated = np.fromiter(
+            (info.get("TimeLimit.truncated", False) for info in infos), dtype=bool, count=len(infos)
+        )
+        ended = np.asarray(dones, dtype=bool) & alive
+        terminated = ended & ~truncated
+        world_ended = np.asarray(dones, dtype=bool).reshape(n_worlds, n_agents).all(axis=1)
+        new_state = self.multi_agent_env.get_state()
+        last_obs = np.asarray(self._last_obs, dtype=np.float32).reshape(n_worlds, n_agents, -1)
+        shape = (n_worlds, n_agents)
+        for world in range(n_worlds):
+            next_state = new_state[world]
+            world_terminated = False
+            if world_ended[world]:
+                next_state = infos[world * n_agents].get("terminal_state", next_state)
+                world_terminated = not truncated.reshape(shape)[world][alive.reshape(shape)[world]].any()
+            agents = slice(world * n_agents, (world + 1) * n_agents)
+            self._collector.add(
+                world,
+                _Tick(
+                    observations=last_obs[world],
+                    actions=np.asarray(actions[agents], dtype=np.int64),
+                    rewards=np.asarray(rewards[agents], dtype=np.float32),
+                    next_observations=next_obs[agents],
+                    terminated=terminated[agents],
+                    ended=ended[agents],
+                    alive=alive[agents],
+                    state=self._last_state[world],
+                    next_state=np.asarray(next_state, dtype=np.float32),
+                    world_ended=bool(world_ended[world]),
+                    world_terminated=world_terminated,
+                ),
+            )
+        self._last_obs = new_obs  # type: ignore[assignment]
+        self._last_state = new_state
+        return int(world_ended.sum())
+
+    # ------------------------------------------------------------------ learning
+    def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
+        """The algorithm's loss on a batch of joint rows.
+
+        :return: ``(loss, per-row absolute TD error for the priorities, values to log under train/)``
+        """
+        raise NotImplementedError(f"{type(self).__name__} must implement _compute_loss")
+
+    def _bootstrap_terms(self, next_obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """The pieces of every agent's bootstrap, ``Q(s', a*) = V(s') + [A(s', a*) - mean A(s', .)]``.
+
+        ``a*`` is the online network's greedy action when ``double_q`` and a target network exist, the
+        evaluating network's own greedy action otherwise; values come from the target network if any.
+
+        :param next_obs: ``(B, n, obs_dim)``
+        :return: ``(V(s') (B, n), A(s', a*) - mean A(s', .) (B, n))``, without gradient
+        """
+        batch_size, n_agents, obs_dim = next_obs.shape
+        flat = next_obs.reshape(batch_size * n_agents, obs_dim)
+        with th.no_grad():
+            evaluator = self.policy.q_net_target or self.policy.q_net
+            values, advantages = evaluator.value_advantage(flat)
+            centred = advantages - advantages.mean(dim=1, keepdim=True)
+            if self.double_q and self.policy.q_net_target is not None:
+                greedy = self.policy.q_net.value_advantage(flat)[1].argmax(dim=1, keepdim=True)
+            else:
+                greedy = advantages.argmax(dim=1, keepdim=True)
+            advantage_term = centred.gather(1, greedy)
+        return values.reshape(batch_size, n_agents), advantage_term.reshape(batch_size, n_agents)
+
+    def _online_terms(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, th.Tensor]:
+        """:return: ``(V(s) (B, n), Q(s, a) (B, n))`` of the taken actions, with gradient."""
+        batch_size, n_agents, obs_dim = batch.observations.shape
+        values, advantages = self.policy.q_net.value_advantage(batch.observations.reshape(-1, obs_dim))
+        q_values = values + advantages - advantages.mean(dim=1, keepdim=True)
+        taken = q_values.gather(1, batch.actions.reshape(-1, 1))
+        return values.reshape(batch_size, n_agents), taken.reshape(batch_size, n_agents)
+
+    def _per_beta(self) -> float:
+        progress = 1.0 - self._current_progress_remaining
+        return self.prioritized_replay_beta0 + (1.0 - self.prioritized_replay_beta0) * progress
+
+    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        """Sample joint rows, minimise the algorithm's loss, update priorities and target networks."""
+        assert self.replay_buffer is not None
+        self.policy.set_training_mode(True)
+        self._update_learning_rate(self.policy.optimizer)
+        beta = self._per_beta()
+        parameters = [param for group in self.policy.optimizer.param_groups for param in group["params"]]
+        logs: dict[str, list[float]] = defaultdict(list)
+        for _ in range(gradient_steps):
+            batch = self.replay_buffer.sample(batch_size, beta)
+            loss, td_errors, info = self._compute_loss(batch)
+            self.policy.optimizer.zero_grad()
+            loss.backward()
+            th.nn.utils.clip_grad_norm_(parameters, self.max_grad_norm)
+            self.policy.optimizer.step()
+            self.replay_buffer.update_priorities(batch.indices, td_errors)
+            self._n_updates += 1
+            if self._n_updates % self.target_update_interval == 0:
+                for target, online in self.policy.target_pairs():
+                    polyak_update_(target, online, self.tau)
+            logs["loss"].append(loss.item())
+            for key, value in info.items():
+                logs[key].append(value)
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        if self.prioritized_replay:
+            self.logger.record("train/per_beta", beta)
+        for key, values in logs.items():
+            self.logger.record(f"train/{key}", float(np.mean(values)))
+
+    # ------------------------------------------------------------------ logging and saving
+    def dump_logs(self) -> None:
+        """SB3's logs plus the team metrics; episode statistics are per world (team), never per agent."""
+        episodes = list(self.ep_info_buffer or [])
+        if episodes:
+            self.logger.record("rollout/team_return", safe_mean([episode["r"] for episode in episodes]))
+            if "collision" in episodes[0]:
+                self.logger.record("rollout/collision_rate", safe_mean([float(e["collision"]) for e in episodes]))
+            if "success" in episodes[0]:
+                self.logger.record("rollout/success_rate", safe_mean([float(e["success"]) for e in episodes]))
+        self.logger.record("time/ticks", self.ticks)
+        super().dump_logs()
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_collector", "_last_state"]
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        return ["policy", "policy.optimizer"], []
+
+    def load_replay_buffer(
+        self, path: str | pathlib.Path | io.BufferedIOBase, truncate_last_traj: bool = True
+    ) -> None:
+        buffer = load_from_pkl(path, self.verbose)
+        if not isinstance(buffer, JointReplayBuffer) or buffer.n_agents != self.n_agents:
+            raise ValueError(f"{path} does not hold a joint replay buffer for {self.n_agents} agents")
+        self.replay_buffer = buffer
+        self._collector = None
+
+    def _get_policy_from_name(self, policy_name: str) -> type[MultiAgentQPolicy]:  # type: ignore[override]
+        if policy_name not in self.policy_aliases:
+            raise ValueError(f"unknown policy {policy_name!r}; use one of {sorted(self.policy_aliases)}")
+        return self.policy_aliases[policy_name]
+
+

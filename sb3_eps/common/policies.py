@@ -1,0 +1,219 @@
+"""The dueling Q-network shared by all agents and the policy that holds it with its target networks."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, FlattenExtractor, create_mlp
+from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
+from torch import nn
+
+from sb3_eps.common.utils import dueling_aggregation
+
+DEFAULT_NET_ARCH = [128, 64]
+DEFAULT_STREAM_ARCH = [64]
+
+
+class DuelingQNetwork(BasePolicy):
+    """Dueling Q-network (Wang et al., 2016; EPS paper Eq. 2): a trunk, then a state-value stream and an
+    advantage stream aggregated as ``Q = V + A - mean(A)``.
+
+    :param observation_space: one agent's observation space
+    :param action_space: one agent's discrete action space
+    :param features_extractor: the features extractor (a flatten layer for vector observations)
+    :param features_dim: output size of the features extractor
+    :param net_arch: hidden sizes of the shared trunk (default ``[128, 64]``, ALGORITHMS.md section 1)
+    :param stream_arch: hidden sizes of each of the two streams (default ``[64]``)
+    :param activation_fn: activation between layers
+    :param normalize_images: whether image observations are divided by 255
+    """
+
+    action_space: spaces.Discrete
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        action_space: spaces.Discrete,
+        features_extractor: BaseFeaturesExtractor,
+        features_dim: int,
+        net_arch: list[int] | None = None,
+        stream_arch: list[int] | None = None,
+        activation_fn: type[nn.Module] = nn.ReLU,
+        normalize_images: bool = True,
+    ) -> None:
+        super().__init__(
+            observation_space, action_space, features_extractor=features_extractor, normalize_images=normalize_images
+        )
+        self.net_arch = list(DEFAULT_NET_ARCH if net_arch is None else net_arch)
+        self.stream_arch = list(DEFAULT_STREAM_ARCH if stream_arch is None else stream_arch)
+        self.activation_fn = activation_fn
+        self.features_dim = features_dim
+        n_actions = int(self.action_space.n)
+        trunk = create_mlp(features_dim, -1, self.net_arch, activation_fn, with_bias=True)
+        self.trunk = nn.Sequential(*trunk)
+        trunk_dim = self.net_arch[-1] if self.net_arch else features_dim
+        self.value_stream = nn.Sequential(*create_mlp(trunk_dim, 1, self.stream_arch, activation_fn))
+        self.advantage_stream = nn.Sequential(*create_mlp(trunk_dim, n_actions, self.stream_arch, activation_fn))
+
+    def value_advantage(self, obs: PyTorchObs) -> tuple[th.Tensor, th.Tensor]:
+        """:return: ``(V (batch, 1), A (batch, n_actions))`` for a batch of observations."""
+        hidden = self.trunk(self.extract_features(obs, self.features_extractor))
+        return self.value_stream(hidden), self.advantage_stream(hidden)
+
+    def forward(self, obs: PyTorchObs) -> th.Tensor:
+        """:return: the Q-values ``(batch, n_actions)``."""
+        return dueling_aggregation(*self.value_advantage(obs))
+
+    def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
+        # arg max Q == arg max A (EPS paper Eq. 3): execution needs only the agent's own observation.
+        return self(observation).argmax(dim=1).reshape(-1)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(
+            net_arch=self.net_arch,
+            stream_arch=self.stream_arch,
+            features_dim=self.features_dim,
+            activation_fn=self.activation_fn,
+            features_extractor=self.features_extractor,
+        )
+        return data
+
+
+class MultiAgentQPolicy(BasePolicy):
+    """Holds the shared agent network ``q_net``, its optional target ``q_net_target`` and the joint modules
+    an algorithm adds (GDQ's global value head, QMIX's mixer), with one optimizer over everything trainable.
+
+    Subclasses override :meth:`_build_joint_modules` to create their joint modules (and their targets) and
+    :meth:`joint_module_names` to list them.
+
+    :param observation_space: one agent's observation space
+    :param action_space: one agent's discrete action space
+    :param lr_schedule: learning-rate schedule
+    :param net_arch: hidden sizes of the agent trunk (default ``[128, 64]``)
+    :param stream_arch: hidden sizes of the value and advantage streams (default ``[64]``)
+    :param activation_fn: activation function
+    :param features_extractor_class: features extractor class (``FlattenExtractor``)
+    :param features_extractor_kwargs: its keyword arguments
+    :param normalize_images: whether image observations are divided by 255
+    :param optimizer_class: optimizer class (Adam)
+    :param optimizer_kwargs: optimizer keyword arguments other than the learning rate
+    :param agent_target: whether the agent network has a target network
+    :param n_agents: agents per world (used by the joint modules)
+    :param state_dim: length of the global state (used by state-conditioned mixers)
+    """
+
+    q_net: DuelingQNetwork
+    q_net_target: DuelingQNetwork | None
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        action_space: spaces.Discrete,
+        lr_schedule: Schedule,
+        net_arch: list[int] | None = None,
+        stream_arch: list[int] | None = None,
+        activation_fn: type[nn.Module] = nn.ReLU,
+        features_extractor_class: type[BaseFeaturesExtractor] = FlattenExtractor,
+        features_extractor_kwargs: dict[str, Any] | None = None,
+        normalize_images: bool = True,
+        optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
+        optimizer_kwargs: dict[str, Any] | None = None,
+        agent_target: bool = True,
+        n_agents: int = 1,
+        state_dim: int = 0,
+    ) -> None:
+        super().__init__(
+            observation_space,
+            action_space,
+            features_extractor_class,
+            features_extractor_kwargs,
+            optimizer_class=optimizer_class,
+            optimizer_kwargs=optimizer_kwargs,
+            normalize_images=normalize_images,
+        )
+        if not isinstance(action_space, spaces.Discrete):
+            raise ValueError(f"value-based policies need a Discrete action space, got {action_space}")
+        self.net_arch = list(DEFAULT_NET_ARCH if net_arch is None else net_arch)
+        self.stream_arch = list(DEFAULT_STREAM_ARCH if stream_arch is None else stream_arch)
+        self.activation_fn = activation_fn
+        self.agent_target = agent_target
+        self.n_agents = int(n_agents)
+        self.state_dim = int(state_dim)
+        self._build(lr_schedule)
+
+    def make_q_net(self) -> DuelingQNetwork:
+        """:return: a new agent network with this policy's architecture (fresh features extractor)."""
+        features_extractor = self.make_features_extractor()
+        return DuelingQNetwork(
+            self.observation_space,
+            self.action_space,  # type: ignore[arg-type]
+            features_extractor=features_extractor,
+            features_dim=features_extractor.features_dim,
+            net_arch=self.net_arch,
+            stream_arch=self.stream_arch,
+            activation_fn=self.activation_fn,
+            normalize_images=self.normalize_images,
+        ).to(self.device)
+
+    def _build(self, lr_schedule: Schedule) -> None:
+        self.q_net = self.make_q_net()
+        self.q_net_target = None
+        if self.agent_target:
+            self.q_net_target = self.make_q_net()
+            self.q_net_target.load_state_dict(self.q_net.state_dict())
+            self.q_net_target.set_training_mode(False)
+        self._build_joint_modules()
+        trainable = [self.q_net, *(getattr(self, name) for name in self.joint_module_names())]
+        parameters = [param for module in trainable for param in module.parameters()]
+        self.optimizer = self.optimizer_class(parameters, lr=lr_schedule(1), **self.optimizer_kwargs)
+
+    def _build_joint_modules(self) -> None:
+        """Create the algorithm's joint modules and their targets (none for independent learners)."""
+
+    def joint_module_names(self) -> list[str]:
+        """:return: attribute names of the trainable joint modules; each has a ``<name>_target`` copy."""
+        return []
+
+    def target_pairs(self) -> list[tuple[nn.Module, nn.Module]]:
+        """:return: ``(target, online)`` pairs that the target update moves together."""
+        pairs: list[tuple[nn.Module, nn.Module]] = []
+        if self.q_net_target is not None:
+            pairs.append((self.q_net_target, self.q_net))
+        for name in self.joint_module_names():
+            target = getattr(self, f"{name}_target", None)
+            if target is not None:
+                pairs.append((target, getattr(self, name)))
+        return pairs
+
+    def forward(self, obs: PyTorchObs, deterministic: bool = True) -> th.Tensor:
+        return self._predict(obs, deterministic=deterministic)
+
+    def _predict(self, obs: PyTorchObs, deterministic: bool = True) -> th.Tensor:
+        return self.q_net._predict(obs, deterministic=deterministic)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(
+            net_arch=self.net_arch,
+            stream_arch=self.stream_arch,
+            activation_fn=self.activation_fn,
+            lr_schedule=self._dummy_schedule,
+            optimizer_class=self.optimizer_class,
+            optimizer_kwargs=self.optimizer_kwargs,
+            features_extractor_class=self.features_extractor_class,
+            features_extractor_kwargs=self.features_extractor_kwargs,
+            agent_target=self.agent_target,
+            n_agents=self.n_agents,
+            state_dim=self.state_dim,
+        )
+        return data
+
+    def set_training_mode(self, mode: bool) -> None:
+        self.q_net.set_training_mode(mode)
+        for name in self.joint_module_names():
+            getattr(self, name).train(mode)
+        self.training = mode

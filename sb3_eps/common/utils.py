@@ -1,0 +1,68 @@
+"""Small typed math helpers shared by the algorithms; each cites the equation it implements."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch as th
+
+
+def dueling_aggregation(values: th.Tensor, advantages: th.Tensor) -> th.Tensor:
+    """Dueling aggregation, EPS paper Eq. 2: ``Q(s, a) = V(s) + A(s, a) - mean_a' A(s, a')``.
+
+    :param values: state values, shape ``(..., 1)``
+    :param advantages: advantages, shape ``(..., n_actions)``
+    :return: Q-values, shape ``(..., n_actions)``
+    """
+    if values.shape[-1] != 1 or values.shape[:-1] != advantages.shape[:-1]:
+        raise ValueError(f"values {tuple(values.shape)} must be (..., 1) over advantages {tuple(advantages.shape)}")
+    return values + advantages - advantages.mean(dim=-1, keepdim=True)
+
+
+def td_target(rewards: th.Tensor, discounts: th.Tensor, dones: th.Tensor, next_values: th.Tensor) -> th.Tensor:
+    """n-step TD target ``y = G + gamma^k * (1 - done) * next_value`` (the n-step return, Sutton & Barto 7.1).
+
+    :param rewards: n-step discounted returns ``G``
+    :param discounts: ``gamma ** k`` with ``k`` the ticks the return spans
+    :param dones: 1 where the episode terminated inside the window (no bootstrap), else 0
+    :param next_values: the bootstrap value of the state after the window
+    """
+    if not (rewards.shape == discounts.shape == dones.shape == next_values.shape):
+        raise ValueError(
+            "td_target needs equal shapes, got "
+            f"{tuple(rewards.shape)}, {tuple(discounts.shape)}, {tuple(dones.shape)}, {tuple(next_values.shape)}"
+        )
+    return rewards + discounts * (1.0 - dones) * next_values
+
+
+def masked_mean(values: th.Tensor, mask: th.Tensor) -> th.Tensor:
+    """Mean of ``values`` over the entries where ``mask`` is 1 (0 when the mask is empty)."""
+    return (values * mask).sum() / mask.sum().clamp(min=1.0)
+
+
+def polyak_update_(target: th.nn.Module, source: th.nn.Module, tau: float) -> None:
+    """In place ``target = tau * source + (1 - tau) * target`` over parameters and buffers."""
+    with th.no_grad():
+        for target_param, param in zip(target.parameters(), source.parameters(), strict=True):
+            target_param.mul_(1.0 - tau).add_(param, alpha=tau)
+        for target_buffer, buffer in zip(target.buffers(), source.buffers(), strict=True):
+            target_buffer.copy_(buffer)
+
+
+def epsilon_greedy(
+    greedy_actions: np.ndarray, epsilon: float, n_actions: int, rng: np.random.Generator | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-agent epsilon-greedy: one independent coin per entry of ``greedy_actions``.
+
+    SB3's DQN draws a single coin for the whole batch, so every agent would explore on the same steps.
+
+    :param greedy_actions: ``(N,)`` greedy actions, one per agent
+    :param epsilon: probability of a uniformly random action
+    :param n_actions: size of the discrete action space
+    :param rng: generator (default: numpy's global one, which SB3 seeds)
+    :return: ``(actions, explore_flags)``
+    """
+    draw_uniform = np.random.random if rng is None else rng.random
+    draw_integers = np.random.randint if rng is None else rng.integers
+    explore = draw_uniform(greedy_actions.shape[0]) < epsilon
+    random_actions = draw_integers(0, n_actions, size=greedy_actions.shape[0])
+    return np.where(explore, random_actions, greedy_actions), explore

@@ -1,0 +1,83 @@
+"""GDQ: Global Dueling Q-learning (Marchesini & Farinelli, IROS 2021; the EPS paper's baseline, Section II-B1)."""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+import torch as th
+
+from sb3_eps.common.buffers import JointReplayBufferSamples
+from sb3_eps.common.losses import masked_huber, row_priority, weighted_huber
+from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
+from sb3_eps.common.policies import MultiAgentQPolicy
+from sb3_eps.common.utils import td_target
+from sb3_eps.gdq.policies import GDQPolicy, MlpPolicy
+
+
+def gdq_agent_targets(
+    rewards: th.Tensor,
+    discounts: th.Tensor,
+    dones: th.Tensor,
+    global_next_value: th.Tensor,
+    next_advantage_term: th.Tensor,
+) -> th.Tensor:
+    """Agent TD targets of GDQ: the joint value replaces each agent's own state-value in its bootstrap,
+    ``y_i = r_i + gamma^k (1 - done_i) [V_G'(v') + A_i(s'_i, a*) - mean_a A_i(s'_i, a)]`` (ALGORITHMS.md s.1).
+
+    :param rewards: ``(B, n)`` individual n-step returns
+    :param discounts: ``(B, n)`` ``gamma ** k``
+    :param dones: ``(B, n)`` terminal flags
+    :param global_next_value: ``(B,)`` ``V_G'(v')`` of the target global head
+    :param next_advantage_term: ``(B, n)`` ``A(s', a*) - mean A(s', .)``
+    """
+    if global_next_value.dim() != 1 or global_next_value.shape[0] != rewards.shape[0]:
+        raise ValueError(f"global_next_value must be (B,), got {tuple(global_next_value.shape)}")
+    return td_target(rewards, discounts, dones, global_next_value[:, None] + next_advantage_term)
+
+
+class GDQ(MultiAgentOffPolicyAlgorithm):
+    """Global Dueling Q-learning on a parameter-shared dueling network.
+
+    Each agent predicts ``Q_i(s_i, a_i) = V_i + A_i - mean A_i`` from its own observation; its TD target uses
+    the joint state value ``V_G'(v')`` of the world instead of its own ``V_i(s'_i)``
+    (:func:`gdq_agent_targets`). The global head ``V_G`` is trained by TD on the team reward,
+    ``L = (r_team + gamma^k V_G'(v') - V_G(v))^2``, with ``v`` and ``v'`` entering as numbers (no gradient
+    into the agents). ``v'`` is recomputed at update time with the current agent network from the stored
+    next observations; agents that are no longer acting contribute 0. Action selection uses only ``A``
+    (Eq. 3), so execution stays decentralised.
+
+    Options the papers leave open (defaults in brackets): ``policy_kwargs=dict(agent_target=...)`` an
+    agent target network for the advantage term [True; the paper had none]; ``team_reward_mode`` sum or
+    mean [sum]; ``policy_kwargs=dict(global_net_arch=...)`` [64, 64]. Other arguments are those of
+    :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`.
+    """
+
+    policy: GDQPolicy
+    policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": MlpPolicy}
+    requires_fixed_n_agents: ClassVar[bool] = True
+
+    def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
+        values, q_taken = self._online_terms(batch)
+        batch_size, n_agents, obs_dim = batch.next_observations.shape
+        with th.no_grad():
+            # v': the agents' state-values of the next joint observation, from the current agent network.
+            next_values = self.policy.q_net.value_advantage(batch.next_observations.reshape(-1, obs_dim))[0]
+            next_values = next_values.reshape(batch_size, n_agents) * batch.next_alive
+            global_next = self.policy.global_value_net_target(next_values)
+            _, next_advantages = self._bootstrap_terms(batch.next_observations)
+            agent_targets = gdq_agent_targets(
+                batch.rewards, batch.discounts, batch.dones, global_next, next_advantages
+            )
+            global_targets = td_target(batch.team_rewards, batch.team_discounts, batch.team_dones, global_next)
+        agent_loss = masked_huber(q_taken, agent_targets, batch.alive, batch.weights)
+        # V_G(v) with v detached: the global loss trains only the head.
+        global_values = self.policy.global_value_net(values.detach() * batch.alive)
+        global_loss = weighted_huber(global_values, global_targets, batch.weights)
+        priorities = row_priority(q_taken - agent_targets, batch.alive)
+        logs = {
+            "agent_loss": agent_loss.item(),
+            "global_value_loss": global_loss.item(),
+            "global_value_mean": float(global_values.detach().mean()),
+        }
+        return agent_loss + global_loss, priorities.cpu().numpy(), logs

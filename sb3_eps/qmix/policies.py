@@ -1,0 +1,105 @@
+"""QMIX and VDN policies: the shared dueling agent network plus a mixer (and its target)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch as th
+import torch.nn.functional as F
+from torch import nn
+
+from sb3_eps.common.policies import MultiAgentQPolicy
+
+
+class QMixer(nn.Module):
+    """Monotonic mixing network of QMIX (Rashid et al., ICML 2018, Section 4).
+
+    ``Q_tot = w2(s) . elu(w1(s)^T q + b1(s)) + b2(s)`` where the weights ``w1``, ``w2`` come from
+    hypernetworks conditioned on the global state ``s`` and pass through ``abs`` so that
+    ``dQ_tot / dQ_i >= 0`` (monotonicity, the paper's Eq. 5).
+
+    :param n_agents: agents per world
+    :param state_dim: global state length
+    :param embed_dim: width of the mixing layer (32 in the QMIX paper)
+    :param hypernet_hidden_dim: hidden width of the weight hypernetworks (64)
+    """
+
+    def __init__(self, n_agents: int, state_dim: int, embed_dim: int = 32, hypernet_hidden_dim: int = 64) -> None:
+        super().__init__()
+        if state_dim < 1:
+            raise ValueError("QMIX needs a global state: the env must provide state() (state_dim >= 1)")
+        self.n_agents, self.state_dim, self.embed_dim = n_agents, state_dim, embed_dim
+        self.hyper_w1 = nn.Sequential(
+            nn.Linear(state_dim, hypernet_hidden_dim), nn.ReLU(), nn.Linear(hypernet_hidden_dim, n_agents * embed_dim)
+        )
+        self.hyper_b1 = nn.Linear(state_dim, embed_dim)
+        self.hyper_w2 = nn.Sequential(
+            nn.Linear(state_dim, hypernet_hidden_dim), nn.ReLU(), nn.Linear(hypernet_hidden_dim, embed_dim)
+        )
+        self.hyper_b2 = nn.Sequential(nn.Linear(state_dim, embed_dim), nn.ReLU(), nn.Linear(embed_dim, 1))
+
+    def forward(self, agent_qs: th.Tensor, states: th.Tensor) -> th.Tensor:
+        """:param agent_qs: ``(B, n_agents)``; :param states: ``(B, state_dim)``; :return: ``Q_tot (B,)``."""
+        batch = agent_qs.shape[0]
+        if agent_qs.shape != (batch, self.n_agents) or states.shape != (batch, self.state_dim):
+            raise ValueError(
+                f"QMixer expects q (B, {self.n_agents}) and state (B, {self.state_dim}), "
+                f"got {tuple(agent_qs.shape)} and {tuple(states.shape)}"
+            )
+        w1 = self.hyper_w1(states).abs().view(batch, self.n_agents, self.embed_dim)
+        b1 = self.hyper_b1(states).view(batch, 1, self.embed_dim)
+        hidden = F.elu(th.bmm(agent_qs.view(batch, 1, self.n_agents), w1) + b1)
+        w2 = self.hyper_w2(states).abs().view(batch, self.embed_dim, 1)
+        b2 = self.hyper_b2(states).view(batch, 1, 1)
+        return (th.bmm(hidden, w2) + b2).view(batch)
+
+
+class SumMixer(nn.Module):
+    """VDN's mixer (Sunehag et al., AAMAS 2018): ``Q_tot = sum_i Q_i``; it has no parameters."""
+
+    def forward(self, agent_qs: th.Tensor, states: th.Tensor | None = None) -> th.Tensor:
+        """:param agent_qs: ``(B, n_agents)``; :return: ``(B,)``."""
+        if agent_qs.dim() != 2:
+            raise ValueError(f"SumMixer expects (B, n_agents), got {tuple(agent_qs.shape)}")
+        return agent_qs.sum(dim=1)
+
+
+class QMIXPolicy(MultiAgentQPolicy):
+    """Agent network plus a :class:`QMixer` and its target.
+
+    :param mixing_embed_dim: width of the mixing layer (32)
+    :param hypernet_hidden_dim: hidden width of the hypernetworks (64)
+    :param kwargs: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`
+    """
+
+    mixer: nn.Module
+    mixer_target: nn.Module
+
+    def __init__(self, *args: Any, mixing_embed_dim: int = 32, hypernet_hidden_dim: int = 64, **kwargs: Any):
+        self.mixing_embed_dim = mixing_embed_dim
+        self.hypernet_hidden_dim = hypernet_hidden_dim
+        super().__init__(*args, **kwargs)
+
+    def _make_mixer(self) -> nn.Module:
+        return QMixer(self.n_agents, self.state_dim, self.mixing_embed_dim, self.hypernet_hidden_dim)
+
+    def _build_joint_modules(self) -> None:
+        self.mixer = self._make_mixer().to(self.device)
+        self.mixer_target = self._make_mixer().to(self.device)
+        self.mixer_target.load_state_dict(self.mixer.state_dict())
+        self.mixer_target.train(False)
+
+    def joint_module_names(self) -> list[str]:
+        return ["mixer"]
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(mixing_embed_dim=self.mixing_embed_dim, hypernet_hidden_dim=self.hypernet_hidden_dim)
+        return data
+
+
+class VDNPolicy(QMIXPolicy):
+    """Agent network plus a parameter-free :class:`SumMixer`."""
+
+    def _make_mixer(self) -> nn.Module:
+        return SumMixer()

@@ -1,0 +1,178 @@
+"""Hand computations on tiny tensors for the math that can be wrong (STYLE.md point 4)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch as th
+from gymnasium import spaces
+
+from sb3_eps.common.buffers import (
+    JointReplayBuffer,
+    NStepJointCollector,
+    PrioritizedJointReplayBuffer,
+    SumTree,
+    _Tick,
+    n_step_row,
+)
+from sb3_eps.common.losses import masked_huber
+from sb3_eps.common.utils import dueling_aggregation, td_target
+from sb3_eps.gdq import gdq_agent_targets
+from sb3_eps.qmix import QMixer, SumMixer
+
+GAMMA = 0.9
+
+
+def test_dueling_aggregation_matches_hand_computation() -> None:
+    values = th.tensor([[2.0], [-1.0]])
+    advantages = th.tensor([[1.0, 2.0, 3.0], [0.0, 0.0, 6.0]])
+    # Row 0: mean A = 2 -> Q = 2 + [-1, 0, 1]; row 1: mean A = 2 -> Q = -1 + [-2, -2, 4].
+    expected = th.tensor([[1.0, 2.0, 3.0], [-3.0, -3.0, 3.0]])
+    assert th.allclose(dueling_aggregation(values, advantages), expected)
+    assert th.equal(dueling_aggregation(values, advantages).argmax(1), advantages.argmax(1))
+
+
+def test_dueling_aggregation_rejects_bad_shapes() -> None:
+    with pytest.raises(ValueError, match="values"):
+        dueling_aggregation(th.zeros(2, 3), th.zeros(2, 3))
+
+
+def test_td_target_hand_computation() -> None:
+    target = td_target(th.tensor([1.0, 1.0]), th.tensor([0.81, 0.81]), th.tensor([0.0, 1.0]), th.tensor([10.0, 10.0]))
+    assert th.allclose(target, th.tensor([1.0 + 8.1, 1.0]))
+
+
+def test_gdq_agent_target_uses_global_value_instead_of_own_value() -> None:
+    rewards = th.tensor([[0.5, -1.0]])
+    discounts = th.tensor([[GAMMA, GAMMA]])
+    dones = th.tensor([[0.0, 1.0]])
+    global_next = th.tensor([3.0])
+    advantage_term = th.tensor([[0.2, 0.7]])
+    targets = gdq_agent_targets(rewards, discounts, dones, global_next, advantage_term)
+    # agent 0: 0.5 + 0.9 * (3.0 + 0.2); agent 1 terminated: -1.
+    assert th.allclose(targets, th.tensor([[0.5 + 0.9 * 3.2, -1.0]]))
+
+
+def test_global_value_target_hand_computation() -> None:
+    # V_G target = r_team + gamma^k (1 - done) V_G'(v'), one-step: 0.3 + 0.9 * 2.0
+    target = td_target(th.tensor([0.3]), th.tensor([GAMMA]), th.tensor([0.0]), th.tensor([2.0]))
+    assert th.allclose(target, th.tensor([2.1]))
+
+
+def test_qmix_mixer_is_monotonic_in_every_agent_q() -> None:
+    th.manual_seed(0)
+    mixer = QMixer(n_agents=3, state_dim=5, embed_dim=8, hypernet_hidden_dim=16)
+    agent_qs = th.randn(64, 3, requires_grad=True)
+    states = th.randn(64, 5)
+    mixer(agent_qs, states).sum().backward()
+    assert agent_qs.grad is not None
+    assert (agent_qs.grad >= 0).all()
+    assert (agent_qs.grad > 0).any()
+
+
+def test_qmix_mixer_rejects_wrong_shapes() -> None:
+    mixer = QMixer(n_agents=2, state_dim=3)
+    with pytest.raises(ValueError, match="QMixer expects"):
+        mixer(th.zeros(4, 3), th.zeros(4, 3))
+
+
+def test_vdn_mixer_is_the_sum() -> None:
+    assert th.allclose(SumMixer()(th.tensor([[1.0, 2.0, -0.5]])), th.tensor([2.5]))
+
+
+def test_masked_huber_ignores_dead_agents() -> None:
+    prediction = th.tensor([[1.0, 100.0]])
+    target = th.tensor([[0.5, 0.0]])
+    loss = masked_huber(prediction, target, th.tensor([[1.0, 0.0]]), th.tensor([1.0]))
+    assert th.isclose(loss, th.tensor(0.5 * 0.5**2))
+
+
+def _tick(rewards, alive, ended=(False, False), terminated=(False, False), world_end=False, world_term=False, tag=0):
+    n_agents = len(rewards)
+    return _Tick(
+        observations=np.full((n_agents, 1), tag, dtype=np.float32),
+        actions=np.zeros(n_agents, dtype=np.int64),
+        rewards=np.array(rewards, dtype=np.float32),
+        next_observations=np.full((n_agents, 1), tag + 1, dtype=np.float32),
+        terminated=np.array(terminated),
+        ended=np.array(ended),
+        alive=np.array(alive),
+        state=np.array([tag], dtype=np.float32),
+        next_state=np.array([tag + 1], dtype=np.float32),
+        world_ended=world_end,
+        world_terminated=world_term,
+    )
+
+
+def test_n_step_return_across_an_agent_terminal() -> None:
+    # Agent 0 arrives at tick 1 (terminal for it); agent 1 keeps going.
+    window = [
+        _tick([0.1, 0.2], [True, True], tag=0),
+        _tick([1.0, 0.3], [True, True], ended=(True, False), terminated=(True, False), tag=1),
+        _tick([0.0, 0.4], [False, True], tag=2),
+    ]
+    row = n_step_row(window, GAMMA)
+    assert row.rewards[0] == pytest.approx(0.1 + GAMMA * 1.0)
+    assert row.rewards[1] == pytest.approx(0.2 + GAMMA * 0.3 + GAMMA**2 * 0.4)
+    assert row.dones.tolist() == [1.0, 0.0]
+    assert row.discounts == pytest.approx([GAMMA**2, GAMMA**3])
+    assert row.next_alive.tolist() == [0.0, 1.0]
+    assert row.team_reward == pytest.approx(0.3 + GAMMA * 1.3 + GAMMA**2 * 0.4)
+    assert row.team_done == 0.0 and row.team_discount == pytest.approx(GAMMA**3)
+    assert row.next_observations[1, 0] == 3.0 and row.state[0] == 0.0 and row.next_state[0] == 3.0
+
+
+def test_n_step_return_across_a_truncation_bootstraps() -> None:
+    window = [
+        _tick([0.1, 0.1], [True, True], tag=0),
+        _tick([0.2, 0.2], [True, True], ended=(True, True), world_end=True, world_term=False, tag=1),
+    ]
+    row = n_step_row(window, GAMMA)
+    assert row.dones.tolist() == [0.0, 0.0]  # truncated: not terminal, bootstrap from the last observation
+    assert row.discounts == pytest.approx([GAMMA**2, GAMMA**2])
+    assert row.team_done == 0.0 and row.next_alive.tolist() == [0.0, 0.0]
+    assert row.rewards == pytest.approx([0.1 + GAMMA * 0.2] * 2)
+
+
+def test_collector_flushes_windows_at_world_end_and_drops_dead_rows() -> None:
+    buffer = JointReplayBuffer(16, spaces.Box(-1, 1, (1,)), n_agents=2, state_dim=1)
+    collector = NStepJointCollector(buffer, n_worlds=1, n_steps=3, gamma=GAMMA)
+    collector.add(0, _tick([0.1, 0.1], [True, True], tag=0))
+    collector.add(0, _tick([0.1, 0.1], [True, True], tag=1))
+    assert buffer.size() == 0  # window not full yet
+    collector.add(0, _tick([-1.0, 0.1], [True, True], (True, True), (True, True), True, True, tag=2))
+    # The world ended: the rows of ticks 0, 1, 2 are all written, with shrinking windows.
+    assert buffer.size() == 3
+    assert buffer.team_dones[:3].tolist() == [1.0, 1.0, 1.0]
+    assert buffer.rewards[2].tolist() == pytest.approx([-1.0, 0.1])
+    assert buffer.discounts[1].tolist() == pytest.approx([GAMMA**2, GAMMA**2])
+    collector.add(0, _tick([0.0, 0.0], [False, False], tag=5))
+    collector.add(0, _tick([0.0, 0.0], [False, False], tag=6, world_end=True))
+    assert buffer.size() == 3  # ticks with no acting agent never enter the buffer
+
+
+def test_sum_tree_prefix_search() -> None:
+    tree = SumTree(5)
+    tree.update(np.arange(5), np.array([1.0, 2.0, 3.0, 0.0, 4.0]))
+    assert tree.total == pytest.approx(10.0)
+    found = tree.find(np.array([0.0, 0.99, 1.0, 2.99, 3.0, 5.99, 6.0, 9.99]))
+    assert found.tolist() == [0, 0, 1, 1, 2, 2, 4, 4]
+
+
+def test_per_sampling_probabilities_and_weights() -> None:
+    np.random.seed(0)
+    buffer = PrioritizedJointReplayBuffer(4, spaces.Box(-1, 1, (1,)), n_agents=1, state_dim=0, alpha=0.5)
+    row = n_step_row([_tick([0.0], [True], (False,), (False,))], GAMMA)
+    for _ in range(4):
+        buffer.add_row(row)
+    td_errors = np.array([1.0, 4.0, 9.0, 16.0])
+    buffer.update_priorities(np.arange(4), td_errors - buffer.priority_eps)
+    priorities = np.sqrt(td_errors)  # alpha = 0.5
+    probabilities = priorities / priorities.sum()  # [0.1, 0.2, 0.3, 0.4]
+    counts = np.zeros(4)
+    for _ in range(500):
+        counts += np.bincount(buffer.sample(20, beta=0.5).indices, minlength=4)
+    assert counts / counts.sum() == pytest.approx(probabilities, abs=0.01)
+    batch = buffer.sample(64, beta=0.5)
+    expected = (4 * probabilities[batch.indices]) ** -0.5
+    assert batch.weights.numpy() == pytest.approx(expected / expected.max(), rel=1e-5)

@@ -1,0 +1,171 @@
+"""The four SB3 test families for every algorithm: it runs, save/load, seeded determinism, it learns."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+import envs  # noqa: F401  (registers the ids)
+from sb3_eps import GDQ, IQL, QMIX, VDN, export_policy, make_vec_env
+from sb3_eps.common.utils import epsilon_greedy
+
+ALGORITHMS = [IQL, GDQ, QMIX, VDN]
+TINY = {"net_arch": [16], "stream_arch": [16]}
+
+
+def tiny_model(algorithm, env_id="CooperativeNavigation-v0", n_envs=2, seed=0, **kwargs):
+    venv = make_vec_env(env_id, n_envs=n_envs, seed=seed)
+    extra = {"mixing_embed_dim": 8, "hypernet_hidden_dim": 16} if algorithm in (QMIX, VDN) else {}
+    if algorithm is GDQ:
+        extra = {"global_net_arch": [16]}
+    defaults = dict(learning_starts=60, batch_size=16, buffer_size=2_000, train_freq=2, seed=seed)
+    defaults.update(kwargs)
+    return algorithm("MlpPolicy", venv, policy_kwargs={**TINY, **extra}, **defaults)
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS, ids=lambda a: a.__name__)
+def test_it_runs_and_logs_team_metrics(algorithm, tmp_path) -> None:
+    model = tiny_model(algorithm, tensorboard_log=None)
+    from stable_baselines3.common.logger import configure
+
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    model.learn(600, log_interval=1)
+    assert model.num_timesteps >= 600 and model.ticks == model.num_timesteps // 3
+    assert model.replay_buffer.size() > 0
+    # Episodes are counted per world (team), never per agent: 25-tick MPE episodes, 2 worlds.
+    assert len(model.ep_info_buffer) == 2 * (model.ticks // 2 // 25)
+    header = (tmp_path / "progress.csv").read_text().splitlines()[0].split(",")
+    for key in ("rollout/team_return", "rollout/collision_rate", "rollout/success_rate", "time/ticks"):
+        assert key in header
+    assert "train/loss" in header
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS, ids=lambda a: a.__name__)
+def test_save_load_gives_identical_predictions(algorithm, tmp_path) -> None:
+    model = tiny_model(algorithm)
+    model.learn(300)
+    model.save(tmp_path / "model")
+    venv = make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=1)
+    loaded = algorithm.load(tmp_path / "model", env=venv)
+    observations = np.random.default_rng(0).uniform(-1, 1, (32, 18)).astype(np.float32)
+    expected, _ = model.predict(observations, deterministic=True)
+    actual, _ = loaded.predict(observations, deterministic=True)
+    np.testing.assert_array_equal(expected, actual)
+    for name in ["q_net", "q_net_target", *model.policy.joint_module_names()]:
+        for key, value in getattr(model.policy, name).state_dict().items():
+            assert th.equal(value, getattr(loaded.policy, name).state_dict()[key]), f"{name}.{key}"
+        target_name = f"{name}_target"
+        if hasattr(model.policy, target_name):
+            for key, value in getattr(model.policy, target_name).state_dict().items():
+                assert th.equal(value, getattr(loaded.policy, target_name).state_dict()[key])
+    loaded.learn(100)  # training goes on after loading
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS, ids=lambda a: a.__name__)
+def test_same_seed_gives_identical_parameters(algorithm) -> None:
+    parameters = []
+    for _ in range(2):
+        model = tiny_model(algorithm, seed=3)
+        model.learn(1_000)
+        parameters.append([param.detach().clone() for param in model.policy.parameters()])
+    for first, second in zip(*parameters, strict=True):
+        assert th.equal(first, second)
+    other = tiny_model(algorithm, seed=4)
+    other.learn(1_000)
+    assert any(not th.equal(a, b) for a, b in zip(parameters[0], other.policy.parameters(), strict=True))
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS, ids=lambda a: a.__name__)
+def test_learns_the_corridor_optimum(algorithm) -> None:
+    """Two agents on a 4-cell corridor: agent 1 arrives first and parks, agent 0 keeps walking."""
+    venv = make_vec_env("Corridor-2-v0", n_envs=2, seed=0)
+    model = algorithm(
+        "MlpPolicy",
+        venv,
+        policy_kwargs={"net_arch": [32], "stream_arch": [32]},
+        learning_starts=200,
+        batch_size=32,
+        learning_rate=3e-3,
+        exploration_fraction=0.5,
+        train_freq=1,
+        gamma=0.95,
+        seed=0,
+    )
+    model.learn(4_000)
+    eval_env = envs.make_parallel_env("Corridor-2-v0")
+    optimum = eval_env.optimal_team_return()
+    observations, _ = eval_env.reset(seed=1)
+    team_return = 0.0
+    while eval_env.agents:
+        stacked = np.stack([observations[agent] for agent in eval_env.agents])
+        actions, _ = model.predict(stacked, deterministic=True)
+        observations, rewards, _, _, _ = eval_env.step(dict(zip(eval_env.agents, actions.tolist(), strict=True)))
+        team_return += sum(rewards.values())
+    assert team_return == pytest.approx(optimum)
+
+
+def test_exploration_coins_are_independent_per_agent() -> None:
+    rng = np.random.default_rng(0)
+    flags = np.stack([epsilon_greedy(np.zeros(2, dtype=np.int64), 0.5, 20, rng)[1] for _ in range(10_000)])
+    rates = flags.mean(axis=0)
+    assert rates == pytest.approx([0.5, 0.5], abs=0.02)
+    # Independent coins: P(both) = 0.25 (one shared coin, as SB3's DQN, would give 0.5).
+    assert (flags[:, 0] & flags[:, 1]).mean() == pytest.approx(0.25, abs=0.02)
+
+
+def test_predict_explores_per_agent() -> None:
+    model = tiny_model(IQL)
+    model.exploration_rate = 1.0
+    np.random.seed(0)
+    observations = np.zeros((2, 18), dtype=np.float32)
+    actions = np.stack([model.predict(observations)[0] for _ in range(300)])
+    assert (actions[:, 0] != actions[:, 1]).mean() > 0.6  # uniform draws over 5 actions differ 80 % of the time
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS, ids=lambda a: a.__name__)
+def test_rejects_envs_that_are_not_multi_agent(algorithm) -> None:
+    import gymnasium
+
+    venv = DummyVecEnv([lambda: gymnasium.make("CartPole-v1")])
+    with pytest.raises(ValueError, match="make_vec_env"):
+        algorithm("MlpPolicy", venv)
+    with pytest.raises(ValueError, match="make_vec_env"):
+        algorithm("MlpPolicy", "CooperativeNavigation-v0")
+
+
+@pytest.mark.parametrize("algorithm", [GDQ, QMIX], ids=lambda a: a.__name__)
+def test_joint_models_refuse_another_number_of_agents(algorithm, tmp_path) -> None:
+    model = tiny_model(algorithm, env_id="Corridor-2-v0")
+    model.save(tmp_path / "model")
+    with pytest.raises(ValueError, match="agents per world"):
+        algorithm.load(tmp_path / "model", env=make_vec_env("Corridor-3-v0", n_envs=1))
+
+
+def test_bad_hyperparameters_are_rejected() -> None:
+    venv = make_vec_env("CooperativeNavigation-v0")
+    with pytest.raises(ValueError, match="tau"):
+        GDQ("MlpPolicy", venv, tau=0.0)
+    with pytest.raises(ValueError, match="team_reward_mode"):
+        GDQ("MlpPolicy", venv, team_reward_mode="max")
+    with pytest.raises(ValueError, match="unknown policy"):
+        GDQ("CnnPolicy", venv)
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS, ids=lambda a: a.__name__)
+def test_onnx_export_matches_torch(algorithm, tmp_path) -> None:
+    import onnxruntime
+
+    model = tiny_model(algorithm)
+    onnx_path, json_path = export_policy(model, tmp_path / "policy")
+    description = json.loads(open(json_path).read())
+    assert description["n_actions"] == 5 and description["input"]["shape"] == ["batch", 18]
+    observations = np.random.default_rng(1).uniform(-2, 2, (64, 18)).astype(np.float32)
+    session = onnxruntime.InferenceSession(onnx_path, providers=["CPUExecutionProvider"])
+    (onnx_q,) = session.run(["q_values"], {"obs": observations})
+    with th.no_grad():
+        torch_q = model.policy.q_net(th.as_tensor(observations)).numpy()
+    np.testing.assert_allclose(onnx_q, torch_q, rtol=1e-5, atol=1e-5)
