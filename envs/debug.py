@@ -1,10 +1,12 @@
 """Corridor: a tiny cooperative PettingZoo env with a known optimum, for sanity checks of the algorithms.
 
-Agents walk on a corridor of ``length`` cells towards its right end; agent ``i`` starts at cell
-``i % (length - 1)``. Actions: 0 = left, 1 = stay, 2 = right. Reward: -0.01 per tick, +1 on reaching the end
-(the agent then parks and leaves ``env.agents``, as a robot that arrived). The episode terminates when every
-agent arrived and is truncated after ``max_cycles`` ticks. Observation: the one-hot cell. The optimal team
-return is ``sum_i (1 - 0.01 * (d_i - 1))`` with ``d_i`` the distance of agent ``i`` to the end.
+Agents walk on a corridor of ``length`` cells: even agents towards its right end, odd agents towards its left
+end (so a learner that mixed up whose observation goes with whose action could not solve it). Agent ``i`` starts
+``i % (length - 1)`` cells from the end opposite its goal. Actions: 0 = left, 1 = stay, 2 = right. Reward: -0.01
+per tick, +1 on reaching the goal end (the agent then parks and leaves ``env.agents``, as a robot that arrived).
+The episode terminates when every agent arrived and is truncated after ``max_cycles`` ticks. Observation: the
+one-hot cell plus 1 if the goal is the right end, else 0. The optimal team return is
+``sum_i (1 - 0.01 * (d_i - 1))`` with ``d_i`` the distance of agent ``i`` to its goal.
 
 Version history: v0 first version.
 """
@@ -38,13 +40,16 @@ class CorridorEnv(ParallelEnv):
         self.possible_agents = [f"agent_{i}" for i in range(n_agents)]
         self.agents: list[str] = []
         self.render_mode = None
-        self._starts = np.array([i % (length - 1) for i in range(n_agents)])
+        self._goes_right = np.array([i % 2 == 0 for i in range(n_agents)])
+        offsets = np.array([i % (length - 1) for i in range(n_agents)])
+        self._starts = np.where(self._goes_right, offsets, length - 1 - offsets)
+        self._goals = np.where(self._goes_right, length - 1, 0)
         self._positions = self._starts.copy()
         self._ticks = 0
         self._team_return = 0.0
         self.state_space = spaces.Box(0.0, 1.0, (n_agents,), dtype=np.float32)
         # One cached space object shared by all agents (PettingZoo contract).
-        self._observation_space = spaces.Box(0.0, 1.0, (length,), dtype=np.float32)
+        self._observation_space = spaces.Box(0.0, 1.0, (length + 1,), dtype=np.float32)
         self._action_space = spaces.Discrete(3)
 
     def observation_space(self, agent: str) -> spaces.Box:
@@ -55,12 +60,13 @@ class CorridorEnv(ParallelEnv):
 
     def optimal_team_return(self) -> float:
         """:return: the best achievable team return of an episode."""
-        distances = self.length - 1 - self._starts
+        distances = np.abs(self._goals - self._starts)
         return float(sum(1.0 - STEP_COST * (distance - 1) for distance in distances))
 
     def _observe(self, index: int) -> np.ndarray:
-        observation = np.zeros(self.length, dtype=np.float32)
+        observation = np.zeros(self.length + 1, dtype=np.float32)
         observation[self._positions[index]] = 1.0
+        observation[self.length] = float(self._goes_right[index])
         return observation
 
     def state(self) -> np.ndarray:
@@ -83,7 +89,7 @@ class CorridorEnv(ParallelEnv):
             if action not in (0, 1, 2):
                 raise ValueError(f"action {action} of {agent} is outside Discrete(3)")
             self._positions[index] = np.clip(self._positions[index] + action - 1, 0, self.length - 1)
-            arrived = bool(self._positions[index] == self.length - 1)
+            arrived = bool(self._positions[index] == self._goals[index])
             rewards[agent] = 1.0 if arrived else -STEP_COST
             terminations[agent] = arrived
             observations[agent] = self._observe(index)

@@ -80,7 +80,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     :param prioritized_replay_alpha: PER priority exponent
     :param prioritized_replay_beta0: initial PER importance exponent, annealed linearly to 1 over training
     :param double_q: choose the bootstrap action with the online network and value it with the target one
-        (needs an agent target network, ``policy_kwargs=dict(agent_target=True)``)
+        (only with an agent target network, ``policy_kwargs=dict(agent_target=True)``; without one the
+        online network both chooses and values)
     :param exploration_fraction: fraction of training over which epsilon decays linearly
     :param exploration_initial_eps: initial epsilon
     :param exploration_final_eps: final epsilon (0.02, ALGORITHMS.md section 1)
@@ -263,8 +264,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self.policy = self.policy_class(  # type: ignore[assignment]
             self.observation_space, self.action_space, self.lr_schedule, **self._policy_constructor_kwargs()
         ).to(self.device)
-        if self.double_q and self.policy.q_net_target is None and self.verbose >= 1:
-            print("double_q has no effect without an agent target network (policy_kwargs agent_target=False)")
         self.exploration_schedule = LinearSchedule(
             self.exploration_initial_eps, self.exploration_final_eps, self.exploration_fraction
         )

@@ -13,7 +13,8 @@ def dueling_aggregation(values: th.Tensor, advantages: th.Tensor) -> th.Tensor:
     :param advantages: advantages, shape ``(..., n_actions)``
     :return: Q-values, shape ``(..., n_actions)``
     """
-    if values.shape[-1] != 1 or values.shape[:-1] != advantages.shape[:-1]:
+    # The check is skipped while tracing (ONNX export), where shapes are symbolic.
+    if not th.jit.is_tracing() and (values.shape[-1] != 1 or values.shape[:-1] != advantages.shape[:-1]):
         raise ValueError(f"values {tuple(values.shape)} must be (..., 1) over advantages {tuple(advantages.shape)}")
     return values + advantages - advantages.mean(dim=-1, keepdim=True)
 

@@ -48,7 +48,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     (Eq. 3), so execution stays decentralised.
 
     Options the papers leave open (defaults in brackets): ``policy_kwargs=dict(agent_target=...)`` an
-    agent target network for the advantage term [True; the paper had none]; ``team_reward_mode`` sum or
+    agent target network for the advantage term [False, as the paper]; ``team_reward_mode`` sum or
     mean [sum]; ``policy_kwargs=dict(global_net_arch=...)`` [64, 64]. Other arguments are those of
     :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`.
     """
@@ -56,6 +56,9 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     policy: GDQPolicy
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": MlpPolicy}
     requires_fixed_n_agents: ClassVar[bool] = True
+    # The paper's agents had no target network; with one, GDQ was unstable in our corridor check
+    # (a seed collapsed to "stay" after converging), without one it was stable (docs/modules/gdq.md).
+    default_agent_target: ClassVar[bool] = False
 
     def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         values, q_taken = self._online_terms(batch)

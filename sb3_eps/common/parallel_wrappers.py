@@ -1,0 +1,262 @@
+"""PettingZoo ParallelEnv adapters that the SB3 bridge (:mod:`sb3_eps.common.vec_env`) puts in front of SuperSuit.
+
+SuperSuit's ``pettingzoo_env_to_vec_env_v1`` needs every agent in every step, drops ``state()``, and its
+``black_death_v3`` is broken in 3.11 (a phantom zero step, dead agents never flagged). :class:`FixedAgentSet` owns
+the end-of-life logic instead; :class:`SingleAgentParallelEnv` turns a gymnasium env into a one-agent world so the
+single-agent ids run through the same bridge (single-robot pre-training).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+
+
+class SingleAgentParallelEnv(ParallelEnv):
+    """A gymnasium env seen as a PettingZoo ParallelEnv with one agent.
+
+    The global state is the env's ``state()`` when it has one (with ``state_space``), else its observation.
+
+    :param env: the gymnasium env
+    :param agent: the name of its agent
+    """
+
+    def __init__(self, env: gymnasium.Env, agent: str = "agent_0") -> None:
+        self.env = env
+        self.possible_agents = [agent]
+        self.agents: list[str] = []
+        self.metadata = dict(getattr(env, "metadata", {}))
+        self.render_mode = env.render_mode
+        self._state_space = getattr(env.unwrapped, "state_space", None)
+        self._state_fn = getattr(env.unwrapped, "state", None)
+        self._has_state = self._state_space is not None and callable(self._state_fn)
+        self.state_space = self._state_space if self._has_state else env.observation_space
+        self._last_obs: Any = None
+
+    def observation_space(self, agent: str) -> spaces.Space:
+        """The env's observation space."""
+        return self.env.observation_space
+
+    def action_space(self, agent: str) -> spaces.Space:
+        """The env's action space."""
+        return self.env.action_space
+
+    def reset(
+        self, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
+        """Reset the env.
+
+        :param seed: passed to the env's ``reset``
+        :param options: passed to the env's ``reset``
+        :return: the observation and info of the one agent
+        """
+        obs, info = self.env.reset(seed=seed, options=options)
+        self.agents = list(self.possible_agents)
+        self._last_obs = obs
+        agent = self.possible_agents[0]
+        return {agent: obs}, {agent: info}
+
+    def step(
+        self, actions: dict[str, Any]
+    ) -> tuple[dict[str, Any], dict[str, float], dict[str, bool], dict[str, bool], dict[str, dict[str, Any]]]:
+        """Step the env with the one agent's action.
+
+        :param actions: ``{agent: action}``
+        :return: the PettingZoo step tuple; the agent leaves ``agents`` when its episode ends
+        """
+        agent = self.possible_agents[0]
+        obs, reward, terminated, truncated, info = self.env.step(actions[agent])
+        self._last_obs = obs
+        if terminated or truncated:
+            self.agents = []
+        return {agent: obs}, {agent: float(reward)}, {agent: terminated}, {agent: truncated}, {agent: info}
+
+    def state(self) -> np.ndarray:
+        """The env's ``state()``, or its last observation when it has none."""
+        if self._has_state:
+            return self._state_fn()  # type: ignore[misc]
+        return np.asarray(self._last_obs, dtype=np.float32)
+
+    def render(self) -> Any:
+        """Render the env."""
+        return self.env.render()
+
+    def close(self) -> None:
+        """Close the env."""
+        self.env.close()
+
+
+class FixedAgentSet(ParallelEnv):
+    """Keeps every possible agent in every step, so that SuperSuit sees a fixed set of sub-envs.
+
+    An agent whose episode ended before the world's (a robot that arrived and parked) keeps returning its last
+    observation with reward 0, terminated False and ``info == {"alive": False}``; when the world's episode
+    ends it is flagged terminated like the others. The agents that acted get the env's own info dicts (the
+    bridge adds their ``"alive": True`` to SuperSuit's copies). The env's ``agents`` shrink as usual; this
+    wrapper's ``agents`` never change.
+
+    The bridge reads what SuperSuit cannot carry straight from this object after each step (SuperSuit resets the
+    world inside its step, so these survive the reset; it also means the worlds live in the bridge's process):
+    ``step_alive`` (alive flags of that step, read-only), ``any_end`` (some agent's episode ended),
+    ``world_done``, ``terminal_state`` and ``terminal_team`` (the global state and ``info["team"]`` at the end
+    of the episode), and ``reset_infos`` (the env's infos of the latest reset; ``reset`` itself returns empty
+    infos because SuperSuit merges them over the terminal step's infos).
+
+    Envs without a ``state_space`` get the concatenated observations of all agents (the last one of a dead
+    agent) as their global state.
+
+    :param env: a PettingZoo ParallelEnv whose agents all exist at reset and share one observation space
+        and one action space
+    """
+
+    def __init__(self, env: ParallelEnv) -> None:
+        self.env = env
+        self.possible_agents = list(env.possible_agents)
+        self.agents = list(self.possible_agents)
+        self.metadata = env.metadata
+        self.render_mode = getattr(env, "render_mode", None)
+        env_state_space = getattr(env, "state_space", None)
+        self._has_state = env_state_space is not None
+        self.state_space: spaces.Box = (
+            env_state_space if env_state_space is not None else self._stacked_observation_space()
+        )
+        n_agents = len(self.possible_agents)
+        self._alive = np.ones(n_agents, dtype=bool)
+        self._n_alive = n_agents
+        # Shared by every step in which all agents act; read-only, as the bridge keeps references to it.
+        self._everyone = np.ones(n_agents, dtype=bool)
+        self._everyone.flags.writeable = False
+        self._last_obs: dict[str, Any] = {}
+        self.step_alive = self._everyone
+        self.world_done = False
+        self.any_end = False
+        self.terminal_state: np.ndarray | None = None
+        self.terminal_team: dict[str, Any] | None = None
+        self.reset_infos: dict[str, dict[str, Any]] = {}
+
+    def observation_space(self, agent: str) -> spaces.Space:
+        """The wrapped env's observation space."""
+        return self.env.observation_space(agent)
+
+    def action_space(self, agent: str) -> spaces.Space:
+        """The wrapped env's action space."""
+        return self.env.action_space(agent)
+
+    def reset(
+        self, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
+        """Reset the world; every possible agent must be present.
+
+        :param seed: passed to the env
+        :param options: passed to the env
+        :return: observations of all agents and empty infos (the env's are in ``reset_infos``)
+        """
+        observations, infos = self.env.reset(seed=seed, options=options)
+        missing = [agent for agent in self.possible_agents if agent not in observations]
+        if missing:
+            raise ValueError(
+                f"{missing} got no observation at reset: every possible agent must start the episode"
+            )
+        self._last_obs = observations
+        self._alive[:] = True
+        self._n_alive = len(self._alive)
+        self.reset_infos = infos
+        return observations, {agent: {} for agent in self.possible_agents}
+
+    def step(
+        self, actions: dict[str, Any]
+    ) -> tuple[dict[str, Any], dict[str, float], dict[str, bool], dict[str, bool], dict[str, dict[str, Any]]]:
+        """Step the live agents; fill in the agents whose episode is over.
+
+        :param actions: an action for every possible agent (those of dead agents are ignored)
+        :return: the PettingZoo step tuple with an entry for every possible agent (the infos of the agents
+            that acted are the env's own dicts)
+        """
+        alive = self._alive
+        everyone_acts = self._n_alive == len(alive)
+        if not everyone_acts:
+            actions = {
+                agent: actions[agent] for agent, is_alive in zip(self.possible_agents, alive) if is_alive
+            }
+        observations, rewards, terminations, truncations, infos = self.env.step(actions)
+        if everyone_acts and not (any(terminations.values()) or any(truncations.values())):
+            # The common case, kept cheap: everyone acted and nobody's episode ended.
+            self.step_alive = self._everyone
+            self.world_done = self.any_end = False
+            self._last_obs = observations
+            return observations, rewards, terminations, truncations, infos
+        return self._step_with_ends(observations, rewards, terminations, truncations, infos)
+
+    def _step_with_ends(
+        self,
+        observations: dict[str, Any],
+        rewards: dict[str, float],
+        terminations: dict[str, bool],
+        truncations: dict[str, bool],
+        infos: dict[str, dict[str, Any]],
+    ) -> tuple[dict[str, Any], dict[str, float], dict[str, bool], dict[str, bool], dict[str, dict[str, Any]]]:
+        alive = self._alive
+        self.step_alive = alive.copy()
+        last_obs = dict(self._last_obs)
+        out_obs: dict[str, Any] = {}
+        out_rewards: dict[str, float] = {}
+        out_terms: dict[str, bool] = {}
+        out_truncs: dict[str, bool] = {}
+        out_infos: dict[str, dict[str, Any]] = {}
+        team = None
+        for index, agent in enumerate(self.possible_agents):
+            if self.step_alive[index]:
+                out_obs[agent] = last_obs[agent] = observations[agent]
+                out_rewards[agent] = rewards[agent]
+                terminated, truncated = bool(terminations[agent]), bool(truncations[agent])
+                out_terms[agent], out_truncs[agent] = terminated, truncated
+                # A copy: SuperSuit writes terminal_observation into these, and an env may share one dict.
+                out_infos[agent] = dict(infos.get(agent, {}))
+                team = out_infos[agent].get("team", team)
+                if terminated or truncated:
+                    alive[index] = False
+        self._n_alive = int(alive.sum())
+        self.world_done = self._n_alive == 0
+        self.any_end = self.world_done or self._n_alive < int(self.step_alive.sum())
+        for index, agent in enumerate(self.possible_agents):
+            if not self.step_alive[index]:
+                out_obs[agent] = last_obs[agent]
+                out_rewards[agent] = 0.0
+                # A dead agent's slot ends with the world, as a termination: after its own end it earns nothing.
+                out_terms[agent], out_truncs[agent] = self.world_done, False
+                out_infos[agent] = {"alive": False}
+        self._last_obs = last_obs
+        if self.world_done:
+            self.terminal_state = self.state()
+            self.terminal_team = team
+        return out_obs, out_rewards, out_terms, out_truncs, out_infos
+
+    def state(self) -> np.ndarray:
+        """The wrapped env's global state (or all agents' observations concatenated when it has none)."""
+        if self._has_state:
+            return self.env.state()
+        return np.concatenate([np.ravel(self._last_obs[agent]) for agent in self.possible_agents]).astype(
+            np.float32
+        )
+
+    def _stacked_observation_space(self) -> spaces.Box:
+        boxes = [self.env.observation_space(agent) for agent in self.possible_agents]
+        if not all(isinstance(box, spaces.Box) for box in boxes):
+            raise ValueError(
+                "an env without state_space needs Box observation spaces to build its global state"
+            )
+        low = np.concatenate([np.ravel(box.low) for box in boxes]).astype(np.float32)
+        high = np.concatenate([np.ravel(box.high) for box in boxes]).astype(np.float32)
+        return spaces.Box(low, high, dtype=np.float32)
+
+    def render(self) -> Any:
+        """Render the wrapped env."""
+        return self.env.render()
+
+    def close(self) -> None:
+        """Close the wrapped env."""
+        self.env.close()
