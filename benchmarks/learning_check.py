@@ -30,7 +30,13 @@ class PeriodicTeamEval(BaseCallback):
 
     def __init__(self, env_id: str, eval_every: int, n_episodes: int, path: pathlib.Path, seed: int) -> None:
         super().__init__()
-        self.env_id, self.eval_every, self.n_episodes, self.path, self.seed = env_id, eval_every, n_episodes, path, seed
+        self.env_id, self.eval_every, self.n_episodes, self.path, self.seed = (
+            env_id,
+            eval_every,
+            n_episodes,
+            path,
+            seed,
+        )
         self.next_eval = eval_every
         self.start = time.time()
 
@@ -47,7 +53,10 @@ class PeriodicTeamEval(BaseCallback):
         record = {"ticks": ticks, "wall_s": round(time.time() - self.start, 1), **summary}
         with self.path.open("a") as file:
             file.write(json.dumps(record) + "\n")
-        print(json.dumps({k: record[k] for k in ("ticks", "wall_s", "success_rate", "team_return_mean")}), flush=True)
+        print(
+            json.dumps({k: record[k] for k in ("ticks", "wall_s", "success_rate", "team_return_mean")}),
+            flush=True,
+        )
         return record
 
 
@@ -68,7 +77,9 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     for seed in args.seeds:
         path = out / f"{args.algo}_{args.env}_seed{seed}.jsonl"
-        if path.exists() and any(json.loads(line)["ticks"] >= args.ticks for line in path.read_text().splitlines()):
+        if path.exists() and any(
+            json.loads(line)["ticks"] >= args.ticks for line in path.read_text().splitlines()
+        ):
             print(f"seed {seed}: done already ({path})")
             continue
         path.unlink(missing_ok=True)  # an unfinished seed restarts from scratch

@@ -31,7 +31,11 @@ def build(name: str, env_id: str, n_envs: int, rows: int, learning_starts: int) 
     if name == "SB3-DQN":
         # SB3's MLP with the same hidden sizes as our trunk + one stream layer.
         return DQN(
-            "MlpPolicy", venv, batch_size=rows * venv.n_agents, policy_kwargs={"net_arch": [128, 64, 64]}, **common
+            "MlpPolicy",
+            venv,
+            batch_size=rows * venv.n_agents,
+            policy_kwargs={"net_arch": [128, 64, 64]},
+            **common,
         )
     algorithm = {"IQL": IQL, "GDQ": GDQ, "QMIX": QMIX, "VDN": VDN, "IQL-noPER-1step": IQL}[name]
     extra = {"prioritized_replay": False, "n_steps": 1} if name.endswith("noPER-1step") else {}
@@ -52,7 +56,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--env", default="MultiRobotNav-4-v0")
     parser.add_argument("--n-envs", type=int, default=2)
-    parser.add_argument("--rows", type=int, default=64, help="our batch in joint rows (SB3 DQN: rows x agents)")
+    parser.add_argument(
+        "--rows", type=int, default=64, help="our batch in joint rows (SB3 DQN: rows x agents)"
+    )
     parser.add_argument("--steps", type=int, default=20_000, help="timed agent-steps per run")
     parser.add_argument("--learning-starts", type=int, default=2_000)
     parser.add_argument("--repeats", type=int, default=3)
@@ -67,8 +73,10 @@ def main() -> None:
             samples[name].append(time_per_step(name, args))
             print(f"repeat {repeat} {name}: {1 / samples[name][-1]:.0f} agent-steps/s", flush=True)
     baseline = statistics.median(samples["SB3-DQN"]) if "SB3-DQN" in samples else None
-    print(f"\n{args.env}, {args.n_envs} worlds, batch {args.rows} rows, {args.steps} timed agent-steps, "
-          f"median of {args.repeats}")
+    print(
+        f"\n{args.env}, {args.n_envs} worlds, batch {args.rows} rows, {args.steps} timed agent-steps, "
+        f"median of {args.repeats}"
+    )
     print(f"{'algorithm':<18}{'agent-steps/s':>14}{'time/step vs SB3 DQN':>22}{'target':>8}")
     for name, values in samples.items():
         median = statistics.median(values)

@@ -55,11 +55,14 @@ def test_save_load_gives_identical_predictions(algorithm, tmp_path) -> None:
     expected, _ = model.predict(observations, deterministic=True)
     actual, _ = loaded.predict(observations, deterministic=True)
     np.testing.assert_array_equal(expected, actual)
-    for name in ["q_net", "q_net_target", *model.policy.joint_module_names()]:
+    assert (model.policy.q_net_target is None) == (loaded.policy.q_net_target is None)
+    names = ["q_net", *model.policy.joint_module_names()]
+    names += ["q_net_target"] if model.policy.q_net_target is not None else []
+    for name in names:
         for key, value in getattr(model.policy, name).state_dict().items():
             assert th.equal(value, getattr(loaded.policy, name).state_dict()[key]), f"{name}.{key}"
         target_name = f"{name}_target"
-        if hasattr(model.policy, target_name):
+        if getattr(model.policy, target_name, None) is not None:
             for key, value in getattr(model.policy, target_name).state_dict().items():
                 assert th.equal(value, getattr(loaded.policy, target_name).state_dict()[key])
     loaded.learn(100)  # training goes on after loading
@@ -169,3 +172,13 @@ def test_onnx_export_matches_torch(algorithm, tmp_path) -> None:
     with th.no_grad():
         torch_q = model.policy.q_net(th.as_tensor(observations)).numpy()
     np.testing.assert_allclose(onnx_q, torch_q, rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS, ids=lambda a: a.__name__)
+def test_runs_on_the_robot_world(algorithm) -> None:
+    model = tiny_model(algorithm, env_id="MultiRobotNav-2-v0", n_envs=1, learning_starts=100)
+    model.learn(600)
+    assert model.replay_buffer.size() > 0
+    assert model.replay_buffer.states.shape[1] == model.state_dim > 0
+    actions, _ = model.predict(np.zeros((5, 30), dtype=np.float32), deterministic=True)
+    assert actions.shape == (5,) and ((actions >= 0) & (actions < 20)).all()

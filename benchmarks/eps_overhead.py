@@ -1,0 +1,206 @@
+"""EPS overhead, measured side by side in one run (issue 4's acceptance benchmark).
+
+1. Wall time of GDQ and of EPS-GDQ (default ``EvolutionCallback`` settings) for the same number of training ticks
+   on ``MultiRobotNav-4-v0``, and their ratio (target <= 1.10; the paper reports 1.04 +/- 0.03). The two models
+   train in alternating slices of ``--slice`` ticks (``learn(..., reset_num_timesteps=False)``, ABBA order, each
+   model with its own global RNG states), so a change in the machine's background load hits both alike and both
+   follow the same trajectory until EPS first changes the weights. Also the CPU seconds of each (main process plus
+   the EPS workers): on a machine shared with other jobs the wall ratio moves with their load, the CPU ratio
+   hardly; it is the wall ratio of a quiet machine evaluating in one process, and an upper bound when the
+   workers run on free cores.
+2. Seconds per EPS round for population 10 with and without the batched population forward (and with the
+   envs in the main process), on the network the EPS-GDQ run ended with; configurations alternate.
+3. How large a mutation is, for the choice of ``sigma``: on visited observations of the EPS-GDQ run, the share
+   of greedy actions a mutant changes and the mean |Q change|, for the safe and the Gaussian mutation.
+
+Usage::
+
+    python benchmarks/eps_overhead.py --ticks 30000
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import os
+import random
+import resource
+import time
+from typing import Any
+
+import numpy as np
+import torch as th
+
+import envs
+from sb3_eps import make_vec_env
+from sb3_eps.eps import EvolutionCallback, PopulationForward, mutate_population, output_sensitivity
+from sb3_eps.eps.mutations import network_parameters
+from sb3_eps.gdq import GDQ
+
+
+def make_model(env_id: str, n_envs: int, seed: int) -> GDQ:
+    """GDQ with its default hyper-parameters on ``n_envs`` worlds of ``env_id``."""
+    return GDQ("MlpPolicy", make_vec_env(env_id, n_envs=n_envs, seed=seed), seed=seed)
+
+
+def cpu_time() -> float:
+    """:return: user + system CPU seconds of this process and of its reaped children (the EPS workers)."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
+def global_rng_state() -> tuple[Any, Any, Any]:
+    """:return: the states of Python's, NumPy's and torch's global generators."""
+    return random.getstate(), np.random.get_state(), th.get_rng_state()
+
+
+def set_global_rng_state(state: tuple[Any, Any, Any]) -> None:
+    """Restore the states returned by :func:`global_rng_state`."""
+    random.setstate(state[0])
+    np.random.set_state(state[1])
+    th.set_rng_state(state[2])
+
+
+def overhead(args: argparse.Namespace) -> tuple[GDQ, EvolutionCallback]:
+    """Part 1: train GDQ and EPS-GDQ in alternating slices and compare their wall times."""
+    baseline = make_model(args.env, args.n_envs, args.seed)
+    evolved = make_model(args.env, args.n_envs, args.seed)  # re-seeds the global RNGs: same start for both
+    callback = EvolutionCallback(eval_env_id=envs.eps_env_id_for(args.env), seed=args.seed)
+    n_agents = baseline.n_agents
+    seconds = {"GDQ": 0.0, "EPS-GDQ": 0.0}
+    cpu_seconds = {"GDQ": 0.0, "EPS-GDQ": 0.0}
+    # SB3 draws exploration and replay samples from the global RNGs: each model keeps its own streams, so both
+    # runs follow the same trajectory until EPS first changes the weights (a run that diverged for another
+    # reason would time different episodes).
+    rng_states = {name: global_rng_state() for name in seconds}
+    done = 0
+    while done < args.ticks:
+        ticks = min(args.slice, args.ticks - done)
+        first = done == 0
+        runs = [("GDQ", baseline, {}), ("EPS-GDQ", evolved, {"callback": callback})]
+        if (done // args.slice) % 2:  # ABBA order: whichever runs second in a slice has no systematic edge
+            runs.reverse()
+        for name, model, extra in runs:
+            set_global_rng_state(rng_states[name])
+            start, cpu_start = time.perf_counter(), cpu_time()
+            model.learn(ticks * n_agents, reset_num_timesteps=first, **extra)
+            seconds[name] += time.perf_counter() - start
+            cpu_seconds[name] += cpu_time() - cpu_start  # the workers are joined at training end: counted
+            rng_states[name] = global_rng_state()
+        done += ticks
+    ratio = seconds["EPS-GDQ"] / seconds["GDQ"]
+    rounds = [record for record in callback.history if not record["skipped"]]
+    print(
+        f"== 1. overhead on {args.env}: {args.ticks} training ticks, {args.n_envs} world(s), seed {args.seed}"
+    )
+    print(f"{'':10s}{'wall s':>10s}{'CPU s':>10s}{'ticks/s':>10s}{'episodes':>10s}")
+    for name, model in (("GDQ", baseline), ("EPS-GDQ", evolved)):
+        print(
+            f"{name:10s}{seconds[name]:10.1f}{cpu_seconds[name]:10.1f}{model.ticks / seconds[name]:10.0f}"
+            f"{model._episode_num:10d}"
+        )
+    print(f"EPS-GDQ / GDQ = {ratio:.3f} wall time   (target <= 1.10)")
+    print(
+        f"EPS-GDQ / GDQ = {cpu_seconds['EPS-GDQ'] / cpu_seconds['GDQ']:.3f} CPU time (main process + workers)"
+    )
+    if rounds:
+        print(
+            f"EPS: {len(rounds)} rounds ({callback.n_skipped_rounds} skipped), {callback.eps_ticks} evaluation "
+            f"ticks, {np.mean([r['wall_time'] for r in rounds]):.2f} s per round, "
+            f"{sum(r['wall_time'] for r in rounds):.1f} s in all; winners {[r['winner'] for r in rounds]}"
+        )
+    return evolved, callback
+
+
+def round_seconds(model: GDQ, args: argparse.Namespace) -> None:
+    """Part 2: time full EPS rounds (population 10) with and without the batched population forward."""
+    snapshot = copy.deepcopy(model.policy.state_dict())
+    n_agents = model.n_agents
+    configs: list[tuple[str, dict[str, Any]]] = [
+        ("workers, batched forward", {"batched_forward": True}),
+        ("workers, one forward per individual", {"batched_forward": False}),
+        ("main process, batched forward", {"batched_forward": True, "n_workers": 0}),
+    ]
+    times: dict[str, list[float]] = {name: [] for name, _ in configs}
+    ticks: dict[str, list[int]] = {name: [] for name, _ in configs}
+    for _ in range(args.repeats):
+        for name, kwargs in configs:
+            model.policy.load_state_dict(snapshot)
+            # period 1 tick: a round at every rollout end (train_freq = 4 ticks), i.e. rounds_per_config rounds.
+            callback = EvolutionCallback(
+                eval_env_id=envs.eps_env_id_for(args.env),
+                period=1,
+                period_unit="ticks",
+                seed=args.seed,
+                **kwargs,
+            )
+            model.learn(args.rounds_per_config * 4 * n_agents, callback=callback, reset_num_timesteps=False)
+            for record in callback.history:
+                if not record["skipped"]:
+                    times[name].append(record["wall_time"])
+                    ticks[name].append(int(np.sum(record["episode_lengths"])))
+    n_workers = min(os.cpu_count() or 1, 11)
+    print(f"== 2. seconds per EPS round, population 10 (+ copy 0), 2 episodes each, {n_workers} worker(s)")
+    print(f"{'':40s}{'s/round':>10s}{'+/-':>8s}{'eval ticks':>12s}{'rounds':>8s}")
+    for name, _ in configs:
+        print(
+            f"{name:40s}{np.mean(times[name]):10.2f}{np.std(times[name]):8.2f}"
+            f"{np.mean(ticks[name]):12.0f}{len(times[name]):8d}"
+        )
+
+
+def mutation_size(model: GDQ, callback: EvolutionCallback, args: argparse.Namespace) -> None:
+    """Part 3: the effect of one mutation on the greedy policy, for a grid of sigma."""
+    buffer = model.replay_buffer
+    assert buffer is not None
+    size = buffer.size()
+    visited = buffer.observations[:size][buffer.alive[:size] > 0]
+    rng = np.random.default_rng(args.seed)
+    q_net = model.policy.q_net
+    sensitivity_batch = th.as_tensor(visited[rng.choice(len(visited), callback.sensitivity_batch_size)])
+    test = th.as_tensor(visited[rng.choice(len(visited), min(2000, len(visited)), replace=False)])
+    omega = output_sensitivity(q_net, sensitivity_batch)
+    theta = network_parameters(q_net)
+    forward = PopulationForward(q_net)
+    with th.no_grad():
+        q_values = q_net(test)
+    print(f"== 3. one mutation's effect on {len(test)} visited observations (20 mutants per sigma)")
+    print(
+        f"{'sigma':>8s}{'safe: actions changed':>24s}{'mean |dQ|':>11s}{'gaussian: changed':>20s}{'mean |dQ|':>11s}"
+    )
+    for sigma in (0.0003, 0.001, 0.003, 0.01, 0.03, 0.1):
+        row = f"{sigma:8.3f}"
+        for sensitivities in ([omega], None):
+            generator = th.Generator().manual_seed(args.seed)
+            population = mutate_population(theta, 20, sigma, generator, sensitivities)
+            forward.load(population)
+            outputs = forward(test.unsqueeze(0).expand(21, -1, -1))[1:]
+            changed = (outputs.argmax(-1) != q_values.argmax(-1)).float().mean().item()
+            row += f"{100 * changed:22.0f} %{(outputs - q_values).abs().mean().item():11.2f}"
+        print(row)
+    print(f"(|Q| of the network: mean {q_values.abs().mean().item():.1f})")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--env", default="MultiRobotNav-4-v0")
+    parser.add_argument("--ticks", type=int, default=30_000, help="training ticks per algorithm")
+    parser.add_argument("--slice", type=int, default=15_000, help="ticks per alternating slice")
+    parser.add_argument("--n-envs", type=int, default=1, help="worlds per vector env")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--repeats", type=int, default=2, help="alternations of the round-time configurations"
+    )
+    parser.add_argument("--rounds-per-config", type=int, default=2)
+    args = parser.parse_args()
+    th.set_num_threads(1)
+    print(f"torch threads 1, CPU cores {os.cpu_count()}, load average {os.getloadavg()[0]:.1f}")
+    model, callback = overhead(args)
+    round_seconds(model, args)
+    mutation_size(model, callback, args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,284 @@
+"""Scenario layouts (walls, obstacles, fixed poses) and the random placement of start poses and targets.
+
+Every static body is an axis-aligned box ``(cx, cy, hx, hy)`` (centre and half extents in metres), so the
+clearance of a point to the map is exact and cheap (:func:`clearance`); PyBullet gets the same boxes as one
+triangle mesh (see ``world.py``). The room interior is ``[-width/2, width/2] x [-height/2, height/2]``.
+
+Scenarios (see ``docs/envs.md`` for the pictures):
+
+- ``"arena"``: the multi-robot training arena, walls only, a square of side :func:`arena_side` (n).
+- ``"eps"``: the single-robot EPS world (paper Fig. 3 left): the 4-robot arena's walls plus static bars.
+- ``"unseen"``: the 4-robot evaluation room (paper Fig. 5 analogue): a 6 m room whose four inner blocks
+  leave a central cross and a ring corridor; fixed start poses and a fixed sequence of target sets.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+WALL_THICKNESS = 0.1  # [m] outer walls stand outside the interior
+WALL_HEIGHT = 0.3  # [m] taller than the Burger (0.192 m) so every beam that reaches a wall hits it
+START_CLEARANCE = 0.3  # [m] start centre to any wall/obstacle surface (robot radius + ~0.2 m)
+START_SPACING = 0.5  # [m] between start centres (0.29 m of free gap between two bodies)
+TARGET_CLEARANCE = 0.3  # [m] target to any wall/obstacle surface: a robot parked there stays clear
+TARGET_SPACING = 0.5  # [m] between targets (paper Sec. IV-B)
+TARGET_START_SPACING = 0.5  # [m] target to every robot's start: "not on the initial positions"
+TICKS_PER_METRE = 150  # default time limit per metre of the room's longer side (see default_time_limit)
+SCENARIOS = ("arena", "eps", "unseen")
+MAX_ROBOTS = {"arena": 16, "eps": 4, "unseen": 4}
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A room: its walls and obstacles, and optionally fixed start poses and target sets.
+
+    :param name: scenario name
+    :param width: interior size along x [m]
+    :param height: interior size along y [m]
+    :param walls: boxes ``(k, 4)`` of the outer walls
+    :param obstacles: boxes ``(m, 4)`` inside the room (inner walls, bars)
+    :param starts: fixed start poses ``(n, 3)`` as (x, y, heading), or None for random starts
+    :param target_sets: fixed targets ``(s, n, 2)``, one set per episode in sequence, or None for random
+    """
+
+    name: str
+    width: float
+    height: float
+    walls: np.ndarray
+    obstacles: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    starts: np.ndarray | None = None
+    target_sets: np.ndarray | None = None
+
+    @property
+    def boxes(self) -> np.ndarray:
+        """All static boxes (walls then obstacles), shape ``(k, 4)``."""
+        return np.concatenate([self.walls, self.obstacles], axis=0)
+
+    @property
+    def half_extent(self) -> np.ndarray:
+        """Half the interior size ``(width / 2, height / 2)``."""
+        return np.array([self.width / 2.0, self.height / 2.0])
+
+    @property
+    def default_time_limit(self) -> int:
+        """Default ``max_episode_steps``: 150 ticks per metre of the longer side.
+
+        At 0.21 m/s a tick covers 0.0105 m, so 150 ticks drive 1.58 m per metre of side: more than the
+        room's diagonal (1.41 m per metre of side) plus the turns.
+        """
+        return round(TICKS_PER_METRE * max(self.width, self.height))
+
+
+def arena_side(n_robots: int) -> float:
+    """Side of the square multi-robot arena: 3 m plus 0.25 m per robot.
+
+    2 robots: 3.5 m, 4: 4 m, 8: 5 m, 12: 6 m. The free area per robot shrinks from 6.1 to 3 m^2 as n grows,
+    so crowding, as in the paper, makes larger teams harder.
+
+    :param n_robots: number of robots
+    :return: side length [m]
+    """
+    return 3.0 + 0.25 * n_robots
+
+
+def walls_around(width: float, height: float) -> np.ndarray:
+    """Four wall boxes enclosing the interior ``[-width/2, width/2] x [-height/2, height/2]``.
+
+    :param width: interior size along x [m]
+    :param height: interior size along y [m]
+    :return: boxes ``(4, 4)``
+    """
+    half_t = WALL_THICKNESS / 2.0
+    hx, hy = width / 2.0, height / 2.0
+    return np.array(
+        [
+            [0.0, hy + half_t, hx + WALL_THICKNESS, half_t],
+            [0.0, -hy - half_t, hx + WALL_THICKNESS, half_t],
+            [hx + half_t, 0.0, half_t, hy],
+            [-hx - half_t, 0.0, half_t, hy],
+        ]
+    )
+
+
+def arena_layout(n_robots: int) -> Layout:
+    """The multi-robot training arena: walls only, square of side :func:`arena_side`.
+
+    :param n_robots: number of robots
+    :return: the layout
+    """
+    side = arena_side(n_robots)
+    return Layout("arena", side, side, walls_around(side, side))
+
+
+# The EPS world: the 4-robot arena (4 m) with three bars, 0.1 m thick, leaving passages of 0.7 m or more.
+EPS_SIDE = 4.0
+EPS_BARS = np.array(
+    [
+        [-0.9, 0.8, 0.6, 0.05],  # horizontal bar, upper left
+        [0.9, 0.5, 0.05, 0.7],  # vertical bar, right
+        [-0.1, -0.9, 0.7, 0.05],  # horizontal bar, lower middle
+    ]
+)
+
+
+def eps_layout() -> Layout:
+    """The single-robot EPS world (paper Fig. 3 left): the 4 m arena's walls plus static bars.
+
+    :return: the layout
+    """
+    return Layout("eps", EPS_SIDE, EPS_SIDE, walls_around(EPS_SIDE, EPS_SIDE), EPS_BARS.copy())
+
+
+# The unseen room: 6 m x 6 m; four 1.4 m square blocks centred at (+-1.5, +-1.5) leave a central cross
+# corridor 1.6 m wide and a ring corridor 0.8 m wide along the outer walls.
+UNSEEN_SIDE = 6.0
+UNSEEN_BLOCKS = np.array([[sx * 1.5, sy * 1.5, 0.7, 0.7] for sx in (1, -1) for sy in (1, -1)])
+# Robot i starts at the end of one arm of the cross, facing the centre: north, east, south, west.
+UNSEEN_STARTS = np.array(
+    [
+        [0.0, 2.5, -np.pi / 2],
+        [2.5, 0.0, np.pi],
+        [0.0, -2.5, np.pi / 2],
+        [-2.5, 0.0, 0.0],
+    ]
+)
+# The fixed target sequence, one row per episode (robot 0..3); episodes cycle through it.
+UNSEEN_TARGET_SETS = np.array(
+    [
+        # 0 "swap": each robot to the far arm; all four cross the centre at once
+        [[0.0, -1.8], [-1.8, 0.0], [0.0, 1.8], [1.8, 0.0]],
+        # 1 "corners": each robot to the ring corner on its left
+        [[2.6, 2.6], [2.6, -2.6], [-2.6, -2.6], [-2.6, 2.6]],
+        # 2 "next arm": each robot to the arm on its right, through the centre
+        [[-1.8, 0.0], [0.0, 1.8], [1.8, 0.0], [0.0, -1.8]],
+        # 3 "ring": each robot into the ring corridor, beside a block, two arms away
+        [[2.6, -1.5], [-1.5, -2.6], [-2.6, 1.5], [1.5, 2.6]],
+        # 4 "side pockets": each robot to the side of a neighbouring arm, near the blocks
+        [[1.5, -0.4], [-0.4, -1.5], [-1.5, 0.4], [0.4, 1.5]],
+    ]
+)
+
+
+def unseen_layout() -> Layout:
+    """The unseen 4-robot evaluation room with fixed starts and target sequence.
+
+    :return: the layout
+    """
+    return Layout(
+        "unseen",
+        UNSEEN_SIDE,
+        UNSEEN_SIDE,
+        walls_around(UNSEEN_SIDE, UNSEEN_SIDE),
+        UNSEEN_BLOCKS.copy(),
+        UNSEEN_STARTS.copy(),
+        UNSEEN_TARGET_SETS.copy(),
+    )
+
+
+def make_layout(scenario: str, n_robots: int) -> Layout:
+    """Build the layout of a scenario, checking ``n_robots`` against what it can place.
+
+    :param scenario: one of ``"arena"``, ``"eps"``, ``"unseen"``
+    :param n_robots: number of robots
+    :return: the layout
+    """
+    if scenario not in SCENARIOS:
+        raise ValueError(f"Unknown scenario {scenario!r}: choose one of {SCENARIOS}.")
+    if isinstance(n_robots, bool) or not isinstance(n_robots, (int, np.integer)):
+        raise ValueError(f"n_robots must be an int, got {n_robots!r} ({type(n_robots).__name__}).")
+    max_robots = MAX_ROBOTS[scenario]
+    if not 1 <= n_robots <= max_robots:
+        raise ValueError(
+            f"n_robots={n_robots} is out of range for scenario {scenario!r}: allowed 1 to {max_robots}."
+        )
+    if scenario == "arena":
+        return arena_layout(int(n_robots))
+    if scenario == "eps":
+        return eps_layout()
+    return unseen_layout()
+
+
+def clearance(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """Exact distance from points to the nearest box surface (0 for a point inside a box).
+
+    :param points: ``(m, 2)`` positions [m]
+    :param boxes: ``(k, 4)`` boxes ``(cx, cy, hx, hy)``
+    :return: ``(m,)`` distances [m]
+    """
+    if len(boxes) == 0:
+        return np.full(len(points), np.inf)
+    offset = np.abs(points[:, None, :] - boxes[None, :, :2]) - boxes[None, :, 2:]
+    outside = np.linalg.norm(np.maximum(offset, 0.0), axis=-1)
+    return outside.min(axis=1)
+
+
+def in_room(points: np.ndarray, layout: Layout, margin: float) -> np.ndarray:
+    """Whether points lie in the interior at least ``margin`` from the outer boundary.
+
+    :param points: ``(m, 2)`` positions [m]
+    :param layout: the room
+    :param margin: distance to keep from the boundary [m]
+    :return: ``(m,)`` booleans
+    """
+    return np.all(np.abs(points) <= layout.half_extent - margin, axis=1)
+
+
+def _pick_spaced(
+    rng: np.random.Generator,
+    layout: Layout,
+    n_points: int,
+    wall_clearance: float,
+    spacing: float,
+    avoid: np.ndarray,
+    avoid_spacing: float,
+) -> np.ndarray:
+    """Draw ``n_points`` uniform positions with wall clearance, pairwise spacing and distance to ``avoid``.
+
+    Rejection sampling in vectorised batches; the accepted points are kept greedily in draw order, so the
+    result depends only on the generator's state.
+    """
+    bound = layout.half_extent - wall_clearance
+    chosen: list[np.ndarray] = []
+    for _ in range(200):
+        candidates = rng.uniform(-bound, bound, size=(max(4 * n_points, 16), 2))
+        ok = clearance(candidates, layout.obstacles) >= wall_clearance
+        if len(avoid):
+            gaps = np.linalg.norm(candidates[:, None, :] - avoid[None, :, :], axis=-1)
+            ok &= gaps.min(axis=1) >= avoid_spacing
+        for point in candidates[ok]:
+            if all(np.hypot(*(point - other)) >= spacing for other in chosen):
+                chosen.append(point)
+                if len(chosen) == n_points:
+                    return np.array(chosen)
+    raise RuntimeError(
+        f"Could not place {n_points} points in the {layout.name!r} layout after 200 batches; "
+        "use fewer robots or a larger room."
+    )
+
+
+def sample_starts(rng: np.random.Generator, layout: Layout, n_robots: int) -> np.ndarray:
+    """Random start poses: clear of walls/obstacles, robots apart, uniform headings.
+
+    :param rng: the env's generator
+    :param layout: the room
+    :param n_robots: number of robots
+    :return: ``(n, 3)`` poses (x, y, heading)
+    """
+    xy = _pick_spaced(rng, layout, n_robots, START_CLEARANCE, START_SPACING, np.zeros((0, 2)), 0.0)
+    heading = rng.uniform(-np.pi, np.pi, size=n_robots)
+    return np.concatenate([xy, heading[:, None]], axis=1)
+
+
+def sample_targets(rng: np.random.Generator, layout: Layout, starts_xy: np.ndarray) -> np.ndarray:
+    """Random targets: obstacle-free with clearance, apart from each other and from every start.
+
+    :param rng: the env's generator
+    :param layout: the room
+    :param starts_xy: ``(n, 2)`` start positions of all robots
+    :return: ``(n, 2)`` targets
+    """
+    return _pick_spaced(
+        rng, layout, len(starts_xy), TARGET_CLEARANCE, TARGET_SPACING, starts_xy, TARGET_START_SPACING
+    )

@@ -1,0 +1,478 @@
+"""Multi-robot TurtleBot3 mapless navigation (Marchesini & Farinelli, ICRA 2022, Sec. IV-B), a PettingZoo
+``ParallelEnv``.
+
+Each robot drives to its own target from 28 lidar ranges and the target's distance and relative heading; the
+reward is the paper's Eq. 7. The full reference (constants, layouts, pictures) is ``docs/envs.md``.
+
+Version history (``metadata["name"]``; bump the suffix on any change of behaviour):
+
+- ``multi_robot_nav_v0``: first version.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import gymnasium
+import numpy as np
+from gymnasium.utils import seeding
+from pettingzoo import ParallelEnv
+
+from envs.turtlebot3.layouts import Layout, in_room, make_layout, sample_starts, sample_targets
+from envs.turtlebot3.render import Rasteriser
+from envs.turtlebot3.robot import (
+    ACTION_ANGULAR,
+    ACTION_LINEAR,
+    BEAM_ANGLES,
+    DISTANCE_SCALE,
+    DT,
+    MAX_ANGULAR,
+    MAX_LINEAR,
+    N_ACTIONS,
+    N_BEAMS,
+    RANGE_MAX,
+    RAY_START,
+    REWARD_ARRIVAL,
+    REWARD_COLLISION,
+    STEP_PENALTY,
+    TARGET_RADIUS,
+    wrap_angle,
+)
+from envs.turtlebot3.world import NavWorld
+
+OBS_DIM = N_BEAMS + 2  # 28 ranges, target distance, target heading
+STAND_STILL = 2  # the action (v, w) = (0, 0)
+STATE_FIELDS = ("x", "y", "cos_theta", "sin_theta", "v", "w", "target_x", "target_y", "arrived")
+
+
+def check_seed(seed: Any) -> None:
+    """Raise ``ValueError`` unless ``seed`` is None or a non-negative int.
+
+    :param seed: the seed given to ``reset``
+    """
+    if seed is None:
+        return
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be None or a non-negative int, got {seed!r} ({type(seed).__name__}).")
+
+
+def observation_space() -> gymnasium.spaces.Box:
+    """The 30-float observation box: 28 ranges / 3.5 m in [0, 1], distance / 10 m in [0, 1], heading / pi."""
+    low = np.zeros(OBS_DIM, dtype=np.float32)
+    low[-1] = -1.0
+    return gymnasium.spaces.Box(low=low, high=np.ones(OBS_DIM, dtype=np.float32), dtype=np.float32)
+
+
+class MultiRobotNavEnv(ParallelEnv):
+    """TurtleBot3 Burgers navigating to their own targets in a PyBullet room (paper Sec. IV-B).
+
+    - Observation (per robot, float32, 30): ``[0:28]`` lidar ranges / 3.5 m (beam 0 at -120 deg, beam 27 at
+      +120 deg, counter-clockwise positive), ``[28]`` distance to the target / 10 m clipped to [0, 1],
+      ``[29]`` target bearing relative to the heading / pi, in [-1, 1).
+    - Action: Discrete(20), index ``5 * i_linear + i_angular`` over linear {0, 0.07, 0.14, 0.21} m/s and
+      angular {-90, -45, 0, 45, 90} deg/s, held for one 0.05 s tick (20 Hz).
+    - Reward (Eq. 7): -1 on collision; +1 on arriving within 0.1 m of the target; otherwise
+      ``(d_prev - d_now) - 0.005``.
+    - Episode: a collision (robot-robot, wall, obstacle, parked robot) terminates every live robot; a robot that
+      arrives is terminated, parked in place (an obstacle for the others) and leaves ``agents``; every robot
+      arrived = success; ``max_episode_steps`` ticks truncate the robots still driving.
+    - ``state()``: 9 floats per robot, robot-major: x, y, cos(theta), sin(theta), v, w (last command), target
+      x, target y, arrived flag (SI units).
+    - infos: per robot ``{"arrived", "collided", "team": {"success", "collision", "n_arrived",
+      "team_return", "distance_travelled", "ticks"}}`` (running team values; final at the episode's end).
+    - ``reset(options=...)`` places robots deterministically: ``"start_poses"`` ``(n, 3)`` (x, y, heading),
+      ``"targets"`` ``(n, 2)``, and in the unseen world ``"target_set"`` (index into its fixed sequence);
+      other keys are ignored.
+
+    :param n_robots: number of robots (1-16 in ``"arena"``, 1-4 in ``"eps"`` and ``"unseen"``)
+    :param scenario: ``"arena"`` (walls only, side 3 m + 0.25 m per robot), ``"eps"`` (the single-robot EPS
+        world with bars) or ``"unseen"`` (the evaluation room: fixed starts, fixed cycling target sequence)
+    :param max_episode_steps: time limit in ticks; None = 150 ticks per metre of the room's side
+        (600 = 30 s for the 4 m arena)
+    :param render_mode: None, ``"rgb_array"`` (top-down picture) or ``"human"`` (PyBullet GUI; needs a display)
+    :param lidar_noise_std: standard deviation of Gaussian noise added to every range [m] (0 = exact)
+    :param render_lidar: draw the lidar beams in ``rgb_array`` pictures
+    """
+
+    metadata: dict[str, Any] = {
+        "name": "multi_robot_nav_v0",
+        "render_modes": ["rgb_array", "human"],
+        "render_fps": 20,
+        "is_parallelizable": True,
+    }
+
+    def __init__(
+        self,
+        n_robots: int = 4,
+        scenario: str = "arena",
+        max_episode_steps: int | None = None,
+        render_mode: str | None = None,
+        lidar_noise_std: float = 0.0,
+        render_lidar: bool = False,
+    ) -> None:
+        self.layout: Layout = make_layout(scenario, n_robots)
+        self.scenario = scenario
+        self.n_robots = int(n_robots)
+        if max_episode_steps is None:
+            max_episode_steps = self.layout.default_time_limit
+        if isinstance(max_episode_steps, bool) or not isinstance(max_episode_steps, (int, np.integer)):
+            raise ValueError(f"max_episode_steps must be a positive int or None, got {max_episode_steps!r}.")
+        if max_episode_steps < 1:
+            raise ValueError(f"max_episode_steps must be a positive int or None, got {max_episode_steps}.")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}."
+            )
+        if not np.isfinite(lidar_noise_std) or lidar_noise_std < 0:
+            raise ValueError(
+                f"lidar_noise_std must be a finite number >= 0 (metres), got {lidar_noise_std!r}."
+            )
+        self.max_episode_steps = int(max_episode_steps)
+        self.render_mode = render_mode
+        self.lidar_noise_std = float(lidar_noise_std)
+        self.render_lidar = bool(render_lidar)
+
+        self.possible_agents = [f"robot_{i}" for i in range(self.n_robots)]
+        self.agents: list[str] = []
+        self._agent_index = {agent: i for i, agent in enumerate(self.possible_agents)}
+        # One space object shared by every robot, built once: never depends on reset().
+        self._observation_space = observation_space()
+        self._action_space = gymnasium.spaces.Discrete(N_ACTIONS)
+        self.observation_spaces = dict.fromkeys(self.possible_agents, self._observation_space)
+        self.action_spaces = dict.fromkeys(self.possible_agents, self._action_space)
+        self.state_space = self._make_state_space()
+
+        self.world = NavWorld(self.layout, self.n_robots, gui=render_mode == "human")
+        self._rasteriser: Rasteriser | None = None
+        self.np_random, self._np_random_seed = seeding.np_random(None)
+        self._episode_index = 0
+        n = self.n_robots
+        self._targets = np.zeros((n, 2))
+        self._distance = np.zeros(n)
+        self._live = np.zeros(n, dtype=bool)
+        self._arrived = np.zeros(n, dtype=bool)
+        self._live_index = np.zeros(0, dtype=int)
+        self._command = np.full(n, STAND_STILL)  # last action of each robot (parked: standing still)
+        self._scan_ranges = np.full((n, N_BEAMS), RANGE_MAX)
+        self._scanned = np.zeros(0, dtype=int)
+        self._ticks = 0
+        self._team_return = 0.0
+        self._distance_travelled = 0.0
+        self._collision = False
+        self._last_render_time = 0.0
+
+    # --- spaces ------------------------------------------------------------------------------------------
+
+    def observation_space(self, agent: str) -> gymnasium.spaces.Box:
+        """The observation space of ``agent`` (the same object for every robot and every call)."""
+        self._check_agent(agent)
+        return self._observation_space
+
+    def action_space(self, agent: str) -> gymnasium.spaces.Discrete:
+        """The action space of ``agent`` (the same object for every robot and every call)."""
+        self._check_agent(agent)
+        return self._action_space
+
+    def _check_agent(self, agent: str) -> None:
+        if agent not in self._agent_index:
+            raise ValueError(f"Unknown agent {agent!r}: this env has {self.possible_agents}.")
+
+    def _make_state_space(self) -> gymnasium.spaces.Box:
+        hx, hy = self.layout.half_extent
+        low_one = [-hx, -hy, -1.0, -1.0, 0.0, -MAX_ANGULAR, -hx, -hy, 0.0]
+        high_one = [hx, hy, 1.0, 1.0, MAX_LINEAR, MAX_ANGULAR, hx, hy, 1.0]
+        low = np.tile(np.asarray(low_one, dtype=np.float32), self.n_robots)
+        high = np.tile(np.asarray(high_one, dtype=np.float32), self.n_robots)
+        return gymnasium.spaces.Box(low=low, high=high, dtype=np.float32)
+
+    # --- reset -------------------------------------------------------------------------------------------
+
+    def reset(
+        self, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
+        """Start an episode: new start poses and targets (random, fixed or from ``options``).
+
+        :param seed: re-seeds ``self.np_random`` (and restarts the unseen world's target sequence)
+        :param options: ``"start_poses"`` ``(n, 3)``, ``"targets"`` ``(n, 2)``, ``"target_set"`` (unseen)
+        :return: observations and infos of every robot
+        """
+        check_seed(seed)
+        if seed is not None:
+            self.np_random, self._np_random_seed = seeding.np_random(int(seed))
+            self._episode_index = 0
+        options = options or {}
+        if self.world.client is None:
+            # close() released the PyBullet client; like gymnasium's envs, a later reset() starts afresh.
+            self.world = NavWorld(self.layout, self.n_robots, gui=self.render_mode == "human")
+        starts = self._start_poses(options)
+        self.world.set_poses(starts)
+        self._targets = self._pick_targets(options, starts[:, :2])
+        self.world.show_targets(self._targets)
+        self._episode_index += 1
+
+        n = self.n_robots
+        self.agents = self.possible_agents[:]
+        self._live[:] = True
+        self._live_index = np.arange(n)
+        self._arrived[:] = False
+        self._command.fill(STAND_STILL)
+        self._ticks = 0
+        self._team_return = 0.0
+        self._distance_travelled = 0.0
+        self._collision = False
+        offset = self._targets - self.world.xy
+        self._distance = np.hypot(offset[:, 0], offset[:, 1])
+        obs = self._observe(self._live_index, offset, self._distance)
+        team = self._team_info()
+        observations = dict(zip(self.agents, obs))
+        infos = {agent: {"arrived": False, "collided": False, "team": team} for agent in self.agents}
+        return observations, infos
+
+    def _start_poses(self, options: dict[str, Any]) -> np.ndarray:
+        n = self.n_robots
+        if "start_poses" in options:
+            poses = self._option_array(options, "start_poses", (n, 3))
+            if not in_room(poses[:, :2], self.layout, 0.0).all():
+                raise ValueError(
+                    f"options['start_poses'] puts a robot outside the room "
+                    f"(|x| <= {self.layout.width / 2}, |y| <= {self.layout.height / 2})."
+                )
+            return poses
+        if self.layout.starts is not None:
+            return self.layout.starts[:n].copy()
+        return sample_starts(self.np_random, self.layout, n)
+
+    def _pick_targets(self, options: dict[str, Any], starts_xy: np.ndarray) -> np.ndarray:
+        n = self.n_robots
+        if "targets" in options:
+            return self._option_array(options, "targets", (n, 2))
+        if self.layout.target_sets is not None:
+            n_sets = len(self.layout.target_sets)
+            index = options.get("target_set", self._episode_index % n_sets)
+            if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < n_sets:
+                raise ValueError(f"options['target_set'] must be an int in [0, {n_sets - 1}], got {index!r}.")
+            return self.layout.target_sets[index, :n].copy()
+        return sample_targets(self.np_random, self.layout, starts_xy)
+
+    @staticmethod
+    def _option_array(options: dict[str, Any], key: str, shape: tuple[int, int]) -> np.ndarray:
+        try:
+            array = np.array(options[key], dtype=float)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"options[{key!r}] must be a numeric array of shape {shape}.") from error
+        if array.shape != shape or not np.isfinite(array).all():
+            raise ValueError(
+                f"options[{key!r}] must be a finite array of shape {shape}, got shape {array.shape}."
+            )
+        return array
+
+    # --- step --------------------------------------------------------------------------------------------
+
+    def step(
+        self, actions: dict[str, Any]
+    ) -> tuple[
+        dict[str, np.ndarray],
+        dict[str, float],
+        dict[str, bool],
+        dict[str, bool],
+        dict[str, dict[str, Any]],
+    ]:
+        """Advance one tick (0.05 s): every live robot executes its action, then collisions, arrivals and
+        the time limit are resolved.
+
+        :param actions: an action in [0, 19] for every robot in ``self.agents`` (others are ignored)
+        :return: observations, rewards, terminations, truncations and infos of the robots that acted
+        """
+        acting = self.agents
+        if not acting:
+            return {}, {}, {}, {}, {}
+        if self.world.client is None:
+            raise RuntimeError("step() on a closed env: call reset() first.")
+        live = self._live_index
+        rows = self.world.rows_of(live)
+        action_array = self._parse_actions(actions, acting)
+        v, w = ACTION_LINEAR[action_array], ACTION_ANGULAR[action_array]
+        if len(live) < self.n_robots:
+            self._command.fill(STAND_STILL)  # parked robots stand still
+        self._command[rows] = action_array
+        self.world.move(live, v, w)
+        self._distance_travelled += DT * float(v.sum())  # arc length = v dt, as v >= 0
+        self._ticks += 1
+
+        collided = (self.world.map_collisions() | self.world.robot_collisions())[rows]
+        offset = self._targets[rows] - self.world.xy[rows]
+        distance = np.hypot(offset[:, 0], offset[:, 1])
+        arrived = (distance <= TARGET_RADIUS) & ~collided
+        # Paper Eq. 7, collision taking precedence over arrival.
+        progress = (self._distance[rows] - distance) - STEP_PENALTY
+        rewards = np.where(collided, REWARD_COLLISION, np.where(arrived, REWARD_ARRIVAL, progress))
+        self._distance[rows] = distance
+        self._team_return += float(rewards.sum())
+
+        if collided.any():
+            self._collision = True
+            terminated = np.ones(len(live), dtype=bool)
+        else:
+            terminated = arrived
+        obs = self._observe(live, offset, distance)
+        ended = terminated
+        if self._ticks >= self.max_episode_steps:
+            truncated = ~terminated
+            ended = np.ones(len(live), dtype=bool)
+        else:
+            truncated = np.zeros(len(live), dtype=bool)
+        arrived_list = arrived.tolist()
+        if ended.any():
+            self._arrived[live] |= arrived
+            self._live[live[ended]] = False
+            self._live_index = np.flatnonzero(self._live)
+            self.agents = [self.possible_agents[i] for i in self._live_index]
+
+        team = self._team_info()
+        infos = {
+            agent: {"arrived": a, "collided": c, "team": team}
+            for agent, a, c in zip(acting, arrived_list, collided.tolist())
+        }
+        result = (
+            dict(zip(acting, obs)),
+            dict(zip(acting, rewards.tolist())),
+            dict(zip(acting, terminated.tolist())),
+            dict(zip(acting, truncated.tolist())),
+            infos,
+        )
+        if self.render_mode == "human":
+            self.render()
+        return result
+
+    def _parse_actions(self, actions: dict[str, Any], acting: list[str]) -> np.ndarray:
+        """Gather the acting robots' actions as an int array, raising ``ValueError`` on anything else."""
+        try:
+            raw = [actions[agent] for agent in acting]
+        except (KeyError, TypeError) as error:
+            missing = [agent for agent in acting if not isinstance(actions, dict) or agent not in actions]
+            raise ValueError(
+                f"step() needs a dict with an action for every live robot; missing {missing}."
+            ) from error
+        try:
+            array = np.asarray(raw)
+        except ValueError:
+            # Mixed shapes such as [array(3), array([4])]: fall back to one element at a time.
+            array = np.asarray([np.asarray(a).reshape(-1)[0] if np.size(a) == 1 else None for a in raw])
+        if array.shape != (len(acting),) and array.size == len(acting):
+            array = array.reshape(len(acting))
+        kind = array.dtype.kind
+        integral = kind in "iu" or (kind == "f" and bool(np.all(array == np.round(array))))
+        if array.shape != (len(acting),) or not integral or array.min() < 0 or array.max() >= N_ACTIONS:
+            raise ValueError(
+                f"Actions must be integers in [0, {N_ACTIONS - 1}] (Discrete({N_ACTIONS})), one per live robot; "
+                f"got {dict(zip(acting, raw))}."
+            )
+        return array.astype(np.int64)
+
+    # --- observations, state, infos ----------------------------------------------------------------------
+
+    def _observe(self, indices: np.ndarray, offset: np.ndarray, distance: np.ndarray) -> np.ndarray:
+        """Scan and build the 30-float observations of the robots in ``indices`` (one ray batch).
+
+        :param indices: robot indices
+        :param offset: ``(k, 2)`` target minus robot position
+        :param distance: ``(k,)`` norms of ``offset``
+        """
+        ranges = self.world.scan(indices, self.lidar_noise_std, self.np_random)
+        rows = self.world.rows_of(indices)
+        self._scan_ranges[rows] = ranges
+        self._scanned = indices
+        bearing = np.arctan2(offset[:, 1], offset[:, 0]) - self.world.theta[rows]
+        obs = np.empty((len(indices), OBS_DIM), dtype=np.float32)
+        obs[:, :N_BEAMS] = ranges * (1.0 / RANGE_MAX)
+        obs[:, N_BEAMS] = np.minimum(distance * (1.0 / DISTANCE_SCALE), 1.0)
+        obs[:, N_BEAMS + 1] = wrap_angle(bearing) * (1.0 / np.pi)
+        return obs
+
+    def _team_info(self) -> dict[str, Any]:
+        n_arrived = int(self._arrived.sum())
+        return {
+            "success": n_arrived == self.n_robots,
+            "collision": self._collision,
+            "n_arrived": n_arrived,
+            "team_return": self._team_return,
+            "distance_travelled": self._distance_travelled,
+            "ticks": self._ticks,
+        }
+
+    def state(self) -> np.ndarray:
+        """Global state for centralised critics: 9 floats per robot (see the class docstring).
+
+        :return: ``(9 * n,)`` float32
+        """
+        theta = self.world.theta
+        per_robot = np.column_stack(
+            [
+                self.world.xy,
+                np.cos(theta),
+                np.sin(theta),
+                ACTION_LINEAR[self._command],
+                ACTION_ANGULAR[self._command],
+                self._targets,
+                self._arrived,
+            ]
+        )
+        state = per_robot.astype(np.float32).ravel()
+        # A robot can sink up to one tick into a wall before the collision ends the episode: stay in the box.
+        return np.clip(state, self.state_space.low, self.state_space.high)
+
+    # --- rendering and lifetime --------------------------------------------------------------------------
+
+    def render(self) -> np.ndarray | None:
+        """Draw the current tick: a top-down ``(H, W, 3)`` uint8 picture, or pace the GUI in human mode."""
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() was called without a render_mode; pass render_mode='rgb_array'.")
+            return None
+        if self.render_mode == "human":
+            # Keep the GUI at the decision rate so motion plays in real time.
+            wait = 1.0 / self.metadata["render_fps"] - (time.perf_counter() - self._last_render_time)
+            if wait > 0:
+                time.sleep(wait)
+            self._last_render_time = time.perf_counter()
+            return None
+        if self._rasteriser is None:
+            self._rasteriser = Rasteriser(self.layout)
+        beams = self._beams() if self.render_lidar else None
+        parked = self._arrived & ~self._live
+        return self._rasteriser.draw(self.world.xy, self.world.theta, self._targets, parked, beams)
+
+    def _beams(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Segments of the last scan: from the body edge to each range reading."""
+        indices = self._scanned
+        angles = self.world.theta[indices, None] + BEAM_ANGLES[None, :]
+        directions = np.stack([np.cos(angles), np.sin(angles)], axis=-1)
+        centres = self.world.xy[indices, None, :]
+        starts = centres + RAY_START * directions
+        ends = centres + self._scan_ranges[indices, :, None] * directions
+        owner = np.repeat(indices, N_BEAMS)
+        return starts.reshape(-1, 2), ends.reshape(-1, 2), owner
+
+    def close(self) -> None:
+        """Release the PyBullet client (idempotent)."""
+        self.world.close()
+
+    # A PyBullet client cannot be pickled, yet SuperSuit and multiprocessing copy envs by pickling: the copy
+    # gets a fresh client holding the same room and poses, so it continues the episode exactly.
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        world = state.pop("world")
+        state["_rasteriser"] = None
+        state["_world_pose"] = np.column_stack([world.xy, world.theta])
+        state["_world_open"] = world.client is not None
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        pose = state.pop("_world_pose")
+        world_open = state.pop("_world_open")
+        self.__dict__.update(state)
+        self.world = NavWorld(self.layout, self.n_robots, gui=self.render_mode == "human")
+        self.world.set_poses(pose)
+        self.world.show_targets(self._targets)
+        if not world_open:
+            self.world.close()

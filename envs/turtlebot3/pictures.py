@@ -1,0 +1,58 @@
+"""Regenerate the pictures of ``docs/envs.md``: ``python -m envs.turtlebot3.pictures [out_dir]``."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import imageio.v2 as imageio
+import numpy as np
+
+from envs.turtlebot3.multi_robot_nav import MultiRobotNavEnv
+from envs.turtlebot3.single_robot_nav import SingleRobotNavEnv
+
+FORWARD = 17  # 0.21 m/s straight ahead
+
+
+def _picture(frame: np.ndarray | None) -> np.ndarray:
+    assert frame is not None, "an rgb_array env returns a picture"
+    return frame
+
+
+def run(out_dir: str | Path = "docs/images", n_forward_ticks: int = 15) -> list[Path]:
+    """Draw the 4-robot arena (with lidar), the EPS world and the unseen room, and save them as PNG.
+
+    :param out_dir: folder for ``multi_robot_4.png``, ``single_robot.png`` and ``unseen_4.png``
+    :param n_forward_ticks: ticks the arena robots drive straight before the picture
+    :return: the files written
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+
+    arena = MultiRobotNavEnv(4, render_mode="rgb_array", render_lidar=True)
+    arena.reset(seed=3)
+    for _ in range(n_forward_ticks):
+        if arena.agents:
+            arena.step(dict.fromkeys(arena.agents, FORWARD))
+    written.append(out / "multi_robot_4.png")
+    imageio.imwrite(written[-1], _picture(arena.render()))
+    arena.close()
+
+    single = SingleRobotNavEnv(render_mode="rgb_array", render_lidar=True)
+    single.reset(seed=1)
+    written.append(out / "single_robot.png")
+    imageio.imwrite(written[-1], _picture(single.render()))
+    single.close()
+
+    unseen = MultiRobotNavEnv(4, scenario="unseen", render_mode="rgb_array")
+    unseen.reset(seed=0)
+    written.append(out / "unseen_4.png")
+    imageio.imwrite(written[-1], _picture(unseen.render()))
+    unseen.close()
+    return written
+
+
+if __name__ == "__main__":
+    for path in run(sys.argv[1] if len(sys.argv) > 1 else "docs/images"):
+        print(path)

@@ -1,0 +1,109 @@
+"""Single-robot TurtleBot3 navigation among static obstacles: the EPS evaluation world (paper Fig. 3 left), a
+gymnasium ``Env``.
+
+Same robot, lidar, actions, observation layout and reward (Eq. 7) as :class:`MultiRobotNavEnv`, of which it is
+a thin one-robot view, so a policy moves between the two worlds unchanged.
+
+Version history (``metadata["name"]``; bump the suffix on any change of behaviour):
+
+- ``single_robot_nav_v0``: first version.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium
+import numpy as np
+
+from envs.turtlebot3.multi_robot_nav import MultiRobotNavEnv
+
+AGENT = "robot_0"
+
+
+class SingleRobotNavEnv(gymnasium.Env):
+    """One TurtleBot3 Burger driving to random targets in the EPS world (walls plus static bars).
+
+    Observation, action, reward and time limit as in :class:`~envs.turtlebot3.MultiRobotNavEnv`. An episode
+    terminates on arrival (reward +1, ``info["is_success"] = True``) or on a collision (-1), and is truncated
+    after ``max_episode_steps`` ticks. ``info`` also carries ``"arrived"``, ``"collided"`` and ``"team"``.
+
+    :param scenario: ``"eps"`` (default: the EPS world with bars), ``"arena"`` (the 1-robot arena, walls only)
+        or ``"unseen"`` (robot 0 of the unseen room)
+    :param max_episode_steps: time limit in ticks; None = 150 ticks per metre of the room's side (600 here)
+    :param render_mode: None, ``"rgb_array"`` or ``"human"`` (PyBullet GUI; needs a display)
+    :param lidar_noise_std: standard deviation of Gaussian range noise [m]
+    :param render_lidar: draw the lidar beams in ``rgb_array`` pictures
+    """
+
+    metadata: dict[str, Any] = {
+        "name": "single_robot_nav_v0",
+        "render_modes": ["rgb_array", "human"],
+        "render_fps": 20,
+    }
+
+    def __init__(
+        self,
+        scenario: str = "eps",
+        max_episode_steps: int | None = None,
+        render_mode: str | None = None,
+        lidar_noise_std: float = 0.0,
+        render_lidar: bool = False,
+    ) -> None:
+        self.multi_env = MultiRobotNavEnv(
+            n_robots=1,
+            scenario=scenario,
+            max_episode_steps=max_episode_steps,
+            render_mode=render_mode,
+            lidar_noise_std=lidar_noise_std,
+            render_lidar=render_lidar,
+        )
+        self.observation_space = self.multi_env.observation_space(AGENT)
+        self.action_space = self.multi_env.action_space(AGENT)
+        self.render_mode = render_mode
+        self.max_episode_steps = self.multi_env.max_episode_steps
+        self._np_random = self.multi_env.np_random
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Start an episode with a new random start pose and target.
+
+        :param seed: re-seeds the generator (a non-negative int)
+        :param options: ``"start_poses"`` ``(1, 3)`` and/or ``"targets"`` ``(1, 2)`` to place the robot
+        :return: observation and info
+        """
+        observations, infos = self.multi_env.reset(seed=seed, options=options)
+        # One generator for both views, so env.np_random is the one the world draws from.
+        self._np_random = self.multi_env.np_random
+        self._np_random_seed = self.multi_env._np_random_seed
+        return observations[AGENT], self._info(infos[AGENT])
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        """Advance one tick (0.05 s).
+
+        :param action: an int in [0, 19]
+        :return: observation, reward, terminated, truncated, info
+        """
+        if not self.multi_env.agents:
+            raise RuntimeError("The episode is over: call reset() before step().")
+        observations, rewards, terminations, truncations, infos = self.multi_env.step({AGENT: action})
+        return (
+            observations[AGENT],
+            rewards[AGENT],
+            terminations[AGENT],
+            truncations[AGENT],
+            self._info(infos[AGENT]),
+        )
+
+    @staticmethod
+    def _info(info: dict[str, Any]) -> dict[str, Any]:
+        return {**info, "is_success": info["arrived"]}
+
+    def render(self) -> np.ndarray | None:
+        """Top-down ``(H, W, 3)`` uint8 picture (``rgb_array``), or pace the GUI (``human``)."""
+        return self.multi_env.render()
+
+    def close(self) -> None:
+        """Release the PyBullet client (idempotent)."""
+        self.multi_env.close()

@@ -1,0 +1,94 @@
+"""``python -m sb3_eps.evaluate``: evaluate a trained run greedily on any compatible env id.
+
+Examples::
+
+    python -m sb3_eps.evaluate --run logs/eps_gdq/MultiRobotNav-4-v0_1 --eval-env MultiRobotNavUnseen-4-v0 -n 100
+    python -m sb3_eps.evaluate --algo gdq --env MultiRobotNav-4-v0 -f logs --load-best --gif gdq.gif
+
+Prints success %, collision %, team return, path length and episode length (mean +/- std over world episodes)
+and saves them with every episode as JSON (default ``<run>/eval_<env id>[_best].json``).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from pathlib import Path
+
+from sb3_eps.zoo.cli import OneLineArgumentParser
+from sb3_eps.zoo.errors import run_command
+from sb3_eps.zoo.schema import ALGORITHMS
+
+PROG = "python -m sb3_eps.evaluate"
+
+
+def make_parser() -> argparse.ArgumentParser:
+    """:return: the parser of ``python -m sb3_eps.evaluate`` (run lookup as ``rl_zoo3.enjoy``)."""
+    parser = OneLineArgumentParser(
+        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--run", default=None, help="the run folder (or use --algo, --env, -f, --exp-id)")
+    parser.add_argument("--algo", choices=list(ALGORITHMS), default=None)
+    parser.add_argument("--env", default=None, help="the env id the run trained on")
+    parser.add_argument("-f", "--log-folder", dest="folder", default="logs")
+    parser.add_argument("--exp-id", type=int, default=0, help="run number (0: the latest)")
+    parser.add_argument("--load-best", action="store_true", help="the best model of the run's evaluations")
+    parser.add_argument(
+        "--eval-env", default=None, help="env id to evaluate on (default: the training env id)"
+    )
+    parser.add_argument("-n", "--n-episodes", type=int, default=100, help="world (team) episodes")
+    parser.add_argument("--n-envs", type=int, default=4, help="worlds run side by side")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the evaluation worlds")
+    parser.add_argument(
+        "--stochastic", action="store_true", help="keep the model's exploration (default greedy)"
+    )
+    parser.add_argument(
+        "--env-kwargs", nargs="+", default=[], metavar="KEY:VALUE", help="env constructor arguments"
+    )
+    parser.add_argument("--gif", default=None, metavar="PATH", help="also write a GIF of greedy episodes")
+    parser.add_argument("--gif-episodes", type=int, default=1, help="episodes in the GIF")
+    parser.add_argument("--output", default=None, help="JSON file of the results")
+    parser.add_argument("--device", default="auto")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line. :return: the exit status."""
+    args = make_parser().parse_args(argv)
+    from sb3_eps.zoo.config import parse_hyperparams
+    from sb3_eps.zoo.errors import ConfigError
+    from sb3_eps.zoo.evaluation import (
+        evaluate_run,
+        find_run,
+        format_summary,
+        load_run,
+        record_gif,
+        save_summary,
+    )
+
+    if args.run is None:
+        if args.algo is None or args.env is None:
+            raise ConfigError("name the run: --run RUN_DIR, or --algo, --env (and -f, --exp-id)")
+        args.run = find_run(args.folder, args.algo, args.env, args.exp_id)
+    env_kwargs = {path[0]: value for path, value in parse_hyperparams(args.env_kwargs)}
+    run = load_run(args.run, "best" if args.load_best else "final", args.device)
+    summary = evaluate_run(
+        run, args.eval_env, args.n_episodes, args.n_envs, args.seed, not args.stochastic, env_kwargs or None
+    )
+    print(format_summary(summary))
+    suffix = "_best" if args.load_best else ""
+    output = Path(args.output) if args.output else run.run_dir / f"eval_{summary['env_id']}{suffix}.json"
+    print(f"Results: {save_summary(summary, output)}")
+    if args.gif is not None:
+        path = record_gif(run, args.gif, args.eval_env, args.gif_episodes, args.seed, env_kwargs or None)
+        print(f"GIF: {path}")
+    return 0
+
+
+def cli() -> None:
+    """Console-script entry point: run :func:`main`, turning mistakes into one line and exit status 2."""
+    run_command(PROG, main)
+
+
+if __name__ == "__main__":
+    cli()

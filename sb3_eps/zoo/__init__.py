@@ -1,0 +1,20 @@
+"""RL-Zoo-style configs and command lines: train, tune, evaluate, plot, benchmark (``docs/usage.md``).
+
+- :mod:`sb3_eps.zoo.config` / :mod:`sb3_eps.zoo.schema`: safe loading and checking of ``zoo_configs/*.yml``;
+- :mod:`sb3_eps.zoo.exp_manager`: run folders, training, checkpoints and ``--resume``;
+- :mod:`sb3_eps.zoo.tuning`: Optuna search; :mod:`sb3_eps.zoo.evaluation`, :mod:`sb3_eps.zoo.plotting`.
+"""
+
+from sb3_eps.zoo.config import ResolvedConfig, default_config_dir, load_config_entries, resolve_config
+from sb3_eps.zoo.errors import ConfigError
+from sb3_eps.zoo.schema import ALGORITHMS, algorithm_spec
+
+__all__ = [
+    "ALGORITHMS",
+    "ConfigError",
+    "ResolvedConfig",
+    "algorithm_spec",
+    "default_config_dir",
+    "load_config_entries",
+    "resolve_config",
+]

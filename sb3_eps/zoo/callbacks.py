@@ -1,0 +1,460 @@
+"""The callbacks of a training run: team monitor, team evaluation, checkpoints with signal handling.
+
+- :class:`TeamMonitor` writes one CSV row per world episode (``monitor.csv``), with the ticks of training and of
+  EPS at its end: the data of the learning curves.
+- :class:`TeamEvalCallback` evaluates the greedy policy on separate evaluation worlds every ``eval_freq``
+  timesteps (team success, collision, return, length), writes ``evaluations.npz`` and ``best_model.zip``.
+- :class:`CheckpointCallback` writes a checkpoint (:mod:`sb3_eps.zoo.checkpoint`) every ``save_freq`` timesteps
+  and when SIGINT / SIGTERM arrive, at the next rollout start; after a signal it stops training by raising
+  :class:`TrainingInterrupted`. When resuming it restores the callbacks' states and the random states once
+  every callback is initialised.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import signal
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import CSVOutputFormat
+
+from sb3_eps.common.evaluation import evaluate_team
+from sb3_eps.common.vec_env import MultiAgentVecEnv
+from sb3_eps.zoo.checkpoint import save_checkpoint, save_model_atomic, set_rng_states, write_bytes_atomic
+
+MONITOR_NAME = "monitor.csv"
+EVALUATIONS_NAME = "evaluations.npz"
+BEST_MODEL_NAME = "best_model.zip"
+PROGRESS_NAME = "progress.csv"
+#: Columns every monitor row has; the env's team metrics (``success``, ``collision``...) follow.
+MONITOR_COLUMNS = ("r", "l", "t", "ticks", "eps_ticks", "world")
+
+
+class TrainingInterrupted(Exception):
+    """Raised from a callback to leave ``learn()`` after a signal, once the checkpoint is written."""
+
+
+def eps_ticks_of(callbacks: Sequence[BaseCallback]) -> int:
+    """:return: the ticks simulated by EPS so far (the ``eps_ticks`` of the callbacks that count them)."""
+    return int(sum(int(getattr(callback, "eps_ticks", 0)) for callback in callbacks))
+
+
+def team_score(summary: dict[str, Any]) -> tuple[float, float]:
+    """:return: ``(success rate, mean team return)``, compared lexicographically (return breaks ties)."""
+    return float(summary.get("success_rate", 0.0)), float(summary["team_return_mean"])
+
+
+# ---------------------------------------------------------------------------------------------- monitor
+class TeamMonitor(BaseCallback):
+    """One CSV row per world (team) episode: ``r`` team return, ``l`` ticks, ``t`` seconds, ``ticks`` / ``eps_ticks``
+    at its end (``ticks`` = the model's ticks, all worlds together), ``world`` and the env's team metrics.
+
+    The first line is a ``#`` comment with a JSON header (env id, agents, worlds, algorithm).
+
+    :param path: the CSV file; an existing one is continued (after :meth:`truncate_after` when resuming)
+    :param header: what the first line records
+    :param eps_callbacks: callbacks whose ``eps_ticks`` count towards the curves (EPS)
+    """
+
+    def __init__(
+        self, path: str | Path, header: dict[str, Any], eps_callbacks: Sequence[BaseCallback] = ()
+    ) -> None:
+        super().__init__()
+        self.path = Path(path)
+        self.header = header
+        self.eps_callbacks = list(eps_callbacks)
+        self.columns: list[str] | None = None
+        if self.path.exists():
+            with self.path.open() as file:
+                file.readline()
+                names = file.readline().strip()
+            self.columns = names.split(",") if names else None
+        self._file: Any = None
+        self._start = time.time()
+
+    @staticmethod
+    def truncate_after(path: str | Path, ticks: int) -> None:
+        """Drop the rows of episodes that ended after ``ticks`` (written after the checkpoint being resumed)."""
+        path = Path(path)
+        if not path.exists():
+            return
+        lines = path.read_text().splitlines(keepends=True)
+        if len(lines) < 2:
+            return
+        index = lines[1].strip().split(",").index("ticks")
+        kept = lines[:2] + [line for line in lines[2:] if int(float(line.split(",")[index])) <= ticks]
+        write_bytes_atomic(path, "".join(kept).encode())
+
+    def _on_step(self) -> bool:
+        infos = self.locals["infos"]
+        n_agents = int(self.model.n_agents)  # type: ignore[attr-defined]
+        for world in range(len(infos) // n_agents):
+            episode = infos[world * n_agents].get("episode")
+            if episode is not None:
+                self._write(episode, world)
+        return True
+
+    def _write(self, episode: dict[str, Any], world: int) -> None:
+        row = {
+            **{key: value for key, value in episode.items() if _is_scalar(value)},
+            "ticks": int(self.model.ticks),  # type: ignore[attr-defined]
+            "eps_ticks": eps_ticks_of(self.eps_callbacks),
+            "world": world,
+        }
+        if self.columns is None:
+            extra = sorted(key for key in row if key not in MONITOR_COLUMNS)
+            self.columns = [*MONITOR_COLUMNS, *extra]
+            with self.path.open("w") as file:
+                file.write("#" + json.dumps(self.header) + "\n" + ",".join(self.columns) + "\n")
+        if self._file is None:
+            self._file = self.path.open("a", newline="")
+        values = [row.get(column, "") for column in self.columns]
+        csv.writer(self._file, lineterminator="\n").writerow(
+            [int(value) if isinstance(value, bool) else value for value in values]
+        )
+        self._file.flush()
+
+    def _on_training_end(self) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close the file (it is reopened on the next episode)."""
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+
+def _is_scalar(value: Any) -> bool:
+    return isinstance(value, bool | int | float | str | np.integer | np.floating | np.bool_)
+
+
+def read_monitor(path: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """Read a ``monitor.csv``.
+
+    :return: ``(header, columns)``; columns as float arrays (booleans as 0/1)
+    """
+    path = Path(path)
+    with path.open() as file:
+        first = file.readline()
+        header = json.loads(first[1:]) if first.startswith("#") else {}
+        rows = list(csv.DictReader(file))
+    columns: dict[str, np.ndarray] = {}
+    if rows:
+        for key in rows[0]:
+            try:
+                columns[key] = np.array([float(row[key]) if row[key] != "" else np.nan for row in rows])
+            except ValueError:
+                continue
+    return header, columns
+
+
+# ---------------------------------------------------------------------------------------------- evaluation
+class TeamEvalCallback(BaseCallback):
+    """Greedy team evaluation on separate evaluation worlds every ``eval_freq`` timesteps.
+
+    Each evaluation plays the same seeded episodes (common random numbers across evaluations), counts episodes
+    per world (team), logs ``eval/success_rate``, ``eval/collision_rate``, ``eval/team_return``,
+    ``eval/length``, ``eval/ticks``, appends to ``evaluations.npz`` and saves ``best_model.zip`` when the success
+    rate improves (team return breaks ties).
+
+    :param eval_env: the evaluation worlds (not the training ones)
+    :param eval_freq: timesteps (agent-steps) between evaluations; 0 disables
+    :param n_eval_episodes: world episodes per evaluation
+    :param seed: seed of the evaluation worlds
+    :param folder: where ``evaluations.npz`` and ``best_model.zip`` go (None: nowhere)
+    :param eps_callbacks: callbacks whose ``eps_ticks`` are recorded with each evaluation
+    :param on_evaluation: called with each evaluation's summary; returning False stops training (pruning)
+    :param verbose: 1 prints one line per evaluation
+    """
+
+    def __init__(
+        self,
+        eval_env: MultiAgentVecEnv,
+        eval_freq: int,
+        n_eval_episodes: int,
+        seed: int,
+        folder: str | Path | None = None,
+        eps_callbacks: Sequence[BaseCallback] = (),
+        on_evaluation: Callable[[dict[str, Any]], bool] | None = None,
+        verbose: int = 0,
+    ) -> None:
+        super().__init__(verbose=verbose)
+        self.eval_env = eval_env
+        self.eval_freq = int(eval_freq)
+        self.n_eval_episodes = int(n_eval_episodes)
+        self.eval_seed = int(seed)
+        self.folder = Path(folder) if folder is not None else None
+        self.eps_callbacks = list(eps_callbacks)
+        self.on_evaluation = on_evaluation
+        self.next_eval = self.eval_freq
+        self.records: dict[str, list[Any]] = {key: [] for key in _RECORD_KEYS}
+        self.best_score: tuple[float, float] | None = None
+        self.last_summary: dict[str, Any] | None = None
+
+    def state_dict(self) -> dict[str, Any]:
+        """:return: what a checkpoint keeps of this callback."""
+        return {"next_eval": self.next_eval, "records": self.records, "best_score": self.best_score}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore :meth:`state_dict`."""
+        self.next_eval = state["next_eval"]
+        self.records = state["records"]
+        self.best_score = state["best_score"]
+        self._write_records()  # drops evaluations made after the checkpoint by a process that died
+
+    def _on_step(self) -> bool:
+        if self.eval_freq <= 0 or self.num_timesteps < self.next_eval:
+            return True
+        self.next_eval = (self.num_timesteps // self.eval_freq + 1) * self.eval_freq
+        summary = self.evaluate()
+        return True if self.on_evaluation is None else bool(self.on_evaluation(summary))
+
+    def evaluate(self) -> dict[str, Any]:
+        """Evaluate now; record, log and save. :return: the summary of :func:`~sb3_eps.evaluate_team`."""
+        summary = evaluate_team(self.model, self.eval_env, self.n_eval_episodes, seed=self.eval_seed)
+        episodes = summary.pop("episodes")
+        ticks = int(self.model.ticks)  # type: ignore[attr-defined]
+        eps_ticks = eps_ticks_of(self.eps_callbacks)
+        summary.update(timesteps=self.num_timesteps, ticks=ticks, eps_ticks=eps_ticks)
+        self.last_summary = summary
+        self._record(summary, episodes)
+        self._log(summary)
+        score = team_score(summary)
+        if self.best_score is None or score > self.best_score:
+            self.best_score = score
+            if self.folder is not None:
+                save_model_atomic(self.model, self.folder / BEST_MODEL_NAME)
+        return summary
+
+    def _record(self, summary: dict[str, Any], episodes: list[dict[str, Any]]) -> None:
+        records = self.records
+        records["timesteps"].append(summary["timesteps"])
+        records["ticks"].append(summary["ticks"])
+        records["eps_ticks"].append(summary["eps_ticks"])
+        records["results"].append([float(episode["r"]) for episode in episodes])
+        records["ep_lengths"].append([int(episode["l"]) for episode in episodes])
+        for key, name in (("success", "successes"), ("collision", "collisions")):
+            records[name].append([float(episode.get(key, np.nan)) for episode in episodes])
+        self._write_records()
+
+    def _write_records(self) -> None:
+        if self.folder is not None and self.records["timesteps"]:
+            arrays = {key: np.array(value) for key, value in self.records.items()}
+            write_bytes_atomic(self.folder / EVALUATIONS_NAME, _npz_bytes(arrays))
+
+    def _log(self, summary: dict[str, Any]) -> None:
+        logger = self.logger
+        logger.record("eval/team_return", summary["team_return_mean"])
+        logger.record("eval/team_return_std", summary["team_return_std"])
+        logger.record("eval/length", summary["length_mean"])
+        for key in ("success_rate", "collision_rate"):
+            if key in summary:
+                logger.record(f"eval/{key}", summary[key])
+        logger.record("eval/ticks", summary["ticks"])
+        logger.record("eval/eps_ticks", summary["eps_ticks"])
+        logger.record("time/total_timesteps", self.num_timesteps, exclude="tensorboard")
+        logger.dump(self.num_timesteps)
+        if self.verbose >= 1:
+            success = f"success {100 * summary['success_rate']:.0f} %, " if "success_rate" in summary else ""
+            print(
+                f"Eval at {self.num_timesteps} timesteps ({summary['ticks']} ticks): {success}team return "
+                f"{summary['team_return_mean']:.2f} +/- {summary['team_return_std']:.2f}, length "
+                f"{summary['length_mean']:.0f} ticks",
+                flush=True,
+            )
+
+
+_RECORD_KEYS = ("timesteps", "ticks", "eps_ticks", "results", "ep_lengths", "successes", "collisions")
+
+
+def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
+    import io
+
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)  # type: ignore[arg-type]
+    return buffer.getvalue()
+
+
+# ---------------------------------------------------------------------------------------------- checkpoints
+class CheckpointCallback(BaseCallback):
+    """Writes the full training state every ``save_freq`` timesteps and when a signal asks to stop.
+
+    Checkpoints are taken at rollout starts only (between two iterations of ``learn``), where every piece of
+    state can be restored exactly. After SIGINT / SIGTERM (see :func:`stop_on_signals`) the next rollout start
+    writes a checkpoint and raises :class:`TrainingInterrupted`.
+
+    :param path: the checkpoint file
+    :param save_freq: timesteps between checkpoints; 0 saves only on a signal
+    :param total_timesteps: the run's total, recorded in the checkpoint
+    :param stateful_callbacks: name -> callback whose state goes into the checkpoint
+    :param restore: when resuming: ``{"callbacks": states, "rng": states, "next_save": int}``, applied at the
+        start of training (after every callback's initialisation, which may draw random numbers or reset
+        counters)
+    :param verbose: 1 prints a line per checkpoint
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        save_freq: int,
+        total_timesteps: int,
+        stateful_callbacks: dict[str, BaseCallback],
+        restore: dict[str, Any] | None = None,
+        verbose: int = 0,
+    ) -> None:
+        super().__init__(verbose=verbose)
+        self.path = Path(path)
+        self.save_freq = int(save_freq)
+        self.total_timesteps = int(total_timesteps)
+        self.stateful_callbacks = stateful_callbacks
+        self.restore = restore
+        self.next_save = self.save_freq
+        self.stop_requested: str | None = None
+        self.saved_at: int | None = None
+
+    def _on_training_start(self) -> None:
+        if self.restore is None:
+            return
+        for name, state in self.restore["callbacks"].items():
+            set_callback_state(self.stateful_callbacks[name], state)
+        self.next_save = self.restore["next_save"]
+        set_rng_states(self.restore["rng"])
+        self.restore = None
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_rollout_start(self) -> None:
+        due = self.save_freq > 0 and self.num_timesteps >= self.next_save
+        if not (due or self.stop_requested):
+            return
+        if self.save_freq > 0:
+            self.next_save = (self.num_timesteps // self.save_freq + 1) * self.save_freq
+        self.save()
+        if self.stop_requested:
+            raise TrainingInterrupted(self.stop_requested)
+
+    def save(self, complete: bool = False) -> None:
+        """Write the checkpoint now (only valid between two iterations of ``learn``, or after it)."""
+        states = {name: callback_state(callback) for name, callback in self.stateful_callbacks.items()}
+        meta = {
+            "num_timesteps": int(self.model.num_timesteps),
+            "ticks": int(self.model.ticks),  # type: ignore[attr-defined]
+            "total_timesteps": self.total_timesteps,
+            "next_save": self.next_save,
+            "complete": complete,
+            "time": time.strftime("%Y-%m-%d %H:%M:%S"),
+        }
+        save_checkpoint(self.path, self.model, states, meta)  # type: ignore[arg-type]
+        self.saved_at = int(self.model.num_timesteps)
+        if self.verbose >= 1:
+            print(f"Checkpoint at {self.saved_at} timesteps: {self.path}", flush=True)
+
+
+@contextmanager
+def stop_on_signals(callback: CheckpointCallback) -> Iterator[None]:
+    """While the block runs, SIGINT and SIGTERM ask ``callback`` to checkpoint and stop at the next rollout start;
+    a second signal stops at once (``KeyboardInterrupt``). Handlers are put back afterwards.
+    """
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        name = signal.Signals(signum).name
+        if callback.stop_requested:
+            raise KeyboardInterrupt(f"second {name}: stopping without a checkpoint")
+        callback.stop_requested = name
+        print(f"\n{name} received: writing a checkpoint at the next rollout start, then stopping", flush=True)
+
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
+# ---------------------------------------------------------------------------------------------- callback states
+# EvolutionCallback attributes that make up its training state (used while it has no state_dict() of its own);
+# its evaluation workers and forward pass are rebuilt by its _init_callback, its episodes are seeded per round.
+_EPS_STATE_ATTRIBUTES = (
+    "eps_ticks",
+    "n_rounds",
+    "n_skipped_rounds",
+    "eps_time",
+    "history",
+    "_rng",
+    "_last_round_mark",
+)
+
+
+def callback_state(callback: BaseCallback) -> Any:
+    """:return: the resumable state of a callback: its ``state_dict()``, or for EPS the attributes above."""
+    if hasattr(callback, "state_dict"):
+        return callback.state_dict()
+    if type(callback).__name__ == "EvolutionCallback":
+        state = {name: getattr(callback, name) for name in _EPS_STATE_ATTRIBUTES}
+        generator = getattr(callback, "_generator", None)
+        state["_generator"] = generator.get_state() if isinstance(generator, th.Generator) else None
+        return state
+    raise ValueError(f"{type(callback).__name__} has no state_dict(): it cannot be checkpointed")
+
+
+def set_callback_state(callback: BaseCallback, state: Any) -> None:
+    """Restore what :func:`callback_state` returned (after the callback's ``init_callback``)."""
+    if hasattr(callback, "load_state_dict"):
+        callback.load_state_dict(state)
+        return
+    state = dict(state)
+    generator_state = state.pop("_generator")
+    for name, value in state.items():
+        setattr(callback, name, value)
+    if generator_state is not None:
+        generator = getattr(callback, "_generator", None)
+        if not isinstance(generator, th.Generator):
+            generator = th.Generator()
+            callback._generator = generator  # type: ignore[attr-defined]
+        generator.set_state(generator_state)
+
+
+# ---------------------------------------------------------------------------------------------- logs
+class ResumableCSVOutputFormat(CSVOutputFormat):
+    """SB3's CSV log that continues an existing file: rows logged after ``max_timesteps`` (after the checkpoint
+    being resumed) are dropped, the header is kept, and new rows are appended.
+
+    :param filename: the CSV file
+    :param max_timesteps: keep rows whose ``time/total_timesteps`` is at most this; None starts a new file
+    """
+
+    def __init__(self, filename: str | Path, max_timesteps: int | None = None) -> None:
+        path = Path(filename)
+        if max_timesteps is None or not path.exists() or path.stat().st_size == 0:
+            super().__init__(str(path))
+            return
+        with path.open(newline="") as file:
+            reader = csv.reader(file)
+            keys = next(reader, [])
+            rows = [row for row in reader if _row_timesteps(keys, row) <= max_timesteps]
+        with path.open("w", newline="") as file:
+            writer = csv.writer(file, lineterminator="\n")
+            writer.writerow(keys)
+            writer.writerows(rows)
+        self.file = path.open("r+")
+        self.file.seek(0, 2)
+        self.keys = keys
+        self.separator = ","
+        self.quotechar = '"'
+
+
+def _row_timesteps(keys: list[str], row: list[str]) -> float:
+    try:
+        return float(row[keys.index("time/total_timesteps")])
+    except (ValueError, IndexError):
+        return -1.0  # rows without the count (none are written that way) are kept

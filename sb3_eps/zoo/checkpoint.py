@@ -1,0 +1,258 @@
+"""Checkpoints that lose nothing, written atomically, and the helpers that write files atomically.
+
+A checkpoint (``<run>/checkpoint.zip``) is taken only at the start of a rollout, i.e. between two iterations of
+SB3's ``learn`` loop (after the gradient steps of one, before the env steps of the next): there the whole state
+of training is in objects that can be saved and restored exactly, and resuming re-enters the loop at the same
+point. It holds:
+
+- ``model.zip``: the model as ``model.save`` writes it (networks, optimizer state, counters, ``_last_obs``,
+  episode statistics, exploration rate);
+- ``training.pkl``: the replay buffer (with its PER sum tree), the n-step collector with its unfinished
+  windows, the last global states, and the training vector env itself, worlds mid-episode included (see
+  :class:`SnapshotPickler`);
+- ``rng.pkl``: the states of Python's, NumPy's and torch's global generators;
+- ``callbacks.pkl``: the state of the callbacks (team evaluation, EPS: counters, generators, history);
+- ``meta.json``: timesteps, ticks, total, whether training had finished.
+
+Checkpoints are pickles: load only the ones you wrote.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import pickle
+import random
+import tempfile
+import zipfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium.utils import EzPickle
+
+from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
+
+CHECKPOINT_NAME = "checkpoint.zip"
+
+
+def _file_mode() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+# mkstemp makes private (0600) files; written files get the mode a plain open() would give them.
+_FILE_MODE = _file_mode()
+_MEMBERS = ("model.zip", "training.pkl", "rng.pkl", "callbacks.pkl", "meta.json")
+
+
+# ---------------------------------------------------------------------------------------------- atomic files
+@contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; when the block succeeds it is renamed onto ``path`` (atomic on
+    POSIX), when it fails it is removed, so ``path`` always holds a complete file or its previous version.
+
+    :param path: the file to write
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(handle)
+    try:
+        yield Path(temporary)
+        os.chmod(temporary, _FILE_MODE)
+        os.replace(temporary, path)
+    finally:
+        if os.path.exists(temporary):
+            os.remove(temporary)
+
+
+def write_bytes_atomic(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file and a rename."""
+    with atomic_path(path) as temporary:
+        temporary.write_bytes(data)
+
+
+def write_text_atomic(path: str | Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file and a rename."""
+    with atomic_path(path) as temporary:
+        temporary.write_text(text)
+
+
+def save_model_atomic(model: Any, path: str | Path) -> None:
+    """``model.save(path)`` through a temporary file and a rename (``path`` ends with ``.zip``)."""
+    buffer = io.BytesIO()
+    model.save(buffer)
+    write_bytes_atomic(path, buffer.getvalue())
+
+
+# ---------------------------------------------------------------------------------------------- env snapshots
+def _rebuild(cls: type, args: tuple[Any, ...], kwargs: dict[str, Any]) -> Any:
+    return cls(*args, **kwargs)
+
+
+def _update_dict(obj: Any, state: dict[str, Any]) -> None:
+    obj.__dict__.update(state)
+
+
+def _picklable(value: Any) -> bool:
+    try:
+        pickle.dumps(value)
+    except Exception:  # any failure means: leave it to the constructor
+        return False
+    return True
+
+
+class SnapshotPickler(pickle.Pickler):
+    """A pickler that captures envs mid-episode.
+
+    Gymnasium's ``EzPickle`` (used by mpe2) pickles an env as its constructor arguments, which restarts it; here
+    such an object is rebuilt by its constructor and then given back every attribute that pickles (its world,
+    agents, step counters, random generator...), so it continues exactly. Attributes that cannot be pickled
+    (mpe2's pygame drawing surface) keep what the constructor made. The TurtleBot3 worlds pickle exactly on
+    their own (a fresh PyBullet client with the same poses).
+    """
+
+    def reducer_override(self, obj: Any) -> Any:
+        if isinstance(obj, EzPickle) and not isinstance(obj, type):
+            state = {
+                key: value
+                for key, value in obj.__dict__.items()
+                if key not in ("_ezpickle_args", "_ezpickle_kwargs") and _picklable(value)
+            }
+            arguments = (type(obj), tuple(obj._ezpickle_args), dict(obj._ezpickle_kwargs))
+            return _rebuild, arguments, state, None, None, _update_dict
+        return NotImplemented
+
+
+def snapshot_dumps(obj: Any) -> bytes:
+    """:return: ``obj`` pickled with :class:`SnapshotPickler`."""
+    buffer = io.BytesIO()
+    SnapshotPickler(buffer, protocol=pickle.HIGHEST_PROTOCOL).dump(obj)
+    return buffer.getvalue()
+
+
+# ---------------------------------------------------------------------------------------------- random states
+def rng_states() -> dict[str, Any]:
+    """:return: the states of Python's, NumPy's and torch's global random generators."""
+    states: dict[str, Any] = {
+        "python": random.getstate(),
+        "numpy": np.random.get_state(),
+        "torch": th.get_rng_state(),
+    }
+    if th.cuda.is_available():
+        states["cuda"] = th.cuda.get_rng_state_all()
+    return states
+
+
+def set_rng_states(states: dict[str, Any]) -> None:
+    """Restore what :func:`rng_states` returned."""
+    random.setstate(states["python"])
+    np.random.set_state(states["numpy"])
+    th.set_rng_state(states["torch"])
+    if "cuda" in states and th.cuda.is_available():
+        th.cuda.set_rng_state_all(states["cuda"])
+
+
+# ---------------------------------------------------------------------------------------------- checkpoints
+@dataclass
+class Checkpoint:
+    """A loaded checkpoint (see the module docstring).
+
+    :param model_bytes: the ``model.save`` archive
+    :param training: ``replay_buffer``, ``collector``, ``last_state``, ``env``
+    :param rng: global random states
+    :param callbacks: callback name -> state
+    :param meta: ``num_timesteps``, ``ticks``, ``total_timesteps``, ``complete``
+    """
+
+    model_bytes: bytes
+    training: dict[str, Any]
+    rng: dict[str, Any]
+    callbacks: dict[str, Any]
+    meta: dict[str, Any]
+
+
+def save_checkpoint(
+    path: str | Path,
+    model: MultiAgentOffPolicyAlgorithm,
+    callback_states: dict[str, Any],
+    meta: dict[str, Any],
+) -> None:
+    """Write a checkpoint of ``model`` (taken between two iterations of ``learn``) atomically.
+
+    :param path: the checkpoint file
+    :param model: the model being trained
+    :param callback_states: callback name -> picklable state
+    :param meta: JSON-able facts (timesteps, ticks, total...)
+    """
+    model_buffer = io.BytesIO()
+    model.save(model_buffer)
+    training = {
+        "replay_buffer": model.replay_buffer,
+        "collector": model._collector,
+        "last_state": model._last_state,
+        "env": model.env,
+    }
+    members = {
+        "model.zip": model_buffer.getvalue(),
+        "training.pkl": snapshot_dumps(training),  # one pickle: the collector keeps pointing at the buffer
+        "rng.pkl": pickle.dumps(rng_states()),
+        "callbacks.pkl": snapshot_dumps(callback_states),
+        "meta.json": json.dumps(meta, indent=2).encode(),
+    }
+    with atomic_path(path) as temporary, zipfile.ZipFile(temporary, "w", zipfile.ZIP_STORED) as archive:
+        for name, data in members.items():
+            archive.writestr(name, data)
+
+
+def read_checkpoint_meta(path: str | Path) -> dict[str, Any]:
+    """:return: only the ``meta.json`` of a checkpoint."""
+    with zipfile.ZipFile(path) as archive:
+        return json.loads(archive.read("meta.json"))
+
+
+def load_checkpoint(path: str | Path) -> Checkpoint:
+    """Read a checkpoint written by :func:`save_checkpoint` (a pickle: only load your own).
+
+    :raises ValueError: when the file is not such a checkpoint
+    """
+    try:
+        with zipfile.ZipFile(path) as archive:
+            data = {name: archive.read(name) for name in _MEMBERS}
+    except (zipfile.BadZipFile, KeyError) as error:
+        raise ValueError(f"{path} is not a checkpoint written by sb3_eps.train ({error})") from None
+    return Checkpoint(
+        model_bytes=data["model.zip"],
+        training=pickle.loads(data["training.pkl"]),  # our own checkpoint
+        rng=pickle.loads(data["rng.pkl"]),
+        callbacks=pickle.loads(data["callbacks.pkl"]),
+        meta=json.loads(data["meta.json"]),
+    )
+
+
+def restore_model(
+    checkpoint: Checkpoint, algorithm_class: type[MultiAgentOffPolicyAlgorithm], device: str = "auto"
+) -> MultiAgentOffPolicyAlgorithm:
+    """Rebuild the model of a checkpoint with its env, replay buffer and n-step windows, ready to
+    ``learn(remaining, reset_num_timesteps=False)``. The global random states are restored separately
+    (:func:`set_rng_states`), right before training goes on, because loading re-seeds them.
+
+    :param checkpoint: the loaded checkpoint
+    :param algorithm_class: the model's class
+    :param device: torch device
+    """
+    training = checkpoint.training
+    model = algorithm_class.load(io.BytesIO(checkpoint.model_bytes), env=None, device=device)
+    # set_env without a reset keeps the saved _last_obs; it does not re-seed the env (load with env= would).
+    model.set_env(training["env"], force_reset=False)
+    model.replay_buffer = training["replay_buffer"]
+    model._collector = training["collector"]
+    model._last_state = training["last_state"]
+    return model

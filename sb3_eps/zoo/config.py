@@ -1,0 +1,257 @@
+"""Loading ``zoo_configs/<algo>.yml`` files safely and resolving the entry of one env id.
+
+A file maps env ids (and ``default``) to entries (schema: :mod:`sb3_eps.zoo.schema`). The entry of an env id is
+its ``default`` entry updated key by key (a shallow merge) with the env id's own entry, then with the command line's
+``--hyperparams key:value`` overrides (``policy_kwargs.net_arch:[64]``, ``env_kwargs.<arg>:...`` and
+``callback.<arg>:...`` update one item of a mapping) and ``-n``. YAML is read with a safe loader that also refuses
+duplicate keys; nothing is executed.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+import envs
+from sb3_eps.zoo.errors import ConfigError, allowed
+from sb3_eps.zoo.schema import (
+    CALLBACK_KEY,
+    AlgorithmSpec,
+    algorithm_spec,
+    check_complete,
+    normalize_entry,
+)
+
+DEFAULT_KEY = "default"
+#: Environment variable naming a folder of config files to use instead of the shipped ``zoo_configs/``.
+CONFIG_DIR_VARIABLE = "SB3_EPS_CONFIG_DIR"
+_MAPPING_KEYS = ("policy_kwargs", "env_kwargs")
+
+
+@dataclass
+class ResolvedConfig:
+    """The configuration of one run.
+
+    :param algo: the algorithm name (``gdq``, ``eps_gdq``...)
+    :param env_id: the env id
+    :param entry: the canonical entry (defaults merged, overrides applied)
+    :param source: where it came from, for messages and ``config.yml``
+    """
+
+    algo: str
+    env_id: str
+    entry: dict[str, Any]
+    source: str
+
+    @property
+    def spec(self) -> AlgorithmSpec:
+        """The algorithm's spec."""
+        return algorithm_spec(self.algo)
+
+
+def default_config_dir() -> Path:
+    """The folder of the shipped configs: ``$SB3_EPS_CONFIG_DIR``, the repository's ``zoo_configs/`` (editable
+    installs), or ``<prefix>/share/sb3-eps/zoo_configs`` (installed as data files)."""
+    if os.environ.get(CONFIG_DIR_VARIABLE):
+        return Path(os.environ[CONFIG_DIR_VARIABLE])
+    repository = Path(__file__).resolve().parents[2] / "zoo_configs"
+    if repository.is_dir():
+        return repository
+    return Path(sys.prefix) / "share" / "sb3-eps" / "zoo_configs"
+
+
+def config_file(algo: str, conf_file: str | Path | None = None) -> Path:
+    """:return: ``conf_file`` or the shipped file of ``algo``. :raises ConfigError: when it does not exist."""
+    algorithm_spec(algo)
+    path = Path(conf_file) if conf_file is not None else default_config_dir() / f"{algo}.yml"
+    if not path.is_file():
+        raise ConfigError(f"config file {path} does not exist; pass an existing file with -conf")
+    return path
+
+
+class _SafeUniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader that refuses a key given twice in one mapping (PyYAML keeps the last silently)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        self.flatten_mapping(node)  # resolves "<<" merge keys first, which may repeat keys on purpose
+        seen: set[Any] = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if key in seen:
+                line = key_node.start_mark.line + 1
+                raise ConfigError(f"line {line}: the key {key!r} is given twice in one mapping")
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
+def load_yaml(path: str | Path) -> Any:
+    """Read a YAML file with the safe loader.
+
+    :raises ConfigError: for a missing file, invalid YAML, a duplicate key or a tag that would build an object
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as error:
+        raise ConfigError(f"cannot read {path}: {error.strerror}") from None
+    try:
+        return yaml.load(text, Loader=_SafeUniqueKeyLoader)  # a SafeLoader subclass
+    except ConfigError as error:
+        raise ConfigError(f"{path}: {error}") from None
+    except yaml.constructor.ConstructorError as error:
+        line = error.problem_mark.line + 1 if error.problem_mark else "?"
+        raise ConfigError(
+            f"{path}: line {line}: {error.problem}; configs are read as plain data (no Python tags)"
+        ) from None
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        where = f"line {mark.line + 1}: " if mark is not None else ""
+        problem = getattr(error, "problem", None) or str(error)
+        raise ConfigError(f"{path}: not valid YAML: {where}{problem}") from None
+
+
+def load_config_entries(path: str | Path, algo: str) -> dict[str, dict[str, Any]]:
+    """Read a config file and check every entry.
+
+    :param path: the YAML file
+    :param algo: the algorithm it configures
+    :return: env id (or ``default``) -> canonical entry as written (not merged with ``default``)
+    :raises ConfigError: for any problem, naming the file and the key
+    """
+    spec = algorithm_spec(algo)
+    data = load_yaml(path)
+    if not isinstance(data, Mapping):
+        raise ConfigError(
+            f"{path}: the file must map env ids (and 'default') to entries, got {type(data).__name__}"
+        )
+    keys = [DEFAULT_KEY, *envs.ENV_IDS]
+    entries: dict[str, dict[str, Any]] = {}
+    for env_id, entry in data.items():
+        if env_id not in keys:
+            raise ConfigError(f"{path}: unknown env id {env_id!r}; allowed keys: {allowed(keys)}")
+        entries[env_id] = normalize_entry(entry, spec, f"{path}: entry {env_id!r}")
+    return entries
+
+
+def merged_entry(entries: Mapping[str, dict[str, Any]], env_id: str, path: str | Path) -> dict[str, Any]:
+    """The entry of ``env_id``: ``default`` updated with the env id's own entry.
+
+    :raises ConfigError: when the file has neither
+    """
+    if env_id not in entries and DEFAULT_KEY not in entries:
+        raise ConfigError(
+            f"{path} has no entry for {env_id!r} and no 'default' entry; its entries: {allowed(entries)}"
+        )
+    return {**entries.get(DEFAULT_KEY, {}), **entries.get(env_id, {})}
+
+
+def resolve_config(
+    algo: str,
+    env_id: str,
+    conf_file: str | Path | None = None,
+    hyperparams: Sequence[str] = (),
+    n_timesteps: int | None = None,
+) -> ResolvedConfig:
+    """The configuration of a run: file entry, then ``--hyperparams`` overrides, then ``-n``.
+
+    :param algo: algorithm name
+    :param env_id: a registered env id
+    :param conf_file: a config file (default: the shipped ``zoo_configs/<algo>.yml``)
+    :param hyperparams: ``key:value`` overrides (values in YAML syntax; dotted keys update a mapping)
+    :param n_timesteps: total SB3 timesteps (agent-steps), overriding the entry's
+    :raises ConfigError: for any mistake, in one line
+    """
+    spec = algorithm_spec(algo)
+    check_env_id(env_id)
+    path = config_file(algo, conf_file)
+    entry = merged_entry(load_config_entries(path, algo), env_id, path)
+    source = f"{path}: entry {env_id!r}"
+    if hyperparams:
+        entry = apply_overrides(entry, parse_hyperparams(hyperparams), spec)
+        source += " with --hyperparams " + " ".join(hyperparams)
+    if n_timesteps is not None:
+        if isinstance(n_timesteps, bool) or not isinstance(n_timesteps, int) or n_timesteps < 1:
+            raise ConfigError(f"-n (total timesteps, agent-steps) must be an int >= 1, got {n_timesteps}")
+        entry["n_timesteps"] = n_timesteps
+    check_complete(entry, spec, source)
+    return ResolvedConfig(algo, env_id, entry, source)
+
+
+def check_env_id(env_id: str, flag: str = "--env") -> None:
+    """:raises ConfigError: when ``env_id`` is not registered (listing the ids)."""
+    if env_id not in envs.ENV_IDS:
+        raise ConfigError(f"{flag}: unknown env id {env_id!r}; allowed: {allowed(envs.ENV_IDS)}")
+
+
+def parse_hyperparams(items: Sequence[str]) -> list[tuple[tuple[str, ...], Any]]:
+    """Parse ``key:value`` overrides; values are YAML (``1e-4``, ``[64, 64]``, ``"dict(net_arch=[64])"``).
+
+    :return: ``(key path, value)`` pairs, e.g. ``(("policy_kwargs", "net_arch"), [64])``
+    :raises ConfigError: for an item without ``:`` or a value that is not valid YAML
+    """
+    overrides = []
+    for item in items:
+        key, separator, text = item.partition(":")
+        if not separator or not key.strip():
+            raise ConfigError(f"--hyperparams: {item!r} is not key:value (e.g. learning_rate:1e-4)")
+        try:
+            value = yaml.safe_load(text) if text.strip() else None
+        except yaml.YAMLError:
+            raise ConfigError(f"--hyperparams: the value of {key!r} is not valid YAML: {text!r}") from None
+        path = tuple(part.strip() for part in key.split("."))
+        if len(path) > 2 or (len(path) == 2 and path[0] not in (*_MAPPING_KEYS, CALLBACK_KEY)):
+            raise ConfigError(
+                f"--hyperparams: {key!r}: only {allowed(_MAPPING_KEYS)} and callback take a dotted key "
+                "(e.g. policy_kwargs.net_arch:[64])"
+            )
+        overrides.append((path, value))
+    return overrides
+
+
+def apply_overrides(
+    entry: dict[str, Any], overrides: Sequence[tuple[tuple[str, ...], Any]], spec: AlgorithmSpec
+) -> dict[str, Any]:
+    """Apply parsed ``--hyperparams`` to a canonical entry; every override is checked on its own first.
+
+    :return: the new canonical entry
+    """
+    result = {key: (dict(value) if isinstance(value, dict) else value) for key, value in entry.items()}
+    for path, value in overrides:
+        where = "--hyperparams"
+        if len(path) == 1:
+            result.update(normalize_entry({path[0]: value}, spec, where))
+        elif path[0] == CALLBACK_KEY:
+            callbacks = result.get(CALLBACK_KEY, [])
+            if len(callbacks) != 1:
+                raise ConfigError(f"{where}: callback.{path[1]} needs exactly one callback in the entry")
+            name, kwargs = next(iter(callbacks[0].items()))
+            checked = normalize_entry({CALLBACK_KEY: [{name: {path[1]: value}}]}, spec, where)
+            result[CALLBACK_KEY] = [{name: {**kwargs, **checked[CALLBACK_KEY][0][name]}}]
+        else:
+            checked = normalize_entry({path[0]: {path[1]: value}}, spec, where)
+            result[path[0]] = {**result.get(path[0], {}), **checked[path[0]]}
+    return normalize_entry(result, spec, "--hyperparams")
+
+
+class _EntryDumper(yaml.SafeDumper):
+    """Safe YAML writer with lists of scalars in flow style (``net_arch: [128, 64]``), mappings as blocks."""
+
+    def represent_list(self, data: list[Any]) -> yaml.Node:
+        flow = all(not isinstance(item, dict | list) for item in data)
+        return self.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flow)
+
+
+_EntryDumper.add_representer(list, _EntryDumper.represent_list)
+
+
+def entry_yaml(env_id: str, entry: Mapping[str, Any], header: str = "") -> str:
+    """:return: ``{env_id: entry}`` as YAML that ``-conf`` reads back (with ``header`` as comment lines)."""
+    body = yaml.dump({env_id: dict(entry)}, Dumper=_EntryDumper, sort_keys=False, width=110)
+    comments = "".join(f"# {line}\n" if line else "#\n" for line in header.splitlines())
+    return comments + body

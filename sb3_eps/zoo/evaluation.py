@@ -1,0 +1,221 @@
+"""Loading a run's model and evaluating it greedily on any compatible env id (``python -m sb3_eps.evaluate``)."""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sb3_eps.common.evaluation import evaluate_team
+from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
+from sb3_eps.common.vec_env import make_vec_env
+from sb3_eps.zoo.callbacks import BEST_MODEL_NAME
+from sb3_eps.zoo.checkpoint import write_text_atomic
+from sb3_eps.zoo.config import check_env_id, load_yaml
+from sb3_eps.zoo.errors import ConfigError
+from sb3_eps.zoo.exp_manager import ARGS_NAME, describe_space, final_model_name
+from sb3_eps.zoo.schema import algorithm_spec
+
+#: Metrics of an evaluation: summary key stem -> (label, unit, scale for printing).
+METRICS = {
+    "success": ("success", "%", 100.0),
+    "collision": ("collision", "%", 100.0),
+    "team_return": ("team return", "", 1.0),
+    "distance_travelled": ("path length (all robots)", "m", 1.0),
+    "path_length_per_robot": ("path length per robot", "m", 1.0),
+    "length": ("episode length", "ticks", 1.0),
+}
+
+
+@dataclass
+class LoadedRun:
+    """A run folder and the model chosen from it.
+
+    :param run_dir: the folder
+    :param args: its ``args.yml``
+    :param model: the loaded model (no env: it predicts on any world with the same spaces)
+    :param model_path: the file it came from
+    """
+
+    run_dir: Path
+    args: dict[str, Any]
+    model: MultiAgentOffPolicyAlgorithm
+    model_path: Path
+
+    @property
+    def algo(self) -> str:
+        """The run's algorithm name."""
+        return str(self.args["algo"])
+
+    @property
+    def env_id(self) -> str:
+        """The env id the run trained on."""
+        return str(self.args["env"])
+
+
+def find_run(folder: str | Path, algo: str, env_id: str, exp_id: int = 0) -> Path:
+    """RL Zoo's lookup: ``<folder>/<algo>/<env id>_<exp_id>``, the latest run when ``exp_id`` is 0.
+
+    :raises ConfigError: when there is no such run
+    """
+    parent = Path(folder) / algo
+    pattern = re.compile(rf"^{re.escape(env_id)}_(\d+)$")
+    numbers = (
+        sorted(int(m.group(1)) for p in parent.glob("*") if (m := pattern.match(p.name)))
+        if parent.is_dir()
+        else []
+    )
+    if not numbers:
+        raise ConfigError(f"no run of {algo} on {env_id} in {parent}; train one with python -m sb3_eps.train")
+    number = numbers[-1] if exp_id == 0 else exp_id
+    if number not in numbers:
+        raise ConfigError(f"--exp-id {exp_id}: no run {env_id}_{exp_id} in {parent}; runs: {numbers}")
+    return parent / f"{env_id}_{number}"
+
+
+def load_run(run_dir: str | Path, which: str = "final", device: str = "auto") -> LoadedRun:
+    """Load the final (or best) model of a run folder.
+
+    :param run_dir: a folder written by ``python -m sb3_eps.train``
+    :param which: ``"final"`` (``<env id>.zip``) or ``"best"`` (``best_model.zip``)
+    :param device: torch device
+    :raises ConfigError: when the folder or the model is missing
+    """
+    run_dir = Path(run_dir)
+    if not (run_dir / ARGS_NAME).is_file():
+        raise ConfigError(f"{run_dir} is not a run folder of sb3_eps.train (no {ARGS_NAME})")
+    args = load_yaml(run_dir / ARGS_NAME)
+    if not isinstance(args, dict) or "algo" not in args or "env" not in args:
+        raise ConfigError(f"{run_dir / ARGS_NAME} does not name the run's algo and env")
+    name = BEST_MODEL_NAME if which == "best" else final_model_name(str(args["env"]))
+    path = run_dir / name
+    if not path.is_file():
+        hint = (
+            "it has not finished: resume it, or use --load-best"
+            if which == "final"
+            else "it ran without evaluations"
+        )
+        raise ConfigError(f"{run_dir} has no {name} ({hint})")
+    cls = algorithm_spec(str(args["algo"])).algorithm_class
+    # buffer_size=1: no replay memory is needed to predict.
+    model = cls.load(path, env=None, device=device, buffer_size=1)
+    return LoadedRun(run_dir, args, model, path)
+
+
+def evaluate_run(
+    run: LoadedRun,
+    env_id: str | None = None,
+    n_episodes: int = 100,
+    n_envs: int = 4,
+    seed: int = 0,
+    deterministic: bool = True,
+    env_kwargs: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Evaluate a run's model on ``env_id`` (default: its training env id), world episodes counted per team.
+
+    :return: the summary of :func:`~sb3_eps.evaluate_team` plus ``path_length_per_robot`` and what was run
+    :raises ConfigError: when the env id is unknown or its spaces differ from the model's
+    """
+    env_id = env_id or run.env_id
+    check_env_id(env_id, "--eval-env")
+    if n_episodes < 1 or n_envs < 1:
+        raise ConfigError(f"-n (episodes) and --n-envs must be >= 1, got {n_episodes} and {n_envs}")
+    try:
+        venv = make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs)
+    except (TypeError, ValueError) as error:
+        raise ConfigError(f"--env-kwargs {env_kwargs}: {error}") from None
+    try:
+        check_spaces(run, venv, env_id)
+        summary = evaluate_team(run.model, venv, n_episodes, seed=seed, deterministic=deterministic)
+        n_agents = venv.n_agents
+    finally:
+        venv.close()
+    if "distance_travelled_mean" in summary:
+        per_robot = np.array([e["distance_travelled"] / n_agents for e in summary["episodes"]])
+        summary["path_length_per_robot_mean"] = float(per_robot.mean())
+        summary["path_length_per_robot_std"] = float(per_robot.std())
+    summary.update(
+        env_id=env_id, algo=run.algo, train_env_id=run.env_id, run_dir=str(run.run_dir), model=str(run.model_path),
+        seed=seed, deterministic=deterministic, n_agents=n_agents,
+    )  # fmt: skip
+    return summary
+
+
+def check_spaces(run: LoadedRun, venv: Any, env_id: str) -> None:
+    """:raises ConfigError: when the env's observation or action space differs from the model's."""
+    for kind in ("observation_space", "action_space"):
+        if getattr(venv, kind) != getattr(run.model, kind):
+            raise ConfigError(
+                f"{env_id} has {kind} {describe_space(getattr(venv, kind))} but the model of {run.run_dir} expects "
+                f"{describe_space(getattr(run.model, kind))}; evaluate on a world of the same kind as {run.env_id}"
+            )
+
+
+def format_summary(summary: dict[str, Any]) -> str:
+    """:return: the metrics as aligned lines, ``mean +/- std``."""
+    lines = [
+        f"{algorithm_spec(summary['algo']).label} trained on {summary['train_env_id']}, evaluated on "
+        f"{summary['env_id']} ({summary['n_episodes']} episodes, {'greedy' if summary['deterministic'] else 'stochastic'}):"
+    ]
+    for stem, (label, unit, scale) in METRICS.items():
+        mean_key = f"{stem}_rate" if stem in ("success", "collision") else f"{stem}_mean"
+        if mean_key not in summary:
+            continue
+        mean, std = scale * summary[mean_key], scale * summary[f"{stem}_std"]
+        lines.append(f"  {label:<26} {mean:9.2f} +/- {std:7.2f} {unit}")
+    return "\n".join(lines)
+
+
+def save_summary(summary: dict[str, Any], path: str | Path) -> Path:
+    """Write an evaluation summary (episodes included) as JSON, atomically."""
+    path = Path(path)
+    write_text_atomic(path, json.dumps(summary, indent=2, default=_json_default))
+    return path
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
+
+
+def record_gif(
+    run: LoadedRun,
+    path: str | Path,
+    env_id: str | None = None,
+    n_episodes: int = 1,
+    seed: int = 0,
+    env_kwargs: dict[str, Any] | None = None,
+    max_frames: int = 3_000,
+    fps: int = 20,
+) -> Path:
+    """Play ``n_episodes`` greedy episodes in one world drawn as ``rgb_array`` and write them as an animated GIF.
+
+    :param fps: frames per second of the GIF (the robots decide at 20 Hz: 20 plays in real time)
+    :return: the GIF's path
+    """
+    from envs.turtlebot3 import save_gif
+
+    env_id = env_id or run.env_id
+    venv = make_vec_env(
+        env_id, n_envs=1, seed=seed, env_kwargs={**(env_kwargs or {}), "render_mode": "rgb_array"}
+    )
+    try:
+        check_spaces(run, venv, env_id)
+        observations: Any = venv.reset()
+        frames = [venv.get_images()[0]]
+        finished = 0
+        while finished < n_episodes and len(frames) < max_frames:
+            actions, _ = run.model.predict(observations, deterministic=True)
+            observations, _, _, infos = venv.step(actions)
+            frames.append(venv.get_images()[0])
+            finished += int("episode" in infos[0])
+    finally:
+        venv.close()
+    return save_gif([frame for frame in frames if frame is not None], path, fps=fps)

@@ -1,0 +1,524 @@
+"""The experiment manager behind ``python -m sb3_eps.train``: config -> envs, model, callbacks -> run folder -> learn.
+
+Everything a run needs is built and checked before anything is written, so a mistake leaves no run folder. The run
+folder follows RL Zoo's layout, ``<folder>/<algo>/<env id>_<run>/``:
+
+- ``args.yml`` (the command line, resolved: seed, total timesteps...), ``config.yml`` (the canonical entry, readable
+  back with ``-conf``);
+- ``progress.csv`` (SB3's logs), ``monitor.csv`` (one row per world episode), ``evaluations.npz``,
+  ``best_model.zip``, ``<env id>.zip`` (the final model), ``checkpoint.zip`` (the training state, while the run
+  is unfinished or with ``--keep-checkpoint``).
+
+``--resume <run folder>`` rebuilds the run from ``args.yml``, ``config.yml`` and the checkpoint and continues to
+the same total; the result equals an uninterrupted run with the same seed (see :mod:`sb3_eps.zoo.checkpoint`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import random
+import re
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch as th
+import yaml
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList, ProgressBarCallback
+from stable_baselines3.common.logger import HumanOutputFormat, KVWriter, Logger, TensorBoardOutputFormat
+from stable_baselines3.common.save_util import load_from_zip_file
+
+import envs
+from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
+from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env
+from sb3_eps.version import __version__
+from sb3_eps.zoo.callbacks import (
+    MONITOR_NAME,
+    PROGRESS_NAME,
+    CheckpointCallback,
+    ResumableCSVOutputFormat,
+    TeamEvalCallback,
+    TeamMonitor,
+    TrainingInterrupted,
+    callback_state,
+    stop_on_signals,
+)
+from sb3_eps.zoo.checkpoint import (
+    CHECKPOINT_NAME,
+    load_checkpoint,
+    read_checkpoint_meta,
+    restore_model,
+    save_model_atomic,
+    write_text_atomic,
+)
+from sb3_eps.zoo.config import (
+    ResolvedConfig,
+    check_env_id,
+    entry_yaml,
+    load_config_entries,
+    load_yaml,
+    merged_entry,
+    resolve_config,
+)
+from sb3_eps.zoo.errors import ConfigError
+from sb3_eps.zoo.schema import algorithm_kwargs, algorithm_spec, build_callbacks, check_complete
+
+ARGS_NAME = "args.yml"
+CONFIG_NAME = "config.yml"
+#: The evaluation worlds are seeded ``seed + EVAL_SEED_OFFSET``: other worlds than the training ones.
+EVAL_SEED_OFFSET = 10_000
+
+
+def final_model_name(env_id: str) -> str:
+    """:return: the file name of a run's final model (RL Zoo's ``<env id>.zip``)."""
+    return f"{env_id}.zip"
+
+
+# ---------------------------------------------------------------------------------------------- options
+@dataclass
+class TrainOptions:
+    """The options of a training run (``python -m sb3_eps.train``; ``args.yml`` holds them resolved).
+
+    Counts (``n_timesteps``, ``eval_freq``, ``save_freq``) are SB3 timesteps = agent-steps, as in RL Zoo.
+    """
+
+    algo: str = "gdq"
+    env: str = "MultiRobotNav-4-v0"
+    conf_file: str | None = None
+    n_timesteps: int | None = None
+    seed: int | None = None
+    folder: str = "logs"
+    eval_freq: int = 25_000
+    eval_episodes: int = 10
+    n_eval_envs: int = 2
+    eval_env: str | None = None
+    save_freq: int = 100_000
+    keep_checkpoint: bool = False
+    progress: bool = False
+    tensorboard_log: str | None = None
+    device: str = "cpu"
+    hyperparams: list[str] = field(default_factory=list)
+    env_kwargs: list[str] = field(default_factory=list)
+    verbose: int = 1
+    log_interval: int = -1
+    num_threads: int = 1
+    init_from: str | None = None
+
+    @classmethod
+    def from_namespace(cls, namespace: argparse.Namespace) -> TrainOptions:
+        """:return: the options of a parsed command line (unknown attributes ignored)."""
+        names = cls.__dataclass_fields__
+        return cls(**{key: value for key, value in vars(namespace).items() if key in names})
+
+    def check(self) -> None:
+        """:raises ConfigError: for a count or flag out of range."""
+        for flag, value, low in (
+            ("--eval-freq", self.eval_freq, 0),
+            ("--eval-episodes", self.eval_episodes, 1),
+            ("--n-eval-envs", self.n_eval_envs, 1),
+            ("--save-freq", self.save_freq, 0),
+        ):
+            if value < low:
+                raise ConfigError(f"{flag} must be >= {low}, got {value} (use 0 to turn off a *-freq)")
+        if self.seed is not None and self.seed < 0:
+            raise ConfigError(f"--seed must be a non-negative int, got {self.seed}")
+        if self.init_from is not None and not Path(self.init_from).is_file():
+            raise ConfigError(
+                f"--init-from: {self.init_from} is not a file; pass a model .zip (e.g. a run's best_model.zip)"
+            )
+
+
+# ---------------------------------------------------------------------------------------------- building
+@dataclass
+class PreparedRun:
+    """Everything of a run built and checked, before any file is written."""
+
+    options: TrainOptions
+    config: ResolvedConfig
+    env: MultiAgentVecEnv
+    eval_env: MultiAgentVecEnv | None
+    model: MultiAgentOffPolicyAlgorithm
+    user_callbacks: list[tuple[str, BaseCallback]]
+
+    def close(self) -> None:
+        """Close the envs."""
+        self.env.close()
+        if self.eval_env is not None:
+            self.eval_env.close()
+
+
+def env_kwargs_of(config: ResolvedConfig) -> dict[str, Any]:
+    """:return: the env constructor arguments of a run."""
+    return dict(config.entry.get("env_kwargs", {}))
+
+
+def build_env(
+    config: ResolvedConfig, seed: int | None, env_id: str | None = None, n_envs: int | None = None
+) -> MultiAgentVecEnv:
+    """Make the vector env of a config (``env_id`` / ``n_envs`` override the config's, for evaluation worlds).
+
+    :raises ConfigError: when the env refuses the config's ``env_kwargs``
+    """
+    env_id = env_id or config.env_id
+    try:
+        return make_vec_env(
+            env_id,
+            n_envs=n_envs or config.entry.get("n_envs", 1),
+            seed=seed,
+            env_kwargs=env_kwargs_of(config),
+        )
+    except (TypeError, ValueError) as error:
+        raise ConfigError(
+            f"{config.source}: env_kwargs {env_kwargs_of(config)} for {env_id}: {error}"
+        ) from None
+
+
+def build_model(
+    config: ResolvedConfig, env: MultiAgentVecEnv, seed: int | None, device: str, verbose: int
+) -> MultiAgentOffPolicyAlgorithm:
+    """Make the model of a config on ``env``.
+
+    :raises ConfigError: when the algorithm refuses the config
+    """
+    cls = config.spec.algorithm_class
+    try:
+        return cls(
+            config.entry.get("policy", "MlpPolicy"),
+            env,
+            seed=seed,
+            device=device,
+            verbose=verbose,
+            **algorithm_kwargs(config.entry),
+        )
+    except (TypeError, ValueError) as error:
+        raise ConfigError(f"{config.source}: building {cls.__name__}: {error}") from None
+
+
+def describe_space(space: Any) -> str:
+    """:return: a short description of a gymnasium space (``Box(30,)``, ``Discrete(20)``)."""
+    if hasattr(space, "n"):
+        return f"{type(space).__name__}({int(space.n)})"
+    return f"{type(space).__name__}{tuple(getattr(space, 'shape', ()) or ())}"
+
+
+def check_eval_env(
+    model: MultiAgentOffPolicyAlgorithm, eval_env: MultiAgentVecEnv, flag: str = "--eval-env"
+) -> None:
+    """:raises ConfigError: when the evaluation worlds do not share the model's spaces."""
+    for kind in ("observation_space", "action_space"):
+        if getattr(eval_env, kind) != getattr(model, kind):
+            raise ConfigError(
+                f"{flag}: {eval_env.env_id} has {kind} {describe_space(getattr(eval_env, kind))}, the model "
+                f"{describe_space(getattr(model, kind))}; pick a world of the same kind (robots with robots, MPE with MPE)"
+            )
+
+
+def load_agent_weights(model: MultiAgentOffPolicyAlgorithm, path: str | Path) -> None:
+    """Warm start (paper Table III): copy the agent network (``q_net`` and its target) of a saved model into
+    ``model``, e.g. from a single-robot model trained on ``SingleRobotNav-v0`` into a multi-robot one. The joint
+    modules (GDQ's ``V_G``, mixers) and the optimizer state start fresh.
+
+    :param model: the new model
+    :param path: a model ``.zip`` with the same agent network architecture and spaces
+    :raises ConfigError: when the file is unreadable or its network does not fit
+    """
+    try:
+        data, params, _ = load_from_zip_file(path, device=model.device)
+    except (OSError, ValueError, KeyError) as error:
+        raise ConfigError(f"--init-from: cannot read {path}: {error}") from None
+    if data is None or params is None or "policy" not in params:
+        raise ConfigError(f"--init-from: {path} holds no policy weights")
+    for kind in ("observation_space", "action_space"):
+        if data.get(kind) != getattr(model, kind):
+            raise ConfigError(
+                f"--init-from: {path} was trained with {kind} {describe_space(data.get(kind))}, this model has "
+                f"{describe_space(getattr(model, kind))}"
+            )
+    policy: dict[str, Any] = params["policy"]  # type: ignore[assignment]
+    online = {key[len("q_net.") :]: value for key, value in policy.items() if key.startswith("q_net.")}
+    target = {
+        key[len("q_net_target.") :]: value for key, value in policy.items() if key.startswith("q_net_target.")
+    }
+    try:
+        model.policy.q_net.load_state_dict(online)
+        if model.policy.q_net_target is not None:
+            model.policy.q_net_target.load_state_dict(target or online)
+    except RuntimeError as error:
+        first = str(error).splitlines()[1:2] or [str(error)]
+        raise ConfigError(
+            f"--init-from: the agent network of {path} does not fit this model (use the same policy_kwargs "
+            f"net_arch / stream_arch / activation_fn): {first[0].strip()}"
+        ) from None
+
+
+def prepare_run(
+    options: TrainOptions, config: ResolvedConfig | None = None, build_model_now: bool = True
+) -> PreparedRun:
+    """Resolve the config and build envs, model and callbacks; nothing is written.
+
+    :param options: the run's options
+    :param config: an already resolved config (resume), else resolved from the options
+    :param build_model_now: False when the model comes from a checkpoint (resume)
+    :raises ConfigError: for any mistake
+    """
+    options.check()
+    if config is None:
+        check_env_id(options.env)
+        hyperparams = [*options.hyperparams, *(f"env_kwargs.{item}" for item in options.env_kwargs)]
+        config = resolve_config(
+            options.algo, options.env, options.conf_file, hyperparams, options.n_timesteps
+        )
+    eval_env_id = options.eval_env or config.env_id
+    check_env_id(eval_env_id, "--eval-env")
+    if options.seed is None:
+        options.seed = random.SystemRandom().randrange(2**31 - 1)
+    if options.num_threads > 0:
+        th.set_num_threads(options.num_threads)
+    env = build_env(config, options.seed)
+    model: Any = None
+    eval_env = None
+    try:
+        if build_model_now:
+            model = build_model(config, env, options.seed, options.device, options.verbose)
+            if options.init_from is not None:
+                load_agent_weights(model, options.init_from)
+        if options.eval_freq > 0:
+            eval_env = build_env(config, options.seed + EVAL_SEED_OFFSET, eval_env_id, options.n_eval_envs)
+            if model is not None:
+                check_eval_env(model, eval_env)
+        user_callbacks = build_callbacks(config.entry, config.env_id, options.verbose, config.source)
+        for name, callback in user_callbacks:
+            try:
+                callback_state(callback)
+            except ValueError as error:
+                raise ConfigError(
+                    f"{config.source}: callback {name} cannot be checkpointed: {error}"
+                ) from None
+    except BaseException:
+        env.close()
+        if eval_env is not None:
+            eval_env.close()
+        raise
+    return PreparedRun(options, config, env, eval_env, model, user_callbacks)
+
+
+# ---------------------------------------------------------------------------------------------- run folders
+def create_run_folder(folder: str | Path, algo: str, env_id: str) -> Path:
+    """Create ``<folder>/<algo>/<env id>_<n>`` with the next free ``n`` (safe when processes race)."""
+    parent = Path(folder) / algo
+    parent.mkdir(parents=True, exist_ok=True)
+    pattern = re.compile(rf"^{re.escape(env_id)}_(\d+)$")
+    taken = [int(match.group(1)) for path in parent.iterdir() if (match := pattern.match(path.name))]
+    number = max(taken, default=0) + 1
+    while True:
+        path = parent / f"{env_id}_{number}"
+        try:
+            path.mkdir()
+            return path
+        except FileExistsError:
+            number += 1
+
+
+def make_logger(
+    run_dir: Path, tensorboard_dir: str | None, verbose: int, resume_timesteps: int | None
+) -> Logger:
+    """SB3 logger writing ``progress.csv`` (continued when resuming), TensorBoard and, if verbose, stdout."""
+    formats: list[KVWriter] = []
+    if verbose >= 1:
+        formats.append(HumanOutputFormat(sys.stdout))
+    formats.append(ResumableCSVOutputFormat(run_dir / PROGRESS_NAME, resume_timesteps))
+    if tensorboard_dir is not None:
+        formats.append(TensorBoardOutputFormat(tensorboard_dir))
+    return Logger(folder=str(run_dir), output_formats=formats)
+
+
+def tensorboard_dir_of(options: TrainOptions, run_dir: Path) -> str | None:
+    """:return: the run's TensorBoard folder, ``<tensorboard_log>/<algo>/<run folder name>``, or None."""
+    if options.tensorboard_log is None:
+        return None
+    return str(Path(options.tensorboard_log) / options.algo / run_dir.name)
+
+
+# ---------------------------------------------------------------------------------------------- training
+@dataclass
+class TrainResult:
+    """What a training command did.
+
+    :param run_dir: the run folder
+    :param status: ``"complete"``, ``"interrupted"`` or ``"already complete"``
+    :param num_timesteps: timesteps trained so far
+    """
+
+    run_dir: Path
+    status: str
+    num_timesteps: int
+
+
+def train(options: TrainOptions) -> TrainResult:
+    """Build, create the run folder, train (``python -m sb3_eps.train``).
+
+    :raises ConfigError: for any mistake, before anything is written
+    """
+    prepared = prepare_run(options)
+    try:
+        run_dir = create_run_folder(options.folder, options.algo, prepared.config.env_id)
+        options_record = {**vars(options), "version": __version__, "run_dir": str(run_dir)}
+        options_record["n_timesteps"] = prepared.config.entry["n_timesteps"]
+        write_text_atomic(run_dir / ARGS_NAME, yaml.safe_dump(options_record, sort_keys=False))
+        header = f"resolved from {prepared.config.source}\nrerun: python -m sb3_eps.train --algo {options.algo} -conf <this file> ..."
+        write_text_atomic(
+            run_dir / CONFIG_NAME, entry_yaml(prepared.config.env_id, prepared.config.entry, header)
+        )
+        return _run(prepared, run_dir, restore=None)
+    finally:
+        prepared.close()
+
+
+def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | None = None) -> TrainResult:
+    """Continue an interrupted run from its checkpoint to its total (``--resume``).
+
+    :param run_dir: the run folder
+    :param progress: show a progress bar (None: as the run was started)
+    :param verbose: verbosity (None: as the run was started)
+    :raises ConfigError: when the folder holds no resumable run
+    """
+    run_dir = Path(run_dir)
+    for name in (ARGS_NAME, CONFIG_NAME):
+        if not (run_dir / name).is_file():
+            raise ConfigError(f"--resume: {run_dir} is not a run folder of sb3_eps.train (no {name})")
+    saved = load_yaml(run_dir / ARGS_NAME)
+    if not isinstance(saved, dict):
+        raise ConfigError(f"--resume: {run_dir / ARGS_NAME} is not a mapping of options")
+    options = TrainOptions(
+        **{key: value for key, value in saved.items() if key in TrainOptions.__dataclass_fields__}
+    )
+    options.init_from = None  # the warm-start weights are in the checkpoint already
+    if progress is not None:
+        options.progress = progress
+    if verbose is not None:
+        options.verbose = verbose
+    checkpoint_path = run_dir / CHECKPOINT_NAME
+    final_model = run_dir / final_model_name(options.env)
+    if not checkpoint_path.is_file():
+        if final_model.is_file():
+            print(f"{run_dir} has finished already: its final model is {final_model}")
+            return TrainResult(run_dir, "already complete", int(options.n_timesteps or 0))
+        raise ConfigError(
+            f"--resume: {run_dir} has no {CHECKPOINT_NAME} (it stopped before its first checkpoint); start a new run"
+        )
+    if read_checkpoint_meta(checkpoint_path).get("complete"):
+        print(f"{run_dir} has finished already: its final model is {final_model}")
+        return TrainResult(run_dir, "already complete", int(options.n_timesteps or 0))
+    spec = algorithm_spec(options.algo)
+    entry = merged_entry(
+        load_config_entries(run_dir / CONFIG_NAME, options.algo), options.env, run_dir / CONFIG_NAME
+    )
+    config = ResolvedConfig(
+        options.algo, options.env, entry, f"{run_dir / CONFIG_NAME}: entry {options.env!r}"
+    )
+    check_complete(entry, spec, config.source)
+    prepared = prepare_run(options, config, build_model_now=False)
+    try:
+        prepared.env.close()  # the training worlds come back from the checkpoint, mid-episode
+        checkpoint = load_checkpoint(checkpoint_path)
+        prepared.env = checkpoint.training["env"]
+        prepared.model = restore_model(checkpoint, spec.algorithm_class, options.device)
+        prepared.model.verbose = options.verbose
+        restore = {
+            "callbacks": checkpoint.callbacks,
+            "rng": checkpoint.rng,
+            "next_save": checkpoint.meta["next_save"],
+            "num_timesteps": checkpoint.meta["num_timesteps"],
+            "ticks": checkpoint.meta["ticks"],
+        }
+        if options.verbose >= 1:
+            print(
+                f"Resuming {run_dir} at {checkpoint.meta['num_timesteps']} of {options.n_timesteps} timesteps"
+            )
+        return _run(prepared, run_dir, restore)
+    finally:
+        prepared.close()
+
+
+def _run(prepared: PreparedRun, run_dir: Path, restore: dict[str, Any] | None) -> TrainResult:
+    """Train a prepared run in its folder; write the final model. ``restore`` continues a checkpoint."""
+    options, config, model = prepared.options, prepared.config, prepared.model
+    total = int(config.entry["n_timesteps"])
+    resume_timesteps = None if restore is None else int(restore["num_timesteps"])
+    if restore is not None:
+        TeamMonitor.truncate_after(run_dir / MONITOR_NAME, int(restore["ticks"]))
+    model.set_logger(
+        make_logger(run_dir, tensorboard_dir_of(options, run_dir), options.verbose, resume_timesteps)
+    )
+    eps_callbacks = [callback for _, callback in prepared.user_callbacks]
+    header = {
+        "env_id": config.env_id,
+        "algo": options.algo,
+        "n_agents": model.n_agents,
+        "n_envs": model.n_worlds,
+        "seed": options.seed,
+    }
+    callbacks: list[BaseCallback] = [TeamMonitor(run_dir / MONITOR_NAME, header, eps_callbacks)]
+    stateful: dict[str, BaseCallback] = {}
+    eval_callback = None
+    if prepared.eval_env is not None:
+        eval_callback = TeamEvalCallback(
+            prepared.eval_env, options.eval_freq, options.eval_episodes, options.seed + EVAL_SEED_OFFSET,  # type: ignore[operator]
+            folder=run_dir, eps_callbacks=eps_callbacks, verbose=options.verbose,
+        )  # fmt: skip
+        callbacks.append(eval_callback)
+        stateful["eval"] = eval_callback
+    for index, (name, callback) in enumerate(prepared.user_callbacks):
+        callbacks.append(callback)
+        stateful[f"{index}:{name}"] = callback
+    checkpoint = CheckpointCallback(
+        run_dir / CHECKPOINT_NAME, options.save_freq, total, stateful, restore, verbose=options.verbose
+    )
+    if options.progress:
+        callbacks.append(ProgressBarCallback())
+    callbacks.append(checkpoint)  # last: it restores states after every other callback is initialised
+    callback_list = CallbackList(callbacks)
+    start = time.time()
+    if options.verbose >= 1 and restore is None:
+        print(
+            f"Training {options.algo} on {config.env_id} for {total} timesteps (seed {options.seed}); run folder {run_dir}",
+            flush=True,
+        )
+    # The signal handlers stay until the final model is written: a signal after learn() only lets it finish.
+    with stop_on_signals(checkpoint):
+        try:
+            model.learn(
+                total - model.num_timesteps,
+                callback=callback_list,
+                log_interval=options.log_interval if options.log_interval > 0 else 4,
+                reset_num_timesteps=restore is None,
+            )
+        except TrainingInterrupted as stop:
+            callback_list.on_training_end()
+            print(
+                f"Stopped by {stop} at {checkpoint.saved_at} of {total} timesteps; checkpoint {run_dir / CHECKPOINT_NAME}. "
+                f"Continue with: python -m sb3_eps.train --resume {run_dir}",
+                flush=True,
+            )
+            return TrainResult(run_dir, "interrupted", int(model.num_timesteps))
+        if eval_callback is not None and eval_callback.records["timesteps"][-1:] != [model.num_timesteps]:
+            eval_callback.evaluate()
+        save_model_atomic(model, run_dir / final_model_name(config.env_id))
+        if options.keep_checkpoint:
+            checkpoint.save(complete=True)
+        else:
+            (run_dir / CHECKPOINT_NAME).unlink(missing_ok=True)
+    if options.verbose >= 1:
+        minutes = (time.time() - start) / 60
+        print(
+            f"Done in {minutes:.1f} min: {model.num_timesteps} timesteps ({model.ticks} ticks); final model {run_dir / final_model_name(config.env_id)}",
+            flush=True,
+        )
+    return TrainResult(run_dir, "complete", int(model.num_timesteps))
+
+
+def available_env_ids() -> tuple[str, ...]:
+    """:return: the env ids a run may use."""
+    return tuple(envs.ENV_IDS)

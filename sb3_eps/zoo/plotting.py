@@ -1,0 +1,291 @@
+"""Learning curves and aggregate metrics from run folders (``python -m sb3_eps.plot``).
+
+Curves follow the paper's Fig. 4: per run, the team return (and success rate) of the training episodes smoothed
+over the last ``window`` (100) episodes, against the ticks simulated so far *including* the ticks of EPS
+evaluation; runs are grouped by algorithm (and env id) and drawn as mean +/- std over seeds, on the range all
+seeds of a group reached. Aggregates are the final scores of the runs (mean of the last ``window`` episodes)
+summarised per algorithm by mean, median and interquartile mean (IQM) with stratified-bootstrap 95 % confidence
+intervals (Agarwal et al., NeurIPS 2021, as in ``rliable``, which is used when installed).
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sb3_eps.zoo.callbacks import EVALUATIONS_NAME, MONITOR_NAME, read_monitor
+from sb3_eps.zoo.config import load_yaml
+from sb3_eps.zoo.errors import ConfigError
+from sb3_eps.zoo.exp_manager import ARGS_NAME
+from sb3_eps.zoo.schema import ALGORITHMS
+
+PANELS = {"r": "team return", "success": "success rate"}
+
+
+@dataclass
+class RunCurve:
+    """The training episodes of one run.
+
+    :param run_dir: the folder
+    :param algo: algorithm name
+    :param env_id: env id
+    :param x: ticks at each episode's end, EPS ticks included
+    :param values: column -> per-episode values (``r``, ``success``...)
+    """
+
+    run_dir: Path
+    algo: str
+    env_id: str
+    x: np.ndarray
+    values: dict[str, np.ndarray]
+
+
+def find_run_dirs(paths: list[str | Path]) -> list[Path]:
+    """:return: the run folders (holding ``monitor.csv`` and ``args.yml``) at or below ``paths``, sorted.
+
+    :raises ConfigError: when a path does not exist or none holds a run
+    """
+    found: set[Path] = set()
+    for path in map(Path, paths):
+        if not path.exists():
+            raise ConfigError(f"{path} does not exist")
+        candidates = (
+            [path] if (path / MONITOR_NAME).is_file() else [p.parent for p in path.rglob(MONITOR_NAME)]
+        )
+        found.update(c for c in candidates if (c / ARGS_NAME).is_file())
+    if not found:
+        raise ConfigError(
+            f"no run folder (with {MONITOR_NAME} and {ARGS_NAME}) in {', '.join(map(str, paths))}"
+        )
+    return sorted(found)
+
+
+def load_curve(run_dir: Path) -> RunCurve:
+    """Read a run's ``monitor.csv``: x = ``ticks + eps_ticks`` at each episode's end."""
+    args = load_yaml(run_dir / ARGS_NAME)
+    _, columns = read_monitor(run_dir / MONITOR_NAME)
+    if "ticks" not in columns:
+        columns = {"ticks": np.zeros(0), "eps_ticks": np.zeros(0), "r": np.zeros(0)}
+    x = columns["ticks"] + columns.get("eps_ticks", np.zeros_like(columns["ticks"]))
+    values = {key: columns[key] for key in PANELS if key in columns}
+    return RunCurve(run_dir, str(args["algo"]), str(args["env"]), x, values)
+
+
+def smooth(values: np.ndarray, window: int) -> np.ndarray:
+    """Trailing mean over the last ``window`` values (fewer at the start), as the paper smooths its curves."""
+    if window < 1:
+        raise ValueError(f"the smoothing window must be >= 1, got {window}")
+    sums = np.cumsum(np.insert(np.asarray(values, dtype=float), 0, 0.0))
+    ends = np.arange(1, len(values) + 1)
+    starts = np.maximum(ends - window, 0)
+    return (sums[ends] - sums[starts]) / (ends - starts)
+
+
+def group_curves(
+    curves: list[RunCurve], key: str, window: int, n_points: int = 200
+) -> dict[tuple[str, str], dict[str, np.ndarray]]:
+    """Mean and std over the runs of each (env id, algorithm) on a common grid of ticks.
+
+    :return: ``{(env_id, algo): {"x", "mean", "std", "n_runs"}}`` for the runs that report ``key``
+    """
+    groups: dict[tuple[str, str], list[RunCurve]] = defaultdict(list)
+    for curve in curves:
+        if key in curve.values and len(curve.x) > 0:
+            groups[(curve.env_id, curve.algo)].append(curve)
+    result = {}
+    for group, members in groups.items():
+        end = min(float(curve.x[-1]) for curve in members)
+        start = max(float(curve.x[0]) for curve in members)
+        grid = np.linspace(start, end, n_points) if end > start else np.array([end])
+        stacked = np.stack([np.interp(grid, curve.x, smooth(curve.values[key], window)) for curve in members])
+        result[group] = {
+            "x": grid,
+            "mean": stacked.mean(0),
+            "std": stacked.std(0),
+            "n_runs": np.array(len(members)),
+        }
+    return result
+
+
+def label_of(algo: str) -> str:
+    """:return: the paper's name of an algorithm (``eps_gdq`` -> ``EPS-GDQ``)."""
+    return ALGORITHMS[algo].label if algo in ALGORITHMS else algo
+
+
+def plot_learning_curves(
+    curves: list[RunCurve], output: str | Path, window: int = 100, title: str | None = None
+) -> Path:
+    """Draw the learning curves: one column per env id, rows team return and (if reported) success rate.
+
+    :return: the image's path
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    env_ids = sorted({curve.env_id for curve in curves})
+    keys = [key for key in PANELS if any(key in curve.values for curve in curves)]
+    figure, axes = plt.subplots(
+        len(keys), len(env_ids), figsize=(5.5 * len(env_ids), 3.4 * len(keys)), squeeze=False
+    )
+    for row, key in enumerate(keys):
+        grouped = group_curves(curves, key, window)
+        for column, env_id in enumerate(env_ids):
+            axis = axes[row][column]
+            for (group_env, algo), stats in sorted(grouped.items()):
+                if group_env != env_id:
+                    continue
+                label = f"{label_of(algo)} ({int(stats['n_runs'])} run{'s' if stats['n_runs'] > 1 else ''})"
+                axis.plot(stats["x"], stats["mean"], label=label)
+                axis.fill_between(
+                    stats["x"], stats["mean"] - stats["std"], stats["mean"] + stats["std"], alpha=0.2
+                )
+            axis.set_xlabel("ticks (training + EPS)")
+            axis.set_ylabel(f"{PANELS[key]} ({window}-episode mean)")
+            if row == 0:
+                axis.set_title(env_id if title is None else f"{title}: {env_id}")
+            axis.grid(alpha=0.3)
+            axis.legend(fontsize="small")
+    figure.tight_layout()
+    output = Path(output)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(output, dpi=120)
+    plt.close(figure)
+    return output
+
+
+# ---------------------------------------------------------------------------------------------- aggregates
+def final_scores(curves: list[RunCurve], key: str, window: int) -> dict[str, dict[str, list[float]]]:
+    """:return: ``{algo: {env_id: [final score of each run]}}``, a run's final score being the mean of its last
+    ``window`` episodes."""
+    scores: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    for curve in curves:
+        if key in curve.values and len(curve.values[key]):
+            scores[curve.algo][curve.env_id].append(float(np.mean(curve.values[key][-window:])))
+    return scores
+
+
+def interquartile_mean(values: np.ndarray) -> float:
+    """The mean of the middle 50 % of the values (``scipy.stats.trim_mean(values, 0.25)``)."""
+    ordered = np.sort(np.ravel(values))
+    cut = int(0.25 * len(ordered))
+    return float(ordered[cut : len(ordered) - cut].mean())
+
+
+AGGREGATES: dict[str, Callable[[np.ndarray], float]] = {
+    "mean": lambda x: float(np.mean(x)),
+    "median": lambda x: float(np.median(x)),
+    "iqm": interquartile_mean,
+}
+
+
+def bootstrap_intervals(
+    scores: dict[str, list[float]], n_resamples: int = 2_000, confidence: float = 0.95, seed: int = 0
+) -> dict[str, tuple[float, float, float]]:
+    """Point estimates and stratified-bootstrap percentile intervals of :data:`AGGREGATES` over one algorithm's
+    runs (tasks = env ids are resampled separately, runs with replacement inside each).
+
+    :param scores: env id -> final scores of the runs
+    :return: aggregate name -> ``(estimate, low, high)``
+    """
+    rng = np.random.default_rng(seed)
+    tasks = [np.asarray(values, dtype=float) for values in scores.values() if len(values)]
+    everything = np.concatenate(tasks)
+    result = {}
+    for name, function in AGGREGATES.items():
+        resampled = np.array(
+            [
+                function(np.concatenate([task[rng.integers(len(task), size=len(task))] for task in tasks]))
+                for _ in range(n_resamples)
+            ]
+        )
+        tail = 100 * (1 - confidence) / 2
+        result[name] = (
+            float(function(everything)),
+            float(np.percentile(resampled, tail)),
+            float(np.percentile(resampled, 100 - tail)),
+        )
+    return result
+
+
+def aggregate_table(curves: list[RunCurve], key: str, window: int) -> list[dict[str, Any]]:
+    """Per algorithm: number of runs and mean / median / IQM of the final scores with 95 % CIs.
+
+    Uses ``rliable`` when it is installed (same definitions), else :func:`bootstrap_intervals`.
+    """
+    rows = []
+    for algo, by_env in sorted(final_scores(curves, key, window).items()):
+        intervals = _rliable_intervals(by_env) or bootstrap_intervals(by_env)
+        row: dict[str, Any] = {
+            "algo": label_of(algo),
+            "metric": key,
+            "n_runs": sum(len(v) for v in by_env.values()),
+        }
+        for name, (estimate, low, high) in intervals.items():
+            row.update({name: estimate, f"{name}_low": low, f"{name}_high": high})
+        rows.append(row)
+    return rows
+
+
+def _rliable_intervals(scores: dict[str, list[float]]) -> dict[str, tuple[float, float, float]] | None:
+    """rliable's estimates when it is installed and every task has the same number of runs (its matrix form)."""
+    try:
+        from rliable import library, metrics
+    except ImportError:
+        return None
+    counts = {len(values) for values in scores.values()}
+    if len(counts) != 1:
+        return None
+    matrix = np.stack([np.asarray(values, dtype=float) for values in scores.values()], axis=1)  # runs x tasks
+    functions = {
+        "mean": lambda x: np.array([metrics.aggregate_mean(x)]),
+        "median": lambda x: np.array([metrics.aggregate_median(x)]),
+        "iqm": lambda x: np.array([metrics.aggregate_iqm(x)]),
+    }
+    result = {}
+    for name, function in functions.items():
+        estimates, intervals = library.get_interval_estimates({"run": matrix}, function, reps=2_000)
+        result[name] = (
+            float(estimates["run"][0]),
+            float(intervals["run"][0, 0]),
+            float(intervals["run"][1, 0]),
+        )
+    return result
+
+
+def format_aggregates(rows: list[dict[str, Any]]) -> str:
+    """:return: the aggregate rows as a Markdown table."""
+    lines = [
+        "| algorithm | metric | runs | mean [95 % CI] | median [95 % CI] | IQM [95 % CI] |",
+        "|---|---|---|---|---|---|",
+    ]
+    for row in rows:
+        cells = [f"{row[n]:.3f} [{row[n + '_low']:.3f}, {row[n + '_high']:.3f}]" for n in AGGREGATES]
+        lines.append(
+            f"| {row['algo']} | {PANELS[row['metric']]} | {row['n_runs']} | " + " | ".join(cells) + " |"
+        )
+    return "\n".join(lines)
+
+
+def evaluation_curves(run_dirs: list[Path]) -> list[RunCurve]:
+    """The periodic greedy evaluations (``evaluations.npz``) of runs as curves (x = ticks + EPS ticks)."""
+    curves = []
+    for run_dir in run_dirs:
+        path = run_dir / EVALUATIONS_NAME
+        if not path.is_file():
+            continue
+        args = load_yaml(run_dir / ARGS_NAME)
+        data = np.load(path)
+        values = {"r": data["results"].mean(axis=1)}
+        if not np.isnan(data["successes"]).all():
+            values["success"] = np.nanmean(data["successes"], axis=1)
+        curves.append(
+            RunCurve(run_dir, str(args["algo"]), str(args["env"]), data["ticks"] + data["eps_ticks"], values)
+        )
+    return curves

@@ -1,0 +1,383 @@
+"""Hyper-parameter search with Optuna (``python -m sb3_eps.train -optimize``).
+
+Each trial trains the algorithm with sampled hyper-parameters (:func:`sample_hyperparams`) for the run's budget,
+evaluates the greedy team ``--n-evaluations`` times on separate evaluation worlds and reports every score, so a
+pruner can stop a poor trial early. The score is the team success rate, with the team return as tie-break
+(:func:`objective_score`). Trials share a study in a storage: by default a SQLite file in the tuning folder;
+several processes (or machines, with a PostgreSQL URL) given the same ``--storage`` and ``--study-name`` work on
+one study. At the end the best trial is written as a ready-to-use config entry, ``best_params.yml``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+from stable_baselines3.common.callbacks import CallbackList
+from stable_baselines3.common.logger import Logger
+
+from sb3_eps.zoo.callbacks import TeamEvalCallback
+from sb3_eps.zoo.checkpoint import write_text_atomic
+from sb3_eps.zoo.config import ResolvedConfig, check_env_id, entry_yaml, resolve_config
+from sb3_eps.zoo.errors import ConfigError
+from sb3_eps.zoo.exp_manager import (
+    ARGS_NAME,
+    CONFIG_NAME,
+    EVAL_SEED_OFFSET,
+    TrainOptions,
+    build_env,
+    build_model,
+    create_run_folder,
+    prepare_run,
+)
+from sb3_eps.zoo.schema import (
+    CALLBACK_KEY,
+    EVOLUTION_CALLBACK,
+    POLICY_KWARGS_KEY,
+    AlgorithmSpec,
+    build_callbacks,
+    check_complete,
+    normalize_entry,
+)
+
+BEST_PARAMS_NAME = "best_params.yml"
+TRIALS_NAME = "trials.csv"
+STUDY_DB_NAME = "study.db"
+
+_NET_ARCHS = {"small": [64, 64], "medium": [128, 64], "large": [256, 128]}
+_GLOBAL_NET_ARCHS = {"small": [32, 32], "medium": [64, 64], "large": [128, 128]}
+
+
+@dataclass
+class TuningOptions:
+    """The tuning flags of ``python -m sb3_eps.train -optimize``."""
+
+    n_trials: int = 20
+    n_jobs: int = 1
+    sampler: str = "tpe"
+    pruner: str = "median"
+    n_startup_trials: int = 5
+    n_evaluations: int = 4
+    storage: str | None = None
+    study_name: str | None = None
+
+    @classmethod
+    def from_namespace(cls, namespace: argparse.Namespace) -> TuningOptions:
+        """:return: the tuning options of a parsed command line."""
+        names = cls.__dataclass_fields__
+        return cls(**{key: value for key, value in vars(namespace).items() if key in names})
+
+    def check(self) -> None:
+        """:raises ConfigError: for a count out of range."""
+        for flag, value in (
+            ("--n-trials", self.n_trials),
+            ("--n-jobs", self.n_jobs),
+            ("--n-evaluations", self.n_evaluations),
+        ):
+            if value < 1:
+                raise ConfigError(f"{flag} must be >= 1, got {value}")
+        if self.n_startup_trials < 0:
+            raise ConfigError(f"--n-startup-trials must be >= 0, got {self.n_startup_trials}")
+
+
+# ---------------------------------------------------------------------------------------------- search spaces
+def sample_hyperparams(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str, Any]:
+    """Sample the overrides of one trial (canonical entry keys; ``policy_kwargs`` and the EPS arguments as
+    partial mappings merged over the base entry by :func:`merge_overrides`).
+
+    Shared by all algorithms: learning rate, batch and buffer sizes, gamma, tau, n-step, training frequency,
+    gradient steps, learning starts (at most a quarter of the budget), exploration, PER, network size and
+    activation. GDQ adds its global head size, team reward mode and agent target; QMIX its mixer sizes; the
+    ``eps_*`` algorithms the EPS parameters (sigma, alpha < 0.4 as the paper found alpha >= 0.4 harmful,
+    period, population, evaluation episodes).
+
+    :param trial: an ``optuna.Trial``
+    :param spec: the algorithm
+    :param n_timesteps: the trial budget (bounds ``learning_starts``)
+    """
+    params: dict[str, Any] = {
+        "learning_rate": trial.suggest_float("learning_rate", 1e-5, 3e-3, log=True),
+        "batch_size": trial.suggest_categorical("batch_size", [32, 64, 128, 256]),
+        "buffer_size": trial.suggest_categorical("buffer_size", [10_000, 50_000, 100_000, 300_000]),
+        "gamma": trial.suggest_categorical("gamma", [0.95, 0.98, 0.99, 0.995]),
+        "tau": trial.suggest_categorical("tau", [0.005, 0.01, 0.05]),
+        "n_steps": trial.suggest_categorical("n_steps", [1, 3, 5]),
+        "train_freq": trial.suggest_categorical("train_freq", [1, 2, 4, 8]),
+        "gradient_steps": trial.suggest_categorical("gradient_steps", [1, 2]),
+        "exploration_fraction": trial.suggest_float("exploration_fraction", 0.05, 0.5),
+        "exploration_final_eps": trial.suggest_float("exploration_final_eps", 0.0, 0.1),
+        "prioritized_replay": trial.suggest_categorical("prioritized_replay", [True, False]),
+    }
+    learning_starts = trial.suggest_categorical("learning_starts", [1_000, 5_000, 20_000])
+    params["learning_starts"] = min(learning_starts, max(n_timesteps // 4, 1))
+    policy_kwargs: dict[str, Any] = {
+        "net_arch": _NET_ARCHS[trial.suggest_categorical("net_arch", list(_NET_ARCHS))],
+        "activation_fn": trial.suggest_categorical("activation_fn", ["nn.ReLU", "nn.Tanh", "nn.ELU"]),
+    }
+    if "global_net_arch" in spec.policy_params:
+        policy_kwargs["global_net_arch"] = _GLOBAL_NET_ARCHS[
+            trial.suggest_categorical("global_net_arch", list(_GLOBAL_NET_ARCHS))
+        ]
+        policy_kwargs["agent_target"] = trial.suggest_categorical("agent_target", [True, False])
+        params["team_reward_mode"] = trial.suggest_categorical("team_reward_mode", ["sum", "mean"])
+    if "mixing_embed_dim" in spec.policy_params:
+        policy_kwargs["mixing_embed_dim"] = trial.suggest_categorical("mixing_embed_dim", [16, 32, 64])
+        policy_kwargs["hypernet_hidden_dim"] = trial.suggest_categorical("hypernet_hidden_dim", [32, 64, 128])
+    params[POLICY_KWARGS_KEY] = policy_kwargs
+    if spec.eps:
+        params[CALLBACK_KEY] = [
+            {
+                EVOLUTION_CALLBACK: {
+                    "sigma": trial.suggest_float("eps_sigma", 1e-3, 0.3, log=True),
+                    "alpha": trial.suggest_float("eps_alpha", 0.05, 0.39),
+                    "period": trial.suggest_categorical("eps_period", [5, 10, 25, 50, 100]),
+                    "population_size": trial.suggest_int("eps_population_size", 2, 16),
+                    "n_eval_episodes": trial.suggest_categorical("eps_n_eval_episodes", [1, 2, 5, 10]),
+                }
+            }
+        ]
+    return params
+
+
+def merge_overrides(base: dict[str, Any], overrides: dict[str, Any], spec: AlgorithmSpec) -> dict[str, Any]:
+    """The base entry updated with a trial's overrides (``policy_kwargs`` and callback arguments merged per key).
+
+    :return: the canonical entry
+    :raises ConfigError: when the result is not a valid entry
+    """
+    entry = dict(base)
+    for key, value in overrides.items():
+        if key == POLICY_KWARGS_KEY:
+            entry[key] = {**base.get(key, {}), **value}
+        elif key == CALLBACK_KEY:
+            base_callbacks = {next(iter(item)): next(iter(item.values())) for item in base.get(key, [])}
+            for item in value:
+                name, kwargs = next(iter(item.items()))
+                base_callbacks[name] = {**base_callbacks.get(name, {}), **kwargs}
+            entry[key] = [{name: kwargs} for name, kwargs in base_callbacks.items()]
+        else:
+            entry[key] = value
+    return normalize_entry(entry, spec, "sampled hyper-parameters")
+
+
+def objective_score(summary: dict[str, Any], n_eval_episodes: int) -> float:
+    """The trial score: team success rate, team return as tie-break.
+
+    ``score = success_rate + tie / (4 n)`` with ``tie = R / (1 + |R|)`` in (-1, 1) for the mean team return ``R``
+    and ``n`` evaluation episodes: success rates differ by at least ``1/n``, so the return only orders trials of
+    equal success. Worlds without a success flag are scored by their team return alone.
+
+    :param summary: an evaluation summary (:func:`~sb3_eps.evaluate_team`)
+    :param n_eval_episodes: episodes per evaluation
+    """
+    team_return = float(summary["team_return_mean"])
+    if "success_rate" not in summary:
+        return team_return
+    tie = team_return / (1.0 + abs(team_return))
+    return float(summary["success_rate"]) + tie / (4.0 * max(n_eval_episodes, 1))
+
+
+# ---------------------------------------------------------------------------------------------- study
+def _import_optuna() -> Any:
+    try:
+        import optuna
+    except ImportError:
+        raise ConfigError("-optimize needs Optuna: pip install 'sb3-eps[tune]'") from None
+    return optuna
+
+
+def make_sampler(name: str, n_startup_trials: int, seed: int | None) -> Any:
+    """:return: the Optuna sampler ``tpe`` or ``random``."""
+    optuna = _import_optuna()
+    if name == "tpe":
+        return optuna.samplers.TPESampler(n_startup_trials=n_startup_trials, seed=seed, multivariate=True)
+    if name == "random":
+        return optuna.samplers.RandomSampler(seed=seed)
+    raise ConfigError(f"--sampler: unknown sampler {name!r}; allowed: tpe, random")
+
+
+def make_pruner(name: str, n_startup_trials: int, n_evaluations: int) -> Any:
+    """:return: the Optuna pruner ``median``, ``halving`` or ``none``."""
+    optuna = _import_optuna()
+    if name == "median":
+        return optuna.pruners.MedianPruner(
+            n_startup_trials=n_startup_trials, n_warmup_steps=n_evaluations // 3
+        )
+    if name == "halving":
+        return optuna.pruners.SuccessiveHalvingPruner(min_resource=1, reduction_factor=4)
+    if name == "none":
+        return optuna.pruners.NopPruner()
+    raise ConfigError(f"--pruner: unknown pruner {name!r}; allowed: median, halving, none")
+
+
+def make_storage(url: str | None, folder: Path) -> Any:
+    """The study's storage: ``url`` (``sqlite:///file.db``, ``postgresql://...``, or a plain ``*.db`` path),
+    by default a SQLite file in the tuning folder. SQLite connections wait up to a minute for a lock, so threads
+    and processes sharing the file take turns.
+    """
+    optuna = _import_optuna()
+    if url is None:
+        url = f"sqlite:///{(folder / STUDY_DB_NAME).resolve()}"
+    elif "://" not in url:
+        url = f"sqlite:///{Path(url).resolve()}"
+    engine_kwargs = {"connect_args": {"timeout": 60}} if url.startswith("sqlite") else {}
+    attempts = 5
+    for attempt in range(attempts):
+        try:
+            return optuna.storages.RDBStorage(url, engine_kwargs=engine_kwargs)
+        except Exception as error:  # SQLAlchemy raises many kinds for a bad URL
+            # Processes that create a new database at the same moment race on its schema: the loser retries.
+            if attempt == attempts - 1:
+                raise ConfigError(f"--storage: cannot open {url}: {error}") from None
+            time.sleep(0.5 * (attempt + 1))
+    raise AssertionError("unreachable")
+
+
+class _Objective:
+    """Trains and evaluates one trial (see the module docstring)."""
+
+    def __init__(self, options: TrainOptions, tuning: TuningOptions, config: ResolvedConfig) -> None:
+        self.options = options
+        self.tuning = tuning
+        self.config = config
+
+    def __call__(self, trial: Any) -> float:
+        optuna = _import_optuna()
+        spec = self.config.spec
+        n_timesteps = int(self.config.entry["n_timesteps"])
+        overrides = sample_hyperparams(trial, spec, n_timesteps)
+        entry = merge_overrides(self.config.entry, overrides, spec)
+        trial.set_user_attr("hyperparams", overrides)
+        if self.tuning.n_jobs > 1:
+            # Trials run as threads: EPS evaluates in-process rather than forking workers from a threaded process.
+            for item in entry.get(CALLBACK_KEY, []):
+                for name, kwargs in item.items():
+                    if name == EVOLUTION_CALLBACK and kwargs.get("n_workers") is None:
+                        kwargs["n_workers"] = 0
+        config = ResolvedConfig(self.config.algo, self.config.env_id, entry, f"trial {trial.number}")
+        seed = int(self.options.seed)  # type: ignore[arg-type]
+        env = build_env(config, seed)
+        eval_env = build_env(config, seed + EVAL_SEED_OFFSET, self.options.eval_env, self.options.n_eval_envs)
+        pruned = False
+
+        def report(summary: dict[str, Any]) -> bool:
+            nonlocal pruned
+            step = len(evaluation.records["timesteps"])
+            trial.report(objective_score(summary, self.options.eval_episodes), step)
+            pruned = trial.should_prune()
+            return not pruned
+
+        try:
+            model = build_model(config, env, seed, self.options.device, verbose=0)
+            model.set_logger(Logger(folder=None, output_formats=[]))
+            evaluation = TeamEvalCallback(
+                eval_env, max(n_timesteps // self.tuning.n_evaluations, 1), self.options.eval_episodes,
+                seed + EVAL_SEED_OFFSET, on_evaluation=report,
+            )  # fmt: skip
+            callbacks = [
+                evaluation,
+                *(callback for _, callback in build_callbacks(entry, config.env_id, 0, config.source)),
+            ]
+            model.learn(n_timesteps, callback=CallbackList(callbacks))
+            if pruned:
+                raise optuna.TrialPruned()
+            summary = evaluation.last_summary
+            if summary is None or summary["timesteps"] != model.num_timesteps:
+                summary = evaluation.evaluate()
+        finally:
+            env.close()
+            eval_env.close()
+        for key in ("success_rate", "collision_rate", "team_return_mean", "length_mean"):
+            if key in summary:
+                trial.set_user_attr(key, float(summary[key]))
+        return objective_score(summary, self.options.eval_episodes)
+
+
+def tune(options: TrainOptions, tuning: TuningOptions) -> Path:
+    """Run (or join) a study and write ``best_params.yml`` (``-optimize``).
+
+    :return: the tuning folder ``<folder>/<algo>/<env id>_<n>``
+    :raises ConfigError: for any mistake, before anything is written
+    """
+    optuna = _import_optuna()
+    tuning.check()
+    options.check()
+    check_env_id(options.env)
+    hyperparams = [*options.hyperparams, *(f"env_kwargs.{item}" for item in options.env_kwargs)]
+    config = resolve_config(options.algo, options.env, options.conf_file, hyperparams, options.n_timesteps)
+    if options.eval_freq <= 0:
+        options.eval_freq = 1  # evaluation is the objective: it cannot be turned off here
+    prepare_run(options, config).close()  # builds everything once: mistakes surface before any file exists
+    sampler = make_sampler(tuning.sampler, tuning.n_startup_trials, options.seed)
+    pruner = make_pruner(tuning.pruner, tuning.n_startup_trials, tuning.n_evaluations)
+    # A given storage is opened before the folder exists, so a bad URL leaves nothing behind.
+    storage = make_storage(tuning.storage, Path(options.folder)) if tuning.storage is not None else None
+    folder = create_run_folder(options.folder, options.algo, config.env_id)
+    study_name = tuning.study_name or f"{options.algo}-{config.env_id}"
+    record = {**vars(options), "tuning": vars(tuning), "study_name": study_name, "run_dir": str(folder)}
+    write_text_atomic(folder / ARGS_NAME, yaml.safe_dump(record, sort_keys=False))
+    write_text_atomic(
+        folder / CONFIG_NAME, entry_yaml(config.env_id, config.entry, f"base of the study {study_name}")
+    )
+    if storage is None:
+        storage = make_storage(None, folder)
+    optuna.logging.set_verbosity(optuna.logging.INFO if options.verbose >= 1 else optuna.logging.WARNING)
+    study = optuna.create_study(
+        study_name=study_name, storage=storage, sampler=sampler, pruner=pruner, direction="maximize",
+        load_if_exists=True,
+    )  # fmt: skip
+    start = time.time()
+    study.optimize(
+        _Objective(options, tuning, config),
+        n_trials=tuning.n_trials,
+        n_jobs=tuning.n_jobs,
+        gc_after_trial=True,
+    )
+    write_results(study, config, folder, time.time() - start, options)
+    return folder
+
+
+def write_results(
+    study: Any, config: ResolvedConfig, folder: Path, seconds: float, options: TrainOptions
+) -> None:
+    """Write ``trials.csv`` and ``best_params.yml`` (the best trial as a config entry) and print a summary."""
+    optuna = _import_optuna()
+    try:
+        study.trials_dataframe().to_csv(folder / TRIALS_NAME, index=False)
+    except ImportError:  # pandas missing: the study itself is in the storage
+        pass
+    complete = [trial for trial in study.trials if trial.state == optuna.trial.TrialState.COMPLETE]
+    n_pruned = sum(trial.state == optuna.trial.TrialState.PRUNED for trial in study.trials)
+    print(
+        f"Study {study.study_name}: {len(study.trials)} trials ({len(complete)} complete, {n_pruned} pruned) in {seconds / 60:.1f} min"
+    )
+    if not complete:
+        print("No trial completed: no best parameters to write")
+        return
+    best = study.best_trial
+    entry = merge_overrides(config.entry, best.user_attrs["hyperparams"], config.spec)
+    success = best.user_attrs.get("success_rate")
+    entry = {
+        "tuned": True,
+        "notes": (
+            f"optuna study {study.study_name}, trial {best.number}: score {best.value:.4f}"
+            + (f" (success {100 * success:.0f} %)" if success is not None else "")
+            + f", {entry['n_timesteps']} timesteps, seed {options.seed}, {time.strftime('%Y-%m-%d')}"
+        ),
+        **{key: value for key, value in entry.items() if key not in ("tuned", "notes")},
+    }
+    check_complete(entry, config.spec, "best parameters")
+    header = (
+        f"Best trial of the Optuna study {study.study_name} ({folder}).\n"
+        f"Use it with: python -m sb3_eps.train --algo {config.algo} --env {config.env_id} -conf {folder / BEST_PARAMS_NAME}\n"
+        f"or paste the entry into zoo_configs/{config.algo}.yml."
+    )
+    write_text_atomic(folder / BEST_PARAMS_NAME, entry_yaml(config.env_id, entry, header))
+    print(f"Best trial {best.number}: score {best.value:.4f}; parameters in {folder / BEST_PARAMS_NAME}")
+    if math.isnan(best.value):
+        print("warning: the best score is NaN")

@@ -1,0 +1,450 @@
+"""EvolutionCallback: the math against hand computations, the round logic, safety, and runs on real models."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3 import DQN, PPO
+from stable_baselines3.common.logger import Logger, configure
+from torch import nn
+
+import envs
+from sb3_eps import make_vec_env
+from sb3_eps.eps import (
+    EvolutionCallback,
+    InProcessEnvPool,
+    SubprocessEnvPool,
+    evaluate_population,
+    mutate_population,
+    output_sensitivity,
+    polyak_crossover_,
+    safe_mutation_step,
+    select_best,
+)
+from sb3_eps.eps import callback as callback_module
+from sb3_eps.eps.evaluation import PopulationResult
+from sb3_eps.eps.mutations import network_parameters
+from sb3_eps.gdq import GDQ
+from sb3_eps.iql import IQL
+from sb3_eps.qmix import QMIX, VDN
+
+MPE, MPE_SINGLE = "CooperativeNavigation-v0", "CooperativeNavigationSingle-v0"
+TINY = {"net_arch": [16], "stream_arch": [16]}
+MPE_EPISODE = 25  # ticks of every Cooperative Navigation episode
+
+
+def tiny_model(algorithm=GDQ, env_id=MPE, n_envs=2, seed=0, **kwargs):
+    extra = {"mixing_embed_dim": 8, "hypernet_hidden_dim": 16} if algorithm in (QMIX, VDN) else {}
+    if algorithm is GDQ:
+        extra = {"global_net_arch": [16]}
+    defaults = {"learning_starts": 60, "batch_size": 16, "buffer_size": 2_000, "train_freq": 2, "seed": seed}
+    defaults.update(kwargs)
+    venv = make_vec_env(env_id, n_envs=n_envs, seed=seed)
+    return algorithm("MlpPolicy", venv, policy_kwargs={**TINY, **extra}, **defaults)
+
+
+def tiny_callback(**kwargs) -> EvolutionCallback:
+    defaults = {
+        "eval_env_id": MPE_SINGLE,
+        "population_size": 3,
+        "period": 2,
+        "n_eval_episodes": 2,
+        "n_workers": 1,
+        "seed": 0,
+    }
+    defaults.update(kwargs)
+    return EvolutionCallback(**defaults)
+
+
+def small_network() -> nn.Module:
+    th.manual_seed(0)
+    return nn.Sequential(nn.Linear(3, 5), nn.Tanh(), nn.Linear(5, 4), nn.ReLU(), nn.Linear(4, 3))
+
+
+# ---------------------------------------------------------------------- the math
+def test_sensitivity_equals_a_per_sample_autograd_loop() -> None:
+    network = small_network()
+    observations = th.randn(7, 3, generator=th.Generator().manual_seed(1))
+    omega = output_sensitivity(network, observations, chunk_size=3)  # chunks of 3, 3, 1 samples
+    expected = {name: th.zeros_like(param) for name, param in network.named_parameters()}
+    for sample in observations:
+        outputs = network(sample.unsqueeze(0)).reshape(-1)
+        for output in outputs:
+            grads = th.autograd.grad(output, list(network.parameters()), retain_graph=True)
+            for (name, _), grad in zip(network.named_parameters(), grads, strict=True):
+                expected[name] += grad.abs()
+    for name, total in expected.items():
+        # Eq. 6: batch mean of |dy/dw|, then mean over the 3 outputs.
+        th.testing.assert_close(omega[name], total / (7 * 3), rtol=1e-5, atol=1e-7)
+
+
+def test_sensitivity_of_the_dueling_network_has_its_parameter_shapes() -> None:
+    model = tiny_model(IQL)
+    q_net = model.policy.q_net
+    omega = output_sensitivity(q_net, th.randn(5, 18))
+    assert {name: value.shape for name, value in omega.items()} == {
+        name: param.shape for name, param in q_net.named_parameters()
+    }
+    assert all(bool((value >= 0).all()) for value in omega.values())
+    with pytest.raises(ValueError, match="batch, obs_dim"):
+        output_sensitivity(q_net, th.randn(18))
+
+
+def test_safe_step_floor_and_clip_hold() -> None:
+    noise = th.tensor([0.05, 0.05, -0.05, 0.001, 0.5, -0.5, 0.02])
+    omega = th.tensor([0.0, 1e-6, 1e-6, 0.5, 1.0, 2.0, 0.1])
+    step = safe_mutation_step(noise, omega, floor=0.01, max_step=0.2)
+    # omega 0 -> 1 (plain noise); 1e-6 -> floor 0.01 -> 5 -> clipped to +-0.2; 0.5 / 1.0 -> clipped; else G / omega.
+    expected = th.tensor([0.05, 0.2, -0.2, 0.002, 0.2, -0.2, 0.2])
+    th.testing.assert_close(step, expected)
+    assert bool((step.abs() <= th.tensor(0.2)).all())  # float32 comparison
+    unclipped = safe_mutation_step(noise, omega, floor=0.01, max_step=float("inf"))
+    assert float(unclipped.abs().max()) == pytest.approx(5.0)  # |G| / floor at most
+    with pytest.raises(ValueError, match="broadcast"):
+        safe_mutation_step(noise, th.ones(3), floor=0.01, max_step=0.2)
+
+
+def test_mutate_population_keeps_copy_0_and_uses_the_sensitivity() -> None:
+    network = small_network()
+    theta = network_parameters(network)
+    omega = {name: th.full_like(param, 0.5) for name, param in theta.items()}
+    population = mutate_population(
+        theta, 4, 0.01, th.Generator().manual_seed(3), [omega], floor=0.01, max_step=1.0
+    )
+    plain = mutate_population(theta, 4, 0.01, th.Generator().manual_seed(3), None)
+    for name, param in theta.items():
+        assert population[name].shape == (5, *param.shape)
+        assert th.equal(population[name][0], param) and th.equal(plain[name][0], param)
+        # Same generator, same noise: the safe step is the Gaussian step divided by omega = 0.5.
+        th.testing.assert_close(population[name][1:] - param, 2 * (plain[name][1:] - param))
+    many = mutate_population(
+        {"w": th.zeros(200, 50)}, 10, 0.03, th.Generator().manual_seed(0), None
+    )  # std of plain noise
+    assert float(many["w"][1:].std()) == pytest.approx(0.03, rel=0.02)
+
+
+def test_crossover_is_exactly_the_polyak_mean() -> None:
+    network = small_network()
+    current = network_parameters(network)
+    best = {name: th.randn_like(param) for name, param in current.items()}
+    change = polyak_crossover_(network, best, 0.3)
+    for name, param in network.named_parameters():
+        assert th.equal(param.detach(), 0.3 * best[name] + 0.7 * current[name])  # Eq. 5
+    expected_change = np.mean(
+        np.concatenate([(0.3 * (best[n] - current[n])).abs().flatten().numpy() for n in current])
+    )
+    assert change == pytest.approx(expected_change, rel=1e-5)
+    with pytest.raises(ValueError, match="alpha"):
+        polyak_crossover_(network, best, 1.5)
+
+
+def test_select_best_never_picks_a_non_finite_individual_and_prefers_copy_0_on_ties() -> None:
+    assert select_best(np.array([1.0, np.nan, 0.5])) == 0
+    assert select_best(np.array([-3.0, np.inf, -1.0])) == 2  # inf fitness is as invalid as NaN
+    assert select_best(np.array([-2.0, -2.0, -5.0])) == 0
+    assert select_best(np.array([-np.inf, -np.inf])) == 0
+
+
+# ---------------------------------------------------------------------- evaluation
+def test_evaluation_uses_common_random_numbers_and_disqualifies_non_finite_individuals() -> None:
+    network = tiny_model(IQL).policy.q_net
+    theta = network_parameters(network)
+    population = mutate_population(theta, 3, 0.05, th.Generator().manual_seed(0), None)
+    population["advantage_stream.0.weight"][1, 0, 0] = float("nan")  # non-finite weights
+    population["trunk.0.weight"][2] = 3e38  # finite weights, overflowing (inf/NaN) outputs
+    population = {name: th.cat([stacked, stacked[:1]]) for name, stacked in population.items()}  # 4 = copy 0
+    pool = InProcessEnvPool(MPE_SINGLE, None, 5, 2, network)
+    try:
+        result = evaluate_population(pool, population, [11, 12], timeout=60)
+    finally:
+        pool.close()
+    assert result.valid.tolist() == [True, False, False, True, True]
+    assert np.isneginf(result.fitness[[1, 2]]).all()
+    assert result.lengths[1].sum() == 0 and result.lengths[0].tolist() == [MPE_EPISODE, MPE_EPISODE]
+    # Same weights, same seeds: the same episodes, whatever their place in the population.
+    np.testing.assert_array_equal(result.returns[4], result.returns[0])
+    assert select_best(result.fitness) in (0, 3)
+
+
+def test_worker_and_in_process_evaluation_agree_batched_or_not() -> None:
+    network = tiny_model(IQL).policy.q_net
+    population = mutate_population(network_parameters(network), 4, 0.05, th.Generator().manual_seed(0), None)
+    results = []
+    for pool in (
+        InProcessEnvPool(MPE_SINGLE, None, 5, 2, network, batched=True),
+        InProcessEnvPool(MPE_SINGLE, None, 5, 2, network, batched=False),
+        SubprocessEnvPool(MPE_SINGLE, None, 5, 2, network, batched=True, n_workers=2),
+    ):
+        try:
+            results.append(evaluate_population(pool, population, [3, 4], timeout=60))
+        finally:
+            pool.close()
+    for result in results[1:]:
+        np.testing.assert_allclose(result.returns, results[0].returns, rtol=1e-6)
+
+
+# ---------------------------------------------------------------------- the round inside training
+def _no_training(algorithm=IQL, **kwargs):
+    # learning_starts beyond the budget: no gradient step, so the weights change only through EPS; one-step
+    # rows reach the replay buffer after one tick, so the first rollout already has visited states for Eq. 6.
+    return tiny_model(algorithm, learning_starts=10**6, n_steps=1, **kwargs)
+
+
+def _scripted_evaluation(monkeypatch, fitness: list[float], record: dict) -> None:
+    def fake_evaluate(pool, population, episode_seeds, timeout):
+        if "population" not in record:
+            record["population"] = {name: value.clone() for name, value in population.items()}
+        n = next(iter(population.values())).shape[0]
+        lengths = np.full((n, len(episode_seeds)), MPE_EPISODE)
+        values = np.asarray(fitness, dtype=float)
+        return PopulationResult(
+            np.repeat(values[:, None], len(episode_seeds), 1), lengths, np.ones(n, bool), values
+        )
+
+    monkeypatch.setattr(callback_module, "evaluate_population", fake_evaluate)
+
+
+def test_round_crossover_moves_online_and_target_nets_toward_the_winner(monkeypatch) -> None:
+    model = _no_training(IQL)
+    online_before = network_parameters(model.policy.q_net)
+    target_before = network_parameters(model.policy.q_net_target)
+    for name in target_before:  # make the target differ from the online net, to see each gets its own mix
+        target_before[name] += 1.0
+        model.policy.q_net_target.get_parameter(name).data.copy_(target_before[name])
+    record: dict = {}
+    _scripted_evaluation(monkeypatch, [-5.0, -4.0, -1.0, -3.0], record)
+    callback = tiny_callback(period=1, period_unit="ticks", alpha=0.3)
+    model.learn(
+        2 * 3 * 2, callback=callback
+    )  # one rollout (2 vector steps of 2 worlds x 3 agents): one round
+    assert callback.n_rounds == 1 and callback.history[0]["winner"] == 2
+    best = {name: stacked[2] for name, stacked in record["population"].items()}
+    for name, param in model.policy.q_net.named_parameters():
+        assert th.equal(param.detach(), 0.3 * best[name] + 0.7 * online_before[name])
+    for name, param in model.policy.q_net_target.named_parameters():
+        assert th.equal(param.detach(), 0.3 * best[name] + 0.7 * target_before[name])
+    assert callback.history[0]["gain"] == pytest.approx(4.0)
+    assert callback.history[0]["mean_abs_delta"] > 0
+
+
+def test_nothing_changes_when_the_unmutated_copy_wins(monkeypatch) -> None:
+    model = _no_training(GDQ)
+    before = [param.detach().clone() for param in model.policy.parameters()]
+    _scripted_evaluation(monkeypatch, [-1.0, -1.0, -2.0, float("nan")], {})  # a tie with copy 0, a NaN
+    callback = tiny_callback(period=1, period_unit="ticks")
+    model.learn(4 * 3 * 2, callback=callback)
+    assert callback.n_rounds >= 2 and all(record["winner"] == 0 for record in callback.history)
+    for old, new in zip(before, model.policy.parameters(), strict=True):
+        assert th.equal(old, new)
+    assert all(record["mean_abs_delta"] == 0.0 for record in callback.history)
+
+
+def test_a_nan_mutant_never_wins_a_real_round(monkeypatch) -> None:
+    original = callback_module.mutate_population
+
+    def poisoned(*args, **kwargs):
+        population = original(*args, **kwargs)
+        for stacked in population.values():
+            stacked[1:] = float("nan")  # every mutant
+        return population
+
+    monkeypatch.setattr(callback_module, "mutate_population", poisoned)
+    model = _no_training(IQL)
+    before = network_parameters(model.policy.q_net)
+    callback = tiny_callback(period=1, period_unit="ticks", n_workers=0)
+    model.learn(2 * 3 * 2, callback=callback)
+    record = callback.history[0]
+    assert record["winner"] == 0 and np.isneginf(record["fitness"][1:]).all()
+    for name, param in model.policy.q_net.named_parameters():
+        assert th.equal(param.detach(), before[name])
+
+
+def test_ticks_counter_adds_up_and_everything_is_logged(tmp_path) -> None:
+    model = tiny_model(GDQ)
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    callback = tiny_callback(population_size=3, n_eval_episodes=2)
+    model.learn(900, callback=callback, log_interval=1)
+    assert callback.n_rounds >= 2
+    # rounds x individuals (m + 1) x episodes x 25 ticks
+    assert callback.eps_ticks == callback.n_rounds * 4 * 2 * MPE_EPISODE
+    assert [record["eps_ticks"] for record in callback.history] == [
+        (i + 1) * 4 * 2 * MPE_EPISODE for i in range(callback.n_rounds)
+    ]
+    header = (tmp_path / "progress.csv").read_text().splitlines()[0].split(",")
+    for key in (
+        "eps/round", "eps/ticks", "eps/total_ticks", "eps/fitness_0", "eps/fitness_3", "eps/fitness_mean",
+        "eps/fitness_max", "eps/fitness_min", "eps/winner", "eps/fitness_gain", "eps/mean_abs_delta",
+        "eps/round_time", "eps/time_share", "eps/skipped_rounds",
+    ):  # fmt: skip
+        assert key in header, key
+    assert callback.worker_pids == []  # closed at training end
+
+
+def test_period_in_episodes_counts_world_episodes() -> None:
+    model = tiny_model(IQL)
+    callback = tiny_callback(period=4)
+    model.learn(3 * 2 * 25 * 4, callback=callback)  # 2 worlds x 4 episodes each = 8 world episodes
+    assert model._episode_num == 8
+    assert callback.n_rounds == 2
+
+
+def test_a_killed_worker_skips_the_round_and_training_goes_on(monkeypatch) -> None:
+    original = SubprocessEnvPool.evaluate
+    killed: list[int] = []
+
+    def kill_then_evaluate(self, *args, **kwargs):
+        if not killed:
+            killed.append(self.pids[0])
+            os.kill(self.pids[0], signal.SIGKILL)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(SubprocessEnvPool, "evaluate", kill_then_evaluate)
+    model = tiny_model(GDQ)
+    callback = tiny_callback(n_workers=2)
+    with pytest.warns(RuntimeWarning, match="EPS round skipped"):
+        model.learn(900, callback=callback)
+    assert model.num_timesteps >= 900
+    assert callback.n_skipped_rounds == 1 and callback.history[0]["skipped"]
+    assert "died" in callback.history[0]["reason"] or "gone" in callback.history[0]["reason"]
+    assert callback.n_rounds >= 1 and not callback.history[-1]["skipped"]  # the restarted workers serve
+
+
+def test_a_hung_worker_times_out_and_the_round_is_skipped(monkeypatch) -> None:
+    original = SubprocessEnvPool.evaluate
+    stopped: list[int] = []
+
+    def stop_then_evaluate(self, *args, **kwargs):
+        if not stopped:
+            stopped.append(self.pids[-1])
+            os.kill(self.pids[-1], signal.SIGSTOP)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(SubprocessEnvPool, "evaluate", stop_then_evaluate)
+    model = tiny_model(IQL)
+    callback = tiny_callback(n_workers=2, eval_timeout=1.0)
+    with pytest.warns(RuntimeWarning, match="did not answer"):
+        model.learn(600, callback=callback)
+    assert callback.n_skipped_rounds == 1 and callback.n_rounds >= 1
+    with pytest.raises(ProcessLookupError):  # the stopped worker was killed and reaped, not left behind
+        os.kill(stopped[0], 0)
+
+
+# ---------------------------------------------------------------------- real models and worlds
+@pytest.mark.parametrize("algorithm", [IQL, GDQ, QMIX, VDN], ids=lambda a: a.__name__)
+def test_it_runs_with_every_algorithm_on_cooperative_navigation(algorithm) -> None:
+    model = tiny_model(algorithm)
+    callback = tiny_callback()
+    model.learn(600, callback=callback)
+    assert callback.n_rounds >= 1 and callback.n_skipped_rounds == 0
+    assert all(np.isfinite(record["fitness"][0]) for record in callback.history)
+
+
+def test_gaussian_mutation_and_per_robot_sensitivity_run() -> None:
+    for kwargs in ({"mutation": "gaussian"}, {"per_robot": True, "population_size": 3}):
+        model = tiny_model(GDQ)
+        callback = tiny_callback(n_workers=0, **kwargs)
+        model.learn(450, callback=callback)
+        assert callback.n_rounds >= 1
+
+
+def test_it_runs_with_gdq_on_the_robot_worlds() -> None:
+    model = tiny_model(GDQ, env_id="MultiRobotNav-2-v0", n_envs=1, train_freq=4)
+    callback = EvolutionCallback(
+        eval_env_id=envs.eps_env_id_for("MultiRobotNav-2-v0"),
+        population_size=2,
+        period=40,
+        period_unit="ticks",
+        n_eval_episodes=1,
+        n_workers=1,
+        eval_env_kwargs={"max_episode_steps": 40},
+        seed=0,
+    )
+    model.learn(2 * 100, callback=callback)
+    assert callback.n_rounds >= 2
+    lengths = np.array([record["episode_lengths"] for record in callback.history])
+    assert callback.eps_ticks == lengths.sum() and 0 < lengths.max() <= 40
+
+
+def test_save_load_of_a_model_trained_with_eps(tmp_path) -> None:
+    model = tiny_model(GDQ)
+    callback = tiny_callback()
+    model.learn(450, callback=callback)
+    assert callback.n_rounds >= 1
+    model.save(tmp_path / "eps_gdq")
+    loaded = GDQ.load(tmp_path / "eps_gdq", env=make_vec_env(MPE, n_envs=2, seed=1))
+    observations = np.random.default_rng(0).uniform(-1, 1, (32, 18)).astype(np.float32)
+    np.testing.assert_array_equal(
+        model.predict(observations, deterministic=True)[0],
+        loaded.predict(observations, deterministic=True)[0],
+    )
+    loaded.learn(150, callback=tiny_callback())  # and training with EPS goes on
+
+
+def test_two_seeded_runs_are_identical() -> None:
+    parameters, histories = [], []
+    for _ in range(2):
+        model = tiny_model(GDQ, seed=5)
+        callback = tiny_callback(seed=None)  # derived from the model's seed
+        model.learn(600, callback=callback)
+        parameters.append([param.detach().clone() for param in model.policy.parameters()])
+        histories.append([(record["fitness"], record["winner"]) for record in callback.history])
+    assert histories[0] == histories[1]
+    for first, second in zip(*parameters, strict=True):
+        assert th.equal(first, second)
+
+
+def test_sb3_dqn_works_too() -> None:
+    model = DQN(
+        "MlpPolicy", envs.make_single_env(MPE_SINGLE), learning_starts=50, policy_kwargs={"net_arch": [16]}
+    )
+    callback = tiny_callback(period=40, period_unit="ticks", n_workers=0)
+    model.learn(200, callback=callback)
+    assert callback.n_rounds >= 1
+
+
+# ---------------------------------------------------------------------- construction errors
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"alpha": 1.5}, "alpha"),
+        ({"alpha": -0.1}, "alpha"),
+        ({"sigma": 0.0}, "sigma"),
+        ({"population_size": 0}, "population_size"),
+        ({"mutation": "cauchy"}, "unknown mutation"),
+        ({"eval_env_id": "NoSuchWorld-v0"}, "unknown eval_env_id"),
+        ({"eval_env_id": MPE}, "multi-agent"),
+        ({"period_unit": "epochs"}, "period_unit"),
+        ({"period": 0}, "period"),
+        ({"n_eval_episodes": 0}, "n_eval_episodes"),
+        ({"n_workers": -1}, "n_workers"),
+        ({"per_robot": True, "mutation": "gaussian"}, "per_robot"),
+        ({"sensitivity_floor": 0.0}, "sensitivity_floor"),
+    ],
+)
+def test_bad_arguments_raise_value_errors(kwargs, message) -> None:
+    with pytest.raises(ValueError, match=message):
+        tiny_callback(**kwargs)
+
+
+def test_mismatched_spaces_and_models_fail_before_training() -> None:
+    model = tiny_model(IQL)
+    with pytest.raises(ValueError, match="observation_space"):
+        model.learn(30, callback=tiny_callback(eval_env_id="SingleRobotNav-v0"))
+    ppo = PPO("MlpPolicy", envs.make_single_env(MPE_SINGLE), n_steps=16)
+    with pytest.raises(ValueError, match="q_net"):
+        ppo.learn(16, callback=tiny_callback())
+    dqn = DQN("MlpPolicy", envs.make_single_env(MPE_SINGLE))
+    dqn.replay_buffer = None
+    dqn.set_logger(Logger(None, []))
+    with pytest.raises(ValueError, match="replay buffer"):
+        tiny_callback().init_callback(dqn)
+
+
+def test_sigma_defaults_depend_on_the_mutation() -> None:
+    assert tiny_callback().sigma == 0.001
+    assert tiny_callback(mutation="gaussian").sigma == 0.03
+    assert tiny_callback(mutation="gaussian", sigma=0.5).sigma == 0.5

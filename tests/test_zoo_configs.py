@@ -1,0 +1,195 @@
+"""The shipped configs: every entry loads and builds its model; package defaults and YAML agree; the schema,
+the restricted literal parser and the ``--hyperparams`` overrides."""
+
+from __future__ import annotations
+
+import inspect
+
+import pytest
+import yaml
+
+import envs
+from sb3_eps import make_vec_env
+from sb3_eps.common.policies import DEFAULT_NET_ARCH, DEFAULT_STREAM_ARCH, MultiAgentQPolicy
+from sb3_eps.zoo.config import (
+    DEFAULT_KEY,
+    ResolvedConfig,
+    config_file,
+    entry_yaml,
+    load_config_entries,
+    merged_entry,
+    resolve_config,
+)
+from sb3_eps.zoo.defaults import differences, rewrite_default
+from sb3_eps.zoo.errors import ConfigError
+from sb3_eps.zoo.exp_manager import build_env, build_model
+from sb3_eps.zoo.literal import parse_literal
+from sb3_eps.zoo.schema import (
+    ALGORITHM_PARAMS,
+    ALGORITHMS,
+    COMMAND_LINE_ARGUMENTS,
+    EVOLUTION_CALLBACK,
+    NAME_SPELLINGS,
+    POLICY_KWARGS_KEY,
+    RUN_PARAMS,
+    algorithm_kwargs,
+    build_callbacks,
+    callback_class,
+    callback_parameters,
+)
+
+WORLD_ENV_IDS = [env_id for env_id in envs.ENV_IDS if env_id not in getattr(envs, "DEBUG_ENV_IDS", ())]
+ENTRIES = [(algo, env_id) for algo in ALGORITHMS for env_id in WORLD_ENV_IDS]
+# Keys an untuned entry may set: a budget and the world, not the algorithm's hyper-parameters.
+UNTUNED_KEYS = {"tuned", "notes", "n_timesteps", "n_envs", "env_kwargs"}
+
+
+@pytest.mark.parametrize("algo", list(ALGORITHMS))
+def test_every_world_has_an_explicitly_marked_entry(algo) -> None:
+    entries = load_config_entries(config_file(algo), algo)
+    assert DEFAULT_KEY in entries
+    for env_id in WORLD_ENV_IDS:
+        entry = entries[env_id]
+        assert isinstance(entry.get("tuned"), bool), f"{algo}.yml: {env_id} must say tuned: true/false"
+        if not entry["tuned"]:
+            assert set(entry) <= UNTUNED_KEYS, (
+                f"{algo}.yml: untuned {env_id} overrides {set(entry) - UNTUNED_KEYS}"
+            )
+
+
+@pytest.mark.parametrize(("algo", "env_id"), ENTRIES, ids=[f"{a}-{e}" for a, e in ENTRIES])
+def test_every_entry_builds_its_model(algo, env_id) -> None:
+    path = config_file(algo)
+    config = ResolvedConfig(
+        algo, env_id, merged_entry(load_config_entries(path, algo), env_id, path), str(path)
+    )
+    env = build_env(config, seed=0)
+    try:
+        model = build_model(config, env, seed=0, device="cpu", verbose=0)
+        assert isinstance(model, ALGORITHMS[algo].algorithm_class)
+        assert model.n_worlds == config.entry["n_envs"]
+        callbacks = build_callbacks(config.entry, env_id, 0, str(path))
+        assert [name for name, _ in callbacks] == ([EVOLUTION_CALLBACK] if ALGORITHMS[algo].eps else [])
+        for _, callback in callbacks:
+            assert callback.eval_env_id == envs.eps_env_id_for(env_id)
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("algo", list(ALGORITHMS))
+def test_default_entry_equals_the_package_defaults(algo) -> None:
+    """A difference means a constructor default changed: run ``python -m sb3_eps.zoo.defaults`` to sync."""
+    assert differences(algo) == []
+    default = load_config_entries(config_file(algo), algo)[DEFAULT_KEY]
+    signature = inspect.signature(ALGORITHMS[algo].algorithm_class.__init__).parameters
+    assert all(default[name] == signature[name].default for name in ALGORITHM_PARAMS)
+    assert default["policy_kwargs"]["net_arch"] == DEFAULT_NET_ARCH
+    assert default["policy_kwargs"]["stream_arch"] == DEFAULT_STREAM_ARCH
+    assert default["n_envs"] == inspect.signature(make_vec_env).parameters["n_envs"].default
+    if ALGORITHMS[algo].eps:
+        parameters = callback_parameters(callback_class(EVOLUTION_CALLBACK))
+        (item,) = default["callback"]
+        assert all(value == parameters[name].default for name, value in item[EVOLUTION_CALLBACK].items())
+
+
+def test_defaults_tool_rewrites_a_stale_default_block(tmp_path) -> None:
+    stale = config_file("gdq").read_text().replace("gamma: 0.99", "gamma: 0.5", 1)
+    path = tmp_path / "gdq.yml"
+    path.write_text(stale)
+    assert differences("gdq", path) != []
+    assert rewrite_default("gdq", path)
+    assert differences("gdq", path) == []
+    assert "MultiRobotNav-4-v0:" in path.read_text() and path.read_text().startswith("# GDQ")
+
+
+def _parameters(cls: type) -> dict[str, object]:
+    return {name: p.default for name, p in inspect.signature(cls.__init__).parameters.items()}
+
+
+@pytest.mark.parametrize("algo", list(ALGORITHMS))
+def test_schema_covers_every_constructor_argument(algo) -> None:
+    spec = ALGORITHMS[algo]
+    arguments = set(inspect.signature(spec.algorithm_class.__init__).parameters) - {"self"}
+    assert arguments == set(ALGORITHM_PARAMS) | set(COMMAND_LINE_ARGUMENTS) | {POLICY_KWARGS_KEY}
+    policy_class = spec.algorithm_class.policy_aliases["MlpPolicy"]
+    internal = {"self", "args", "kwargs", "observation_space", "action_space", "lr_schedule", "n_agents",
+                "state_dim", "features_extractor_class", "features_extractor_kwargs"}  # fmt: skip
+    accepted = set(_parameters(MultiAgentQPolicy)) | set(_parameters(policy_class))
+    assert set(spec.policy_params) <= accepted - internal
+    assert set(spec.policy_params) >= {
+        "net_arch",
+        "stream_arch",
+        "activation_fn",
+        "optimizer_class",
+        "agent_target",
+    }
+
+
+def test_literal_parser_accepts_rl_zoo_strings() -> None:
+    text = "dict(net_arch=[64, 64], activation_fn=nn.Tanh, optimizer_class=th.optim.AdamW, optimizer_kwargs=dict(eps=1e-5, betas=(0.9, 0.99)), x={'a': -1}, y=None)"
+    assert parse_literal(text, NAME_SPELLINGS, "test") == {
+        "net_arch": [64, 64],
+        "activation_fn": "nn.Tanh",
+        "optimizer_class": "th.optim.AdamW",
+        "optimizer_kwargs": {"eps": 1e-5, "betas": [0.9, 0.99]},
+        "x": {"a": -1},
+        "y": None,
+    }
+    assert parse_literal("torch.nn.ReLU", NAME_SPELLINGS, "test") == "nn.ReLU"
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "__import__('os').system('true')",
+        "dict(a=open('/etc/passwd'))",
+        "dict(**{'a': 1})",
+        "dict(a=nn.Module)",
+        "dict(a=2**64**64)",
+        "dict(a=[x for x in range(3)])",
+        "dict(a=lambda: 0)",
+        "nn.ReLU.__class__",
+        "dict(a=os.system)",
+        "dict(a=f'{1}')",
+    ],
+)
+def test_literal_parser_refuses_code(text) -> None:
+    with pytest.raises(ConfigError, match="is not allowed"):
+        parse_literal(text, NAME_SPELLINGS, "test")
+
+
+def test_hyperparams_override_and_round_trip(tmp_path) -> None:
+    config = resolve_config(
+        "eps_gdq",
+        "CooperativeNavigation-v0",
+        hyperparams=[
+            "learning_rate:lin_1e-3",
+            "train_freq:[2, episode]",
+            "policy_kwargs.net_arch:[16]",
+            "policy_kwargs:dict(net_arch=[32], activation_fn=nn.Tanh)",
+            "callback.sigma:1e-2",
+            "env_kwargs.max_cycles:10",
+            "gamma:1e-1",
+        ],
+        n_timesteps=123,
+    )
+    entry = config.entry
+    assert entry["learning_rate"] == "lin_1e-3" and entry["train_freq"] == [2, "episode"]
+    assert entry["policy_kwargs"] == {"net_arch": [32], "activation_fn": "nn.Tanh"}  # a full mapping replaces
+    assert entry["callback"][0][EVOLUTION_CALLBACK]["sigma"] == 0.01
+    assert entry["callback"][0][EVOLUTION_CALLBACK]["population_size"] == 10  # the others stay
+    assert entry["env_kwargs"] == {"max_cycles": 10} and entry["gamma"] == 0.1 and entry["n_timesteps"] == 123
+    kwargs = algorithm_kwargs(entry)
+    assert kwargs["learning_rate"](1.0) == pytest.approx(1e-3) and kwargs["learning_rate"](
+        0.5
+    ) == pytest.approx(5e-4)
+    assert kwargs["train_freq"] == (2, "episode")
+    # config.yml is read back by -conf into the same entry.
+    path = tmp_path / "config.yml"
+    path.write_text(entry_yaml(config.env_id, entry, "header"))
+    assert load_config_entries(path, "eps_gdq")[config.env_id] == entry
+    assert yaml.safe_load(path.read_text())[config.env_id]["policy_kwargs"]["activation_fn"] == "nn.Tanh"
+
+
+def test_run_keys_and_algorithm_keys_do_not_overlap() -> None:
+    assert not set(RUN_PARAMS) & set(ALGORITHM_PARAMS)

@@ -1,0 +1,113 @@
+"""Checkpoints lose nothing: a run stopped by SIGTERM and resumed equals the uninterrupted run with the same seed."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3.common.save_util import load_from_zip_file
+
+from sb3_eps import train
+from sb3_eps.zoo.checkpoint import read_checkpoint_meta
+from sb3_eps.zoo.errors import ConfigError
+
+ENV_ID = "CooperativeNavigation-v0"
+N_TIMESTEPS = 3_000
+# EPS-GDQ with PER, 3-step returns, EPS rounds (in-process evaluation) and periodic team evaluations: every piece
+# of state a checkpoint must carry. train_freq 3 so checkpoints fall mid-episode (episodes last 25 ticks).
+ARGV = [
+    "--algo", "eps_gdq", "--env", ENV_ID, "-n", str(N_TIMESTEPS), "--seed", "3", "--verbose", "0",
+    "--eval-freq", "900", "--eval-episodes", "2", "--n-eval-envs", "1", "--save-freq", "600",
+    "--hyperparams", "policy_kwargs:dict(net_arch=[16], stream_arch=[16], global_net_arch=[16])",
+    "learning_starts:300", "batch_size:16", "buffer_size:2000", "train_freq:3", "n_envs:2",
+    "callback.population_size:2", "callback.n_workers:0", "callback.period:6", "callback.n_eval_episodes:1",
+    "callback.sensitivity_batch_size:16",
+]  # fmt: skip
+
+
+def run_folder(folder: Path) -> Path:
+    (path,) = (folder / "eps_gdq").iterdir()
+    return path
+
+
+def without_wall_time(monitor: Path) -> list[list[str]]:
+    lines = monitor.read_text().splitlines()
+    t = lines[1].split(",").index("t")
+    return [[cell for index, cell in enumerate(line.split(",")) if index != t] for line in lines[1:]]
+
+
+def max_monitor_ticks(monitor: Path) -> int:
+    lines = monitor.read_text().splitlines()
+    column = lines[1].split(",").index("ticks")
+    return max((int(line.split(",")[column]) for line in lines[2:] if line.count(",") >= column), default=0)
+
+
+def logged_timesteps(progress: Path) -> list[str]:
+    lines = progress.read_text().splitlines()
+    column = lines[0].split(",").index("time/total_timesteps")
+    return [line.split(",")[column] for line in lines[1:]]
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("uninterrupted")
+    assert train.main([*ARGV, "-f", str(folder)]) == 0
+    return run_folder(folder)
+
+
+@pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGKILL], ids=["sigterm", "crash"])
+def test_resume_equals_the_uninterrupted_run(uninterrupted, tmp_path, stop) -> None:
+    """SIGTERM: a checkpoint at the next rollout start, exit 0. SIGKILL (a crash): resume from the last periodic
+    checkpoint; what was logged after it is cut back and logged again."""
+    folder = tmp_path / "interrupted"
+    process = subprocess.Popen([sys.executable, "-m", "sb3_eps.train", *ARGV, "-f", str(folder)])
+    deadline = time.time() + 120
+    while not list(folder.glob("eps_gdq/*/checkpoint.zip")):  # the first periodic checkpoint: training runs
+        assert process.poll() is None and time.time() < deadline, "training ended before it could be stopped"
+        time.sleep(0.02)
+    if stop == signal.SIGKILL:  # let it log episodes past the checkpoint, which the resume must cut back
+        checkpoint_ticks = read_checkpoint_meta(next(folder.glob("eps_gdq/*/checkpoint.zip")))["ticks"]
+        while max_monitor_ticks(next(folder.glob("eps_gdq/*/monitor.csv"))) <= checkpoint_ticks:
+            assert process.poll() is None and time.time() < deadline, (
+                "training ended before it could be stopped"
+            )
+            time.sleep(0.02)
+    process.send_signal(stop)
+    assert process.wait(timeout=120) == (0 if stop == signal.SIGTERM else -signal.SIGKILL)
+    run = run_folder(folder)
+    stopped_at = read_checkpoint_meta(run / "checkpoint.zip")["num_timesteps"]
+    assert 0 < stopped_at < N_TIMESTEPS
+    assert not (run / f"{ENV_ID}.zip").exists()
+
+    assert train.main(["--resume", str(run), "--verbose", "0"]) == 0
+
+    _, expected, _ = load_from_zip_file(uninterrupted / f"{ENV_ID}.zip")
+    _, actual, _ = load_from_zip_file(run / f"{ENV_ID}.zip")
+    for key, value in expected["policy"].items():
+        assert th.equal(actual["policy"][key], value), key
+    assert without_wall_time(run / "monitor.csv") == without_wall_time(uninterrupted / "monitor.csv")
+    assert logged_timesteps(run / "progress.csv") == logged_timesteps(uninterrupted / "progress.csv")
+    expected_evaluations, evaluations = (
+        np.load(uninterrupted / "evaluations.npz"),
+        np.load(run / "evaluations.npz"),
+    )
+    for key in expected_evaluations:
+        np.testing.assert_array_equal(evaluations[key], expected_evaluations[key], err_msg=key)
+    assert evaluations["eps_ticks"][-1] > 0  # EPS rounds ran, before and after the interruption
+    assert not (run / "checkpoint.zip").exists()
+
+    # A finished run is not trained again.
+    assert train.main(["--resume", str(run), "--verbose", "0"]) == 0
+
+
+def test_resume_needs_a_checkpoint(tmp_path) -> None:
+    (tmp_path / "args.yml").write_text("algo: gdq\nenv: CooperativeNavigation-v0\nn_timesteps: 10\n")
+    (tmp_path / "config.yml").write_text("CooperativeNavigation-v0:\n  n_timesteps: 10\n")
+    with pytest.raises(ConfigError, match=r"no checkpoint\.zip"):
+        train.main(["--resume", str(tmp_path)])

@@ -1,0 +1,131 @@
+"""A tiny real run through the command lines: the run folder, evaluate, plot, benchmark, warm start."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch as th
+import yaml
+from stable_baselines3.common.save_util import load_from_zip_file
+
+from sb3_eps import benchmark, evaluate, plot, train
+from sb3_eps.zoo.callbacks import read_monitor
+from sb3_eps.zoo.config import load_config_entries
+from sb3_eps.zoo.errors import ConfigError
+
+ENV_ID = "CooperativeNavigation-v0"
+TINY = [
+    "policy_kwargs:dict(net_arch=[16], stream_arch=[16], global_net_arch=[16])",
+    "learning_starts:150",
+    "batch_size:16",
+    "buffer_size:2000",
+    "n_envs:2",
+]
+
+
+def train_args(folder, *extra: str, algo: str = "gdq", env_id: str = ENV_ID, n: int = 1500) -> list[str]:
+    return ["--algo", algo, "--env", env_id, "-n", str(n), "--seed", "0", "-f", str(folder), "--verbose", "0",
+            "--eval-freq", "500", "--eval-episodes", "2", "--n-eval-envs", "1", "--save-freq", "500", *extra]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("logs")
+    assert train.main(train_args(folder, "--hyperparams", *TINY)) == 0
+    (path,) = (folder / "gdq").iterdir()
+    return path
+
+
+def test_run_folder_follows_the_zoo_layout(run_dir) -> None:
+    assert run_dir.name == f"{ENV_ID}_1"
+    names = {path.name for path in run_dir.iterdir()}
+    expected = {"args.yml", "config.yml", "progress.csv", "monitor.csv", "evaluations.npz", "best_model.zip"}
+    assert expected | {f"{ENV_ID}.zip"} <= names
+    assert "checkpoint.zip" not in names  # removed once the run finished
+    assert not [name for name in names if name.endswith(".tmp")]
+    args = yaml.safe_load((run_dir / "args.yml").read_text())
+    assert args["algo"] == "gdq" and args["seed"] == 0 and args["n_timesteps"] == 1500
+    # config.yml is a ready-to-use entry: -conf reads it back.
+    entry = load_config_entries(run_dir / "config.yml", "gdq")[ENV_ID]
+    assert entry["policy_kwargs"]["net_arch"] == [16] and entry["n_envs"] == 2
+    evaluations = np.load(run_dir / "evaluations.npz")
+    assert list(evaluations["timesteps"][:3]) == [504, 1002, 1500]
+    assert evaluations["results"].shape[1] == 2 and "successes" in evaluations and "ticks" in evaluations
+    header, columns = read_monitor(run_dir / "monitor.csv")
+    assert header["env_id"] == ENV_ID and header["n_agents"] == 3
+    assert np.all(columns["l"] == 25) and np.all(np.diff(columns["ticks"]) >= 0)  # one row per world episode
+    progress = (run_dir / "progress.csv").read_text().splitlines()[0].split(",")
+    assert {"eval/success_rate", "eval/team_return", "rollout/team_return", "time/ticks"} <= set(progress)
+
+
+def test_evaluate_prints_and_saves_the_team_metrics(run_dir, tmp_path, capsys) -> None:
+    output = tmp_path / "eval.json"
+    assert evaluate.main(["--run", str(run_dir), "-n", "4", "--n-envs", "2", "--output", str(output)]) == 0
+    printed = capsys.readouterr().out
+    assert "success" in printed and "team return" in printed and "+/-" in printed
+    summary = json.loads(output.read_text())
+    assert summary["n_episodes"] == 4 and len(summary["episodes"]) == 4
+    for key in ("success_rate", "collision_rate", "team_return_mean", "team_return_std", "length_mean"):
+        assert key in summary
+    # RL Zoo's lookup by algo / env / folder, the best model, a GIF, another compatible world.
+    folder = run_dir.parent.parent
+    gif = tmp_path / "play.gif"
+    argv = ["--algo", "gdq", "--env", ENV_ID, "-f", str(folder), "--load-best", "-n", "2", "--gif", str(gif)]
+    assert evaluate.main(argv) == 0
+    assert (run_dir / f"eval_{ENV_ID}_best.json").is_file()
+    assert gif.stat().st_size > 0
+
+
+def test_evaluate_refuses_a_world_of_another_kind(run_dir) -> None:
+    with pytest.raises(ConfigError, match="observation_space"):
+        evaluate.main(["--run", str(run_dir), "--eval-env", "MultiRobotNav-2-v0", "-n", "1"])
+
+
+def test_plot_writes_curves_and_aggregates(run_dir, tmp_path, capsys) -> None:
+    output = tmp_path / "curves.png"
+    assert plot.main([str(run_dir.parent), "-o", str(output), "--window", "10", "--aggregate"]) == 0
+    assert output.stat().st_size > 10_000
+    assert output.with_suffix(".aggregate.csv").is_file()
+    assert "IQM" in capsys.readouterr().out
+    assert plot.main([str(run_dir), "-o", str(tmp_path / "evals.png"), "--eval"]) == 0
+    assert (tmp_path / "evals.png").is_file()
+
+
+def test_benchmark_writes_a_table(run_dir, tmp_path) -> None:
+    output = tmp_path / "benchmark.md"
+    argv = ["-f", str(run_dir.parent.parent), "-n", "2", "--n-envs", "1", "-o", str(output)]
+    assert benchmark.main(argv) == 0
+    table = output.read_text()
+    assert "| GDQ | CooperativeNavigation-v0 | CooperativeNavigation-v0 | 1 |" in table
+
+
+def test_single_agent_pretraining_warm_starts_a_multi_agent_model(tmp_path) -> None:
+    """Paper Table III: train on the single-agent world, then --init-from loads the agent network."""
+    tiny = ["policy_kwargs:dict(net_arch=[16], stream_arch=[16], agent_target=True)", "learning_starts:100",
+            "batch_size:16", "buffer_size:1000", "n_envs:1"]  # fmt: skip
+    single = "CooperativeNavigationSingle-v0"
+    argv = train_args(tmp_path / "pre", "--eval-freq", "0", "--hyperparams", *tiny, env_id=single, n=400)
+    assert train.main(argv) == 0
+    source = tmp_path / "pre" / "gdq" / f"{single}_1" / f"{single}.zip"
+    # No gradient step (learning_starts beyond the budget): the multi-agent model keeps the loaded weights.
+    warm = [*tiny[:1], "learning_starts:100000", "n_envs:1"]
+    argv = train_args(
+        tmp_path / "multi", "--eval-freq", "0", "--init-from", str(source), "--hyperparams", *warm, n=60
+    )
+    assert train.main(argv) == 0
+    _, loaded, _ = load_from_zip_file(tmp_path / "multi" / "gdq" / f"{ENV_ID}_1" / f"{ENV_ID}.zip")
+    _, original, _ = load_from_zip_file(source)
+    for key, value in original["policy"].items():
+        if key.startswith(("q_net.", "q_net_target.")):
+            assert th.equal(loaded["policy"][key], value), key
+    assert any(key.startswith("global_value_net.") for key in loaded["policy"])
+    with pytest.raises(ConfigError, match="does not fit"):
+        other = "policy_kwargs:dict(net_arch=[32], stream_arch=[16])"
+        train.main(
+            train_args(
+                tmp_path / "bad", "--eval-freq", "0", "--init-from", str(source), "--hyperparams", other, n=60
+            )
+        )
+    assert not (tmp_path / "bad").exists()

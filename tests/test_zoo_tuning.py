@@ -1,0 +1,73 @@
+"""Optuna tuning: search spaces of every algorithm, a 3-trial 2-job study in SQLite, the best-parameters entry."""
+
+from __future__ import annotations
+
+import optuna
+import pytest
+
+from sb3_eps import train
+from sb3_eps.zoo.config import load_config_entries, resolve_config
+from sb3_eps.zoo.schema import ALGORITHMS, EVOLUTION_CALLBACK
+from sb3_eps.zoo.tuning import merge_overrides, objective_score, sample_hyperparams
+
+ENV_ID = "CooperativeNavigation-v0"
+
+
+@pytest.mark.parametrize("algo", list(ALGORITHMS))
+def test_search_space_gives_valid_entries(algo) -> None:
+    spec = ALGORITHMS[algo]
+    base = resolve_config(algo, ENV_ID).entry
+    study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=0))
+    for _ in range(25):
+        trial = study.ask()
+        entry = merge_overrides(base, sample_hyperparams(trial, spec, 2_000), spec)
+        assert entry["learning_starts"] <= 500
+        if spec.eps:
+            (item,) = entry["callback"]
+            arguments = item[EVOLUTION_CALLBACK]
+            assert 0 < arguments["alpha"] < 0.4  # the paper: alpha >= 0.4 hurt
+            assert {"sigma", "period", "population_size", "n_eval_episodes"} <= set(arguments)
+            assert arguments["mutation"] == "safe"  # unsampled arguments keep the base entry's
+        study.tell(trial, 0.0)
+
+
+def test_objective_orders_by_success_then_return() -> None:
+    n = 10
+    better_success = objective_score({"success_rate": 0.2, "team_return_mean": -1e9}, n)
+    worse_success = objective_score({"success_rate": 0.1, "team_return_mean": 1e9}, n)
+    assert better_success > worse_success
+    assert objective_score({"success_rate": 0.1, "team_return_mean": 5.0}, n) > objective_score(
+        {"success_rate": 0.1, "team_return_mean": 4.0}, n
+    )
+
+
+def test_three_trials_two_jobs_write_a_sqlite_study_and_best_params(tmp_path, capsys) -> None:
+    argv = ["--algo", "gdq", "--env", ENV_ID, "-n", "450", "--seed", "0", "-f", str(tmp_path), "--verbose", "0",
+            "--eval-episodes", "2", "--n-eval-envs", "1", "-optimize", "--n-trials", "3", "--n-jobs", "2",
+            "--sampler", "tpe", "--pruner", "median", "--n-evaluations", "2", "--hyperparams", "n_envs:1"]  # fmt: skip
+    assert train.main(argv) == 0
+    (folder,) = (tmp_path / "gdq").iterdir()
+    database = folder / "study.db"
+    assert database.is_file() and (folder / "trials.csv").is_file()
+    study = optuna.load_study(study_name=f"gdq-{ENV_ID}", storage=f"sqlite:///{database}")
+    assert len(study.trials) == 3
+    finished = [
+        t
+        for t in study.trials
+        if t.state in (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
+    ]
+    assert len(finished) == 3
+    assert all(len(t.intermediate_values) >= 1 for t in finished)  # reported for pruning
+    # The best parameters are a ready-to-use entry: -conf reads it.
+    best = load_config_entries(folder / "best_params.yml", "gdq")[ENV_ID]
+    assert best["tuned"] is True and "optuna study" in best["notes"]
+    assert best["learning_rate"] == study.best_trial.params["learning_rate"]
+    assert "best_params.yml" in capsys.readouterr().out
+
+    # Another process (here: another call) given the same storage and study name joins the study.
+    join = argv[:]
+    join[join.index("--n-trials") + 1] = "1"
+    join[join.index("--n-jobs") + 1] = "1"
+    join += ["--storage", f"sqlite:///{database}", "--study-name", f"gdq-{ENV_ID}"]
+    assert train.main(join) == 0
+    assert len(optuna.load_study(study_name=f"gdq-{ENV_ID}", storage=f"sqlite:///{database}").trials) == 4
