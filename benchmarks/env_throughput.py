@@ -24,6 +24,7 @@ import os
 import platform
 import time
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -88,6 +89,11 @@ class KeepAllAgents(ParallelEnv):
 
     def close(self) -> None:
         self.env.close()
+
+
+def padded_robots(n_robots: int) -> ParallelEnv:
+    """An n-robot arena wrapped for plain SuperSuit."""
+    return KeepAllAgents(MultiRobotNavEnv(n_robots=n_robots))
 
 
 def mpe_env() -> ParallelEnv:
@@ -201,7 +207,7 @@ def main() -> None:
     env = mpe_env()
     mpe_raw = time_raw(env, args.seconds, clock)
     env.close()
-    mpe_venv = vec_of("CooperativeNavigation-v0", lambda: mpe_env())
+    mpe_venv = vec_of("CooperativeNavigation-v0", mpe_env)
     mpe_vec = time_vec(mpe_venv, 3, args.seconds, clock)
     mpe_venv.close()
 
@@ -215,7 +221,7 @@ def main() -> None:
         env = MultiRobotNavEnv(n_robots=n)
         raw = time_raw(env, args.seconds, clock)
         env.close()
-        venv = vec_of(f"MultiRobotNav-{n}-v0", lambda n=n: KeepAllAgents(MultiRobotNavEnv(n_robots=n)))
+        venv = vec_of(f"MultiRobotNav-{n}-v0", partial(padded_robots, n))
         vec = time_vec(venv, n, args.seconds, clock)
         venv.close()
         name = f"MultiRobotNav-{n}-v0"

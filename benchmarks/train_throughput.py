@@ -27,7 +27,7 @@ TARGETS = {"IQL": 1.2, "GDQ": 1.3, "VDN": 1.3, "QMIX": 1.5}
 
 def build(name: str, env_id: str, n_envs: int, rows: int, learning_starts: int) -> Any:
     venv = make_vec_env(env_id, n_envs=n_envs, seed=0)
-    common = dict(learning_starts=learning_starts, train_freq=4, gradient_steps=1, seed=0, buffer_size=50_000)
+    common = {"learning_starts": learning_starts, "train_freq": 4, "gradient_steps": 1, "seed": 0, "buffer_size": 50_000}
     if name == "SB3-DQN":
         # SB3's MLP with the same hidden sizes as our trunk + one stream layer.
         return DQN(

@@ -9,7 +9,7 @@ import pytest
 import torch as th
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-import envs  # noqa: F401  (registers the ids)
+import envs
 from sb3_eps import GDQ, IQL, QMIX, VDN, export_policy, make_vec_env
 from sb3_eps.common.utils import epsilon_greedy
 
@@ -22,7 +22,7 @@ def tiny_model(algorithm, env_id="CooperativeNavigation-v0", n_envs=2, seed=0, *
     extra = {"mixing_embed_dim": 8, "hypernet_hidden_dim": 16} if algorithm in (QMIX, VDN) else {}
     if algorithm is GDQ:
         extra = {"global_net_arch": [16]}
-    defaults = dict(learning_starts=60, batch_size=16, buffer_size=2_000, train_freq=2, seed=seed)
+    defaults = {"learning_starts": 60, "batch_size": 16, "buffer_size": 2_000, "train_freq": 2, "seed": seed}
     defaults.update(kwargs)
     return algorithm("MlpPolicy", venv, policy_kwargs={**TINY, **extra}, **defaults)
 

@@ -302,3 +302,17 @@ def test_pictures_script(tmp_path: Any) -> None:
     written = pictures.run(tmp_path, n_forward_ticks=2)
     assert [path.name for path in written] == ["multi_robot_4.png", "single_robot.png", "unseen_4.png"]
     assert all(path.stat().st_size > 1000 for path in written)
+
+
+def test_gui_visuals_build() -> None:
+    """The shapes the GUI shows, built in DIRECT mode (no display needed) so a typo cannot hide there."""
+    env = MultiRobotNavEnv(2)
+    env.reset(seed=0)
+    world = env.world
+    world.gui = True
+    assert world._robot_visual(1) >= 0
+    world._add_map_visuals()
+    world.show_targets(env._targets)
+    world.show_targets(env._targets)  # replaces the markers
+    assert len(world._target_ids) == 2
+    env.close()

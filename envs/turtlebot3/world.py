@@ -277,7 +277,7 @@ class NavWorld:
             return -1
         rgba = [*(ROBOT_COLOURS[index % len(ROBOT_COLOURS)] / 255.0).tolist(), 1.0]
         wheel_y = WHEEL_SEPARATION / 2.0
-        wheel_orn = p.getQuaternionFromEuler([np.pi / 2, 0, 0])
+        wheel_orn = [np.sin(np.pi / 4), 0.0, 0.0, np.cos(np.pi / 4)]  # wheel axles along y: roll by 90 deg
         return p.createVisualShapeArray(
             shapeTypes=[p.GEOM_CYLINDER, p.GEOM_CYLINDER, p.GEOM_CYLINDER, p.GEOM_BOX],
             radii=[ROBOT_RADIUS, WHEEL_RADIUS, WHEEL_RADIUS, 0.0],
