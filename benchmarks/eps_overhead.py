@@ -1,11 +1,13 @@
 """EPS overhead, measured side by side in one run (issue 4's acceptance benchmark).
 
-1. Wall time of GDQ and of EPS-GDQ (default ``EvolutionCallback`` settings) for the same number of training ticks
-   on ``MultiRobotNav-4-v0``, and their ratio (target <= 1.10; the paper reports 1.04 +/- 0.03). The two models
-   train in alternating slices of ``--slice`` ticks (``learn(..., reset_num_timesteps=False)``, ABBA order, each
-   model with its own global RNG states), so a change in the machine's background load hits both alike and both
-   follow the same trajectory until EPS first changes the weights. Also the CPU seconds of each (main process plus
-   the EPS workers): on a machine shared with other jobs the wall ratio moves with their load, the CPU ratio
+1. Wall time of GDQ and of EPS-GDQ (default ``EvolutionCallback`` settings) for the same number of training
+   ticks on ``MultiRobotNav-4-v0``, and their ratio (target <= 1.10; the paper reports 1.04 +/- 0.03). Also
+   EPS-GDQ with ``alpha=0``: its rounds run but never change the weights, so it follows GDQ's trajectory exactly
+   and its extra time is the cost of EPS alone (a real EPS-GDQ run trains on other episodes once a mutant wins,
+   which moves its time by several percent either way). The models train in rotating slices of ``--slice``
+   ticks (``learn(..., reset_num_timesteps=False)``, each with its own global RNG states), so a change in the
+   machine's background load hits all alike. CPU seconds (main process plus the EPS workers) are reported
+   beside wall seconds: on a machine shared with other jobs the wall ratio moves with their load, the CPU ratio
    hardly; it is the wall ratio of a quiet machine evaluating in one process, and an upper bound when the
    workers run on free cores.
 2. Seconds per EPS round for population 10 with and without the batched population forward (and with the
@@ -15,7 +17,7 @@
 
 Usage::
 
-    python benchmarks/eps_overhead.py --ticks 30000
+    python benchmarks/eps_overhead.py --ticks 20000
 """
 
 from __future__ import annotations
@@ -62,54 +64,72 @@ def set_global_rng_state(state: tuple[Any, Any, Any]) -> None:
 
 
 def overhead(args: argparse.Namespace) -> tuple[GDQ, EvolutionCallback]:
-    """Part 1: train GDQ and EPS-GDQ in alternating slices and compare their wall times."""
-    baseline = make_model(args.env, args.n_envs, args.seed)
-    evolved = make_model(args.env, args.n_envs, args.seed)  # re-seeds the global RNGs: same start for both
-    callback = EvolutionCallback(eval_env_id=envs.eps_env_id_for(args.env), seed=args.seed)
-    n_agents = baseline.n_agents
-    seconds = {"GDQ": 0.0, "EPS-GDQ": 0.0}
-    cpu_seconds = {"GDQ": 0.0, "EPS-GDQ": 0.0}
-    # SB3 draws exploration and replay samples from the global RNGs: each model keeps its own streams, so both
-    # runs follow the same trajectory until EPS first changes the weights (a run that diverged for another
-    # reason would time different episodes).
+    """Part 1: train GDQ, EPS-GDQ and EPS-GDQ with alpha = 0 in rotating slices; compare wall and CPU times."""
+    eval_env_id = envs.eps_env_id_for(args.env)
+    runs: list[tuple[str, GDQ, EvolutionCallback | None]] = [
+        ("GDQ", make_model(args.env, args.n_envs, args.seed), None),
+        (
+            "EPS-GDQ",
+            make_model(args.env, args.n_envs, args.seed),
+            EvolutionCallback(eval_env_id, seed=args.seed),
+        ),
+        # alpha = 0: every round runs, but the crossover changes nothing, so this run follows GDQ's trajectory
+        # exactly and its extra time is the cost of EPS alone, free of the noise of a different trajectory.
+        (
+            "EPS a=0",
+            make_model(args.env, args.n_envs, args.seed),
+            EvolutionCallback(eval_env_id, alpha=0.0, seed=args.seed),
+        ),
+    ]
+    n_agents = runs[0][1].n_agents
+    seconds = {name: 0.0 for name, _, _ in runs}
+    cpu_seconds = dict(seconds)
+    # SB3 draws exploration and replay samples from the global RNGs: each model keeps its own streams, so the
+    # runs follow the same trajectory until EPS first changes the weights. Every model was built with the same
+    # seed, which re-seeds the global RNGs: they all start from the state the last one left.
     rng_states = {name: global_rng_state() for name in seconds}
-    done = 0
+    done, slice_index = 0, 0
     while done < args.ticks:
         ticks = min(args.slice, args.ticks - done)
-        first = done == 0
-        runs = [("GDQ", baseline, {}), ("EPS-GDQ", evolved, {"callback": callback})]
-        if (done // args.slice) % 2:  # ABBA order: whichever runs second in a slice has no systematic edge
-            runs.reverse()
-        for name, model, extra in runs:
+        order = (
+            runs[slice_index % len(runs) :] + runs[: slice_index % len(runs)]
+        )  # rotate: no run always first
+        for name, model, callback in order:
             set_global_rng_state(rng_states[name])
             start, cpu_start = time.perf_counter(), cpu_time()
-            model.learn(ticks * n_agents, reset_num_timesteps=first, **extra)
+            model.learn(ticks * n_agents, reset_num_timesteps=done == 0, callback=callback)
             seconds[name] += time.perf_counter() - start
             cpu_seconds[name] += cpu_time() - cpu_start  # the workers are joined at training end: counted
             rng_states[name] = global_rng_state()
         done += ticks
-    ratio = seconds["EPS-GDQ"] / seconds["GDQ"]
-    rounds = [record for record in callback.history if not record["skipped"]]
+        slice_index += 1
     print(
-        f"== 1. overhead on {args.env}: {args.ticks} training ticks, {args.n_envs} world(s), seed {args.seed}"
+        f"== 1. overhead on {args.env}: {args.ticks} training ticks, {args.n_envs} world(s), seed {args.seed}, "
+        f"slices of {args.slice} ticks"
     )
-    print(f"{'':10s}{'wall s':>10s}{'CPU s':>10s}{'ticks/s':>10s}{'episodes':>10s}")
-    for name, model in (("GDQ", baseline), ("EPS-GDQ", evolved)):
-        print(
-            f"{name:10s}{seconds[name]:10.1f}{cpu_seconds[name]:10.1f}{model.ticks / seconds[name]:10.0f}"
-            f"{model._episode_num:10d}"
+    print(
+        f"{'':10s}{'wall s':>9s}{'CPU s':>9s}{'wall/GDQ':>10s}{'CPU/GDQ':>9s}{'episodes':>10s}{'EPS rounds':>12s}"
+    )
+    for name, model, callback in runs:
+        n_rounds = (
+            ""
+            if callback is None
+            else f"{callback.n_rounds} ({sum(r['wall_time'] for r in callback.history if not r['skipped']):.1f} s)"
         )
-    print(f"EPS-GDQ / GDQ = {ratio:.3f} wall time   (target <= 1.10)")
-    print(
-        f"EPS-GDQ / GDQ = {cpu_seconds['EPS-GDQ'] / cpu_seconds['GDQ']:.3f} CPU time (main process + workers)"
-    )
+        print(
+            f"{name:10s}{seconds[name]:9.1f}{cpu_seconds[name]:9.1f}{seconds[name] / seconds['GDQ']:10.3f}"
+            f"{cpu_seconds[name] / cpu_seconds['GDQ']:9.3f}{model._episode_num:10d}{n_rounds:>12s}"
+        )
+    print("target: EPS-GDQ / GDQ <= 1.10 (wall)")
+    callback = runs[1][2]
+    assert callback is not None
+    rounds = [record for record in callback.history if not record["skipped"]]
     if rounds:
         print(
-            f"EPS: {len(rounds)} rounds ({callback.n_skipped_rounds} skipped), {callback.eps_ticks} evaluation "
-            f"ticks, {np.mean([r['wall_time'] for r in rounds]):.2f} s per round, "
-            f"{sum(r['wall_time'] for r in rounds):.1f} s in all; winners {[r['winner'] for r in rounds]}"
+            f"EPS-GDQ: {len(rounds)} rounds ({callback.n_skipped_rounds} skipped), {callback.eps_ticks} evaluation "
+            f"ticks, {np.mean([r['wall_time'] for r in rounds]):.2f} s per round; winners {[r['winner'] for r in rounds]}"
         )
-    return evolved, callback
+    return runs[1][1], callback
 
 
 def round_seconds(model: GDQ, args: argparse.Namespace) -> None:
@@ -126,7 +146,7 @@ def round_seconds(model: GDQ, args: argparse.Namespace) -> None:
     for _ in range(args.repeats):
         for name, kwargs in configs:
             model.policy.load_state_dict(snapshot)
-            # period 1 tick: a round at every rollout end (train_freq = 4 ticks), i.e. rounds_per_config rounds.
+            # period 1 tick: a round at every rollout end, i.e. rounds_per_config rounds.
             callback = EvolutionCallback(
                 eval_env_id=envs.eps_env_id_for(args.env),
                 period=1,
@@ -134,7 +154,8 @@ def round_seconds(model: GDQ, args: argparse.Namespace) -> None:
                 seed=args.seed,
                 **kwargs,
             )
-            model.learn(args.rounds_per_config * 4 * n_agents, callback=callback, reset_num_timesteps=False)
+            rollout = model.train_freq.frequency * n_agents  # agent-steps of one rollout: one round each
+            model.learn(args.rounds_per_config * rollout, callback=callback, reset_num_timesteps=False)
             for record in callback.history:
                 if not record["skipped"]:
                     times[name].append(record["wall_time"])
@@ -186,8 +207,8 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--env", default="MultiRobotNav-4-v0")
-    parser.add_argument("--ticks", type=int, default=30_000, help="training ticks per algorithm")
-    parser.add_argument("--slice", type=int, default=15_000, help="ticks per alternating slice")
+    parser.add_argument("--ticks", type=int, default=20_000, help="training ticks per algorithm")
+    parser.add_argument("--slice", type=int, default=10_000, help="ticks per alternating slice")
     parser.add_argument("--n-envs", type=int, default=1, help="worlds per vector env")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(

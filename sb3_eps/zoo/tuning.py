@@ -11,6 +11,7 @@ one study. At the end the best trial is written as a ready-to-use config entry, 
 from __future__ import annotations
 
 import argparse
+import csv
 import math
 import time
 from dataclasses import dataclass
@@ -342,15 +343,29 @@ def tune(options: TrainOptions, tuning: TuningOptions) -> Path:
     return folder
 
 
+def write_trials_csv(study: Any, path: Path) -> None:
+    """One row per trial: number, state, value, duration and every sampled parameter (no pandas needed)."""
+    trials = list(study.trials)
+    param_names = sorted({name for trial in trials for name in trial.params})
+    temporary = path.with_name(path.name + ".tmp")
+    with temporary.open("w", newline="") as file:
+        writer = csv.writer(file)
+        writer.writerow(["number", "state", "value", "duration_s", *(f"params_{name}" for name in param_names)])
+        for trial in trials:
+            duration = trial.duration.total_seconds() if trial.duration is not None else ""
+            writer.writerow(
+                [trial.number, trial.state.name, "" if trial.value is None else trial.value, duration,
+                 *(trial.params.get(name, "") for name in param_names)]
+            )  # fmt: skip
+    temporary.replace(path)
+
+
 def write_results(
     study: Any, config: ResolvedConfig, folder: Path, seconds: float, options: TrainOptions
 ) -> None:
     """Write ``trials.csv`` and ``best_params.yml`` (the best trial as a config entry) and print a summary."""
     optuna = _import_optuna()
-    try:
-        study.trials_dataframe().to_csv(folder / TRIALS_NAME, index=False)
-    except ImportError:  # pandas missing: the study itself is in the storage
-        pass
+    write_trials_csv(study, folder / TRIALS_NAME)
     complete = [trial for trial in study.trials if trial.state == optuna.trial.TrialState.COMPLETE]
     n_pruned = sum(trial.state == optuna.trial.TrialState.PRUNED for trial in study.trials)
     print(
