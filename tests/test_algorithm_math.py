@@ -176,3 +176,30 @@ def test_per_sampling_probabilities_and_weights() -> None:
     batch = buffer.sample(64, beta=0.5)
     expected = (4 * probabilities[batch.indices]) ** -0.5
     assert batch.weights.numpy() == pytest.approx(expected / expected.max(), rel=1e-5)
+
+
+def test_sum_tree_totals_stay_exact_after_repeated_updates() -> None:
+    rng = np.random.default_rng(0)
+    tree = SumTree(37)
+    leaves = np.zeros(37)
+    for _ in range(50):
+        indices = rng.integers(0, 37, size=8)  # duplicates included
+        values = rng.uniform(0, 2, size=8)
+        tree.update(indices, values)
+        for index, value in zip(indices, values, strict=True):
+            leaves[index] = value
+        single = int(rng.integers(0, 37))
+        tree.set_one(single, 0.5)
+        leaves[single] = 0.5
+        assert tree.total == pytest.approx(leaves.sum())
+    assert tree.leaves(np.arange(37)) == pytest.approx(leaves)
+
+
+def test_polyak_update_hand_computation() -> None:
+    from sb3_eps.common.utils import polyak_update_
+
+    target, source = th.nn.Linear(2, 1), th.nn.Linear(2, 1)
+    with th.no_grad():
+        target.weight.fill_(1.0), source.weight.fill_(3.0)
+    polyak_update_(target, source, 0.25)
+    assert th.allclose(target.weight, th.full((1, 2), 1.5))

@@ -177,12 +177,19 @@ class SumTree:
         """Set the leaves ``indices`` to ``values`` and refresh their ancestors."""
         nodes = np.asarray(indices, dtype=np.int64) + self.n_leaves
         self.tree[nodes] = values
-        nodes = np.unique(nodes // 2)
-        while nodes[0] >= 1:
+        # Level by level to the root; a parent listed twice gets the same sum twice (cheaper than np.unique).
+        for _ in range(self.n_leaves.bit_length() - 1):
+            nodes = nodes // 2
             self.tree[nodes] = self.tree[2 * nodes] + self.tree[2 * nodes + 1]
-            if nodes[0] == 1:
-                break
-            nodes = np.unique(nodes // 2)
+
+    def set_one(self, index: int, value: float) -> None:
+        """Set one leaf (the per-row insert path: plain Python integers beat NumPy here)."""
+        tree = self.tree
+        node = index + self.n_leaves
+        tree[node] = value
+        while node > 1:
+            node //= 2
+            tree[node] = tree[2 * node] + tree[2 * node + 1]
 
     def leaves(self, indices: np.ndarray) -> np.ndarray:
         """:return: the values of the leaves ``indices``."""
@@ -224,7 +231,7 @@ class PrioritizedJointReplayBuffer(JointReplayBuffer):
 
     def add_row(self, row: JointRow) -> int:
         index = super().add_row(row)
-        self.tree.update(np.array([index]), np.array([self.max_priority]))
+        self.tree.set_one(index, self.max_priority)
         return index
 
     def sample(self, batch_size: int, beta: float = 0.4) -> JointReplayBufferSamples:

@@ -43,8 +43,11 @@ def masked_mean(values: th.Tensor, mask: th.Tensor) -> th.Tensor:
 def polyak_update_(target: th.nn.Module, source: th.nn.Module, tau: float) -> None:
     """In place ``target = tau * source + (1 - tau) * target`` over parameters and buffers."""
     with th.no_grad():
-        for target_param, param in zip(target.parameters(), source.parameters(), strict=True):
-            target_param.mul_(1.0 - tau).add_(param, alpha=tau)
+        target_params, params = list(target.parameters()), list(source.parameters())
+        if len(target_params) != len(params):
+            raise ValueError("polyak_update_: target and source have different parameter lists")
+        # One fused call: target + tau * (source - target).
+        th._foreach_lerp_(target_params, params, tau)
         for target_buffer, buffer in zip(target.buffers(), source.buffers(), strict=True):
             target_buffer.copy_(buffer)
 
