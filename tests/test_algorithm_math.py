@@ -203,3 +203,9 @@ def test_polyak_update_hand_computation() -> None:
         target.weight.fill_(1.0), source.weight.fill_(3.0)
     polyak_update_(target, source, 0.25)
     assert th.allclose(target.weight, th.full((1, 2), 1.5))
+
+
+def test_polyak_update_accepts_parameter_free_modules() -> None:
+    from sb3_eps.common.utils import polyak_update_
+
+    polyak_update_(SumMixer(), SumMixer(), 0.5)

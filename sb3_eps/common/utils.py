@@ -46,8 +46,9 @@ def polyak_update_(target: th.nn.Module, source: th.nn.Module, tau: float) -> No
         target_params, params = list(target.parameters()), list(source.parameters())
         if len(target_params) != len(params):
             raise ValueError("polyak_update_: target and source have different parameter lists")
-        # One fused call: target + tau * (source - target).
-        th._foreach_lerp_(target_params, params, tau)
+        if target_params:  # a parameter-free module (VDN's sum mixer) has nothing to move
+            # One fused call: target + tau * (source - target).
+            th._foreach_lerp_(target_params, params, tau)
         for target_buffer, buffer in zip(target.buffers(), source.buffers(), strict=True):
             target_buffer.copy_(buffer)
 
