@@ -158,7 +158,8 @@ def round_seconds(model: GDQ, args: argparse.Namespace) -> None:
                 seed=args.seed,
                 **kwargs,
             )
-            rollout = model.train_freq.frequency * n_agents  # agent-steps of one rollout: one round each
+            # agent-steps of one rollout (SB3 turned train_freq into a TrainFreq): one round each
+            rollout = model.train_freq.frequency * n_agents  # type: ignore[union-attr]
             model.learn(args.rounds_per_config * rollout, callback=callback, reset_num_timesteps=False)
             for record in callback.history:
                 if not record["skipped"]:
@@ -194,7 +195,7 @@ def mutation_size(model: GDQ, callback: EvolutionCallback, args: argparse.Namesp
         f"{'sigma':>8s}{'safe: actions changed':>24s}{'mean |dQ|':>11s}{'gaussian: changed':>20s}{'mean |dQ|':>11s}"
     )
     for sigma in (0.0003, 0.001, 0.003, 0.01, 0.03, 0.1):
-        row = f"{sigma:8.3f}"
+        row = f"{sigma:8.4f}"
         for sensitivities in ([omega], None):
             generator = th.Generator().manual_seed(args.seed)
             population = mutate_population(theta, 20, sigma, generator, sensitivities)

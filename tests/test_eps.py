@@ -434,7 +434,7 @@ def test_mismatched_spaces_and_models_fail_before_training() -> None:
     model = tiny_model(IQL)
     with pytest.raises(ValueError, match="observation_space"):
         model.learn(30, callback=tiny_callback(eval_env_id="SingleRobotNav-v0"))
-    ppo = PPO("MlpPolicy", envs.make_single_env(MPE_SINGLE), n_steps=16)
+    ppo = PPO("MlpPolicy", envs.make_single_env(MPE_SINGLE), n_steps=16, batch_size=16)
     with pytest.raises(ValueError, match="q_net"):
         ppo.learn(16, callback=tiny_callback())
     dqn = DQN("MlpPolicy", envs.make_single_env(MPE_SINGLE))

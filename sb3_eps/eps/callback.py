@@ -97,7 +97,7 @@ class EvolutionCallback(BaseCallback):
     :param batched_forward: compute the greedy actions of a block of individuals in one ``vmap``-ed
         ``functional_call`` over their stacked weights (default True; 0.9 ms instead of 2.1 ms per tick for 11
         individuals x 2 episodes of the robot network) instead of one forward pass per individual. Env steps
-        dominate a round, so the round time changes by a few percent at most (measured).
+        dominate a round: it evaluates 10-15 % more ticks per second (measured, docs/benchmarks.md).
     :param per_robot: normalise mutant ``i`` by the sensitivity computed on robot ``i % n_agents``'s own visited
         observations instead of all robots' (paper III-B's "individual experiences"; with
         ``population_size = n_agents`` every robot gets one mutant). The weights stay shared: no algorithm of
@@ -244,27 +244,28 @@ class EvolutionCallback(BaseCallback):
 
     def _sensitivities(self, q_net: nn.Module) -> list[Parameters]:
         """Eq. 6 on a batch of visited observations: one for all mutants, or one per robot (``per_robot``)."""
-        robots: list[int | None] = [None]
-        if self.per_robot:
-            robots = list(range(int(self.model.n_agents)))
-        sensitivities = []
-        for robot in robots:
-            observations = self._visited_observations(robot, self.sensitivity_batch_size)
-            if observations is None:  # this robot has no alive entry yet: use every robot's states
-                observations = self._visited_observations(None, self.sensitivity_batch_size)
-            assert observations is not None
-            sensitivities.append(output_sensitivity(q_net, observations))
-        if self.per_robot:
-            # Mutant i follows robot i % n: the paper's m = n when population_size = n_agents.
-            sensitivities = [sensitivities[i % len(sensitivities)] for i in range(self.population_size)]
-        return sensitivities
+        if not self.per_robot:
+            return [self._sensitivity_of(q_net, None)]
+        # Mutant i follows robot i % n: the paper's m = n when population_size = n_agents.
+        n_agents = int(self._model.n_agents)
+        robots = sorted({index % n_agents for index in range(self.population_size)})
+        by_robot = {robot: self._sensitivity_of(q_net, robot) for robot in robots}
+        return [by_robot[index % n_agents] for index in range(self.population_size)]
+
+    def _sensitivity_of(self, q_net: nn.Module, robot: int | None) -> Parameters:
+        """Eq. 6 on visited observations of one robot (None: of every robot)."""
+        observations = self._visited_observations(robot, self.sensitivity_batch_size)
+        if observations is None:  # this robot has no alive entry yet: use every robot's states
+            observations = self._visited_observations(None, self.sensitivity_batch_size)
+        assert observations is not None
+        return output_sensitivity(q_net, observations)
 
     def _visited_mask(self, robot: int | None) -> np.ndarray:
         """``(rows, agents)`` bool: True where the replay buffer holds a real visited observation (an alive agent).
 
         :param robot: keep only this agent's column of the joint rows; None for every agent
         """
-        buffer = self.model.replay_buffer
+        buffer = self._model.replay_buffer
         size = int(buffer.size())
         alive = getattr(buffer, "alive", None)  # SB3's own buffers have none: every stored row is real
         mask = np.ones(buffer.observations.shape[1:2], dtype=bool)[None].repeat(size, 0)
@@ -284,7 +285,7 @@ class EvolutionCallback(BaseCallback):
             return None
         assert self._rng is not None
         chosen = np.sort(self._rng.choice(candidates, size=min(batch_size, candidates.size), replace=False))
-        observations = self.model.replay_buffer.observations[: mask.shape[0]]
+        observations = self._model.replay_buffer.observations[: mask.shape[0]]
         if robot is not None:
             observations = observations[:, robot : robot + 1]
         flat = np.asarray(observations).reshape(-1, observations.shape[-1])
@@ -365,8 +366,15 @@ class EvolutionCallback(BaseCallback):
         elapsed = time.perf_counter() - self._training_start
         return self.eps_time / elapsed if elapsed > 0 else 0.0
 
+    @property
+    def _model(self) -> Any:
+        # The model's multi-agent attributes (n_agents, replay_buffer) are not on SB3's BaseAlgorithm type.
+        return self.model
+
     def _q_net(self) -> nn.Module:
-        return self.model.policy.q_net
+        q_net = self._model.policy.q_net
+        assert isinstance(q_net, nn.Module)
+        return q_net
 
     def _n_workers(self) -> int:
         # A worker evaluates whole individuals, so more workers than individuals would idle.

@@ -163,9 +163,10 @@ class _Block:
         self.forward.load(population)
         returns, lengths = np.zeros(shape), np.zeros(shape, dtype=np.int64)
         active = np.repeat(valid, self.n_episodes)
-        obs = np.zeros((len(self.envs), *self.envs[0].observation_space.shape), dtype=np.float32)
+        obs_shape = self.envs[0].observation_space.shape or ()
+        obs = np.zeros((len(self.envs), *obs_shape), dtype=np.float32)
         for index in np.flatnonzero(active):
-            obs[index] = self.envs[index].reset(seed=int(seeds[index % self.n_episodes]))[0]
+            obs[index] = self.envs[index].reset(seed=int(seeds[int(index) % self.n_episodes]))[0]
         while active.any():
             outputs = self.forward(th.as_tensor(obs).reshape(*shape, -1))
             # A NaN/inf output disqualifies its individual at once: its envs stop, its fitness becomes -inf.
@@ -306,7 +307,7 @@ class SubprocessEnvPool(EnvPool):
     ) -> None:
         if start_method is None:
             start_method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
-        context = mp.get_context(start_method)
+        context: Any = mp.get_context(start_method)
         self.n_individuals, self.n_episodes = n_individuals, n_episodes
         n_blocks = max(1, min(n_workers, n_individuals))
         self.blocks = [block for block in np.array_split(np.arange(n_individuals), n_blocks) if len(block)]
