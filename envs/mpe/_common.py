@@ -24,26 +24,6 @@ _ACTION_SPACE = spaces.Discrete(N_ACTIONS)
 RENDER_MODES = ["human", "rgb_array"]
 
 
-def check_seed(seed: Any) -> int | None:
-    """Return ``seed`` as a Python int (or None), or raise a ValueError saying what a seed may be.
-
-    NumPy integers are accepted because SB3 and ``np.random`` hand them out; bools are refused because
-    ``True`` as a seed is always a mistake.
-
-    :param seed: the seed given to ``reset``
-    :return: the seed as a non-negative Python int, or None
-    """
-    if seed is None:
-        return None
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
-        raise ValueError(
-            f"seed must be None or a non-negative int, got {seed!r} of type {type(seed).__name__}"
-        )
-    if seed < 0:
-        raise ValueError(f"seed must be None or a non-negative int, got {seed}")
-    return int(seed)
-
-
 def is_valid_action(action: Any) -> bool:
     """Whether ``action`` is one of the Discrete(5) actions (ints, NumPy ints and 0-d integer arrays).
 

@@ -30,12 +30,12 @@ from pettingzoo.utils.conversions import parallel_to_aec
 from envs.mpe._common import (
     RENDER_MODES,
     CollisionCounter,
-    check_seed,
     is_valid_action,
     landmark_coverage,
     positions,
     team_metrics,
 )
+from envs.seeding import check_seed
 
 
 class CooperativeNavigationEnv(ParallelEnv):

@@ -40,7 +40,8 @@ import numpy as np
 from gymnasium import spaces
 from mpe2 import simple_spread_v3
 
-from envs.mpe._common import CAPTURE_RADIUS, N_ACTIONS, RENDER_MODES, check_seed, team_metrics
+from envs.mpe._common import CAPTURE_RADIUS, N_ACTIONS, RENDER_MODES, team_metrics
+from envs.seeding import check_seed
 
 # mpe2's discrete action -> unit force direction (no_action, left, right, down, up), scaled by the
 # sensitivity mpe2 uses for agents without their own ``accel``.

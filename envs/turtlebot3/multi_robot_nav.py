@@ -19,6 +19,7 @@ import numpy as np
 from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
+from envs.seeding import check_seed
 from envs.turtlebot3.layouts import Layout, in_room, make_layout, sample_starts, sample_targets
 from envs.turtlebot3.render import Rasteriser
 from envs.turtlebot3.robot import (
@@ -44,17 +45,6 @@ from envs.turtlebot3.world import NavWorld
 OBS_DIM = N_BEAMS + 2  # 28 ranges, target distance, target heading
 STAND_STILL = 2  # the action (v, w) = (0, 0)
 STATE_FIELDS = ("x", "y", "cos_theta", "sin_theta", "v", "w", "target_x", "target_y", "arrived")
-
-
-def check_seed(seed: Any) -> None:
-    """Raise ``ValueError`` unless ``seed`` is None or a non-negative int.
-
-    :param seed: the seed given to ``reset``
-    """
-    if seed is None:
-        return
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed must be None or a non-negative int, got {seed!r} ({type(seed).__name__}).")
 
 
 def observation_space() -> gymnasium.spaces.Box:

@@ -419,27 +419,33 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         """
         raise NotImplementedError(f"{type(self).__name__} must implement _compute_loss")
 
-    def _bootstrap_terms(self, next_obs: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+    def _bootstrap_terms(
+        self, next_obs: th.Tensor, need_online_values: bool = False
+    ) -> tuple[th.Tensor, th.Tensor, th.Tensor | None]:
         """The pieces of every agent's bootstrap, ``Q(s', a*) = V(s') + [A(s', a*) - mean A(s', .)]``.
 
         ``a*`` is the online network's greedy action when ``double_q`` and a target network exist, the
         evaluating network's own greedy action otherwise; values come from the target network if any.
+        The online network runs at most once on ``next_obs``, whoever needs it.
 
         :param next_obs: ``(B, n, obs_dim)``
-        :return: ``(V(s') (B, n), A(s', a*) - mean A(s', .) (B, n))``, without gradient
+        :param need_online_values: also return the online network's ``V(s')`` (GDQ's ``v'``)
+        :return: ``(V(s'), A(s', a*) - mean A(s', .), online V(s') or None)``, each ``(B, n)``, no gradient
         """
         batch_size, n_agents, obs_dim = next_obs.shape
         flat = next_obs.reshape(batch_size * n_agents, obs_dim)
+        target = self.policy.q_net_target
+        double = self.double_q and target is not None
         with th.no_grad():
-            evaluator = self.policy.q_net_target or self.policy.q_net
-            values, advantages = evaluator.value_advantage(flat)
+            online = None
+            if target is None or double or need_online_values:
+                online = self.policy.q_net.value_advantage(flat)
+            values, advantages = target.value_advantage(flat) if target is not None else online  # type: ignore[misc]
             centred = advantages - advantages.mean(dim=1, keepdim=True)
-            if self.double_q and self.policy.q_net_target is not None:
-                greedy = self.policy.q_net.value_advantage(flat)[1].argmax(dim=1, keepdim=True)
-            else:
-                greedy = advantages.argmax(dim=1, keepdim=True)
-            advantage_term = centred.gather(1, greedy)
-        return values.reshape(batch_size, n_agents), advantage_term.reshape(batch_size, n_agents)
+            chooser = online[1] if double else advantages  # type: ignore[index]
+            advantage_term = centred.gather(1, chooser.argmax(dim=1, keepdim=True))
+        online_values = online[0].reshape(batch_size, n_agents) if need_online_values else None  # type: ignore[index]
+        return values.reshape(batch_size, n_agents), advantage_term.reshape(batch_size, n_agents), online_values
 
     def _online_terms(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, th.Tensor]:
         """:return: ``(V(s) (B, n), Q(s, a) (B, n))`` of the taken actions, with gradient."""

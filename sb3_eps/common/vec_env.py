@@ -36,27 +36,11 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices,
 from supersuit import pettingzoo_env_to_vec_env_v1
 
 import envs
+from envs.seeding import check_seed
 from sb3_eps.common.parallel_wrappers import FixedAgentSet, SingleAgentParallelEnv
 
 # Keys of the env's ``info["team"]`` that the episode dict already carries as SB3's "r" and "l".
 _EPISODE_RENAMED_KEYS = ("team_return", "ticks")
-
-
-def check_seed(seed: Any) -> int | None:
-    """Return ``seed`` as a Python int (or None), or raise a ValueError saying what a seed may be.
-
-    :param seed: None or a non-negative int (NumPy ints accepted; bools refused)
-    :return: the seed as a Python int, or None
-    """
-    if seed is None:
-        return None
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
-        raise ValueError(
-            f"seed must be None or a non-negative int, got {seed!r} of type {type(seed).__name__}"
-        )
-    if seed < 0:
-        raise ValueError(f"seed must be None or a non-negative int, got {seed}")
-    return int(seed)
 
 
 class MultiAgentVecEnv(VecEnv):

@@ -62,13 +62,12 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
 
     def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         values, q_taken = self._online_terms(batch)
-        batch_size, n_agents, obs_dim = batch.next_observations.shape
         with th.no_grad():
-            # v': the agents' state-values of the next joint observation, from the current agent network.
-            next_values = self.policy.q_net.value_advantage(batch.next_observations.reshape(-1, obs_dim))[0]
-            next_values = next_values.reshape(batch_size, n_agents) * batch.next_alive
-            global_next = self.policy.global_value_net_target(next_values)
-            _, next_advantages = self._bootstrap_terms(batch.next_observations)
+            # v': the agents' state-values of the next joint observation, from the current agent network
+            # (computed in the same forward pass as the bootstrap's advantages).
+            _, next_advantages, next_values = self._bootstrap_terms(batch.next_observations, need_online_values=True)
+            assert next_values is not None
+            global_next = self.policy.global_value_net_target(next_values * batch.next_alive)
             agent_targets = gdq_agent_targets(
                 batch.rewards, batch.discounts, batch.dones, global_next, next_advantages
             )

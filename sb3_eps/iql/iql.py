@@ -30,7 +30,7 @@ class IQL(MultiAgentOffPolicyAlgorithm):
 
     def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         _, q_taken = self._online_terms(batch)
-        next_values, next_advantages = self._bootstrap_terms(batch.next_observations)
+        next_values, next_advantages, _ = self._bootstrap_terms(batch.next_observations)
         # Double-Q n-step target per agent (its own reward, its own bootstrap).
         targets = td_target(batch.rewards, batch.discounts, batch.dones, next_values + next_advantages)
         loss = masked_huber(q_taken, targets, batch.alive, batch.weights)

@@ -32,7 +32,7 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
         _, q_taken = self._online_terms(batch)
         q_total = self.policy.mixer(q_taken * batch.alive, batch.states)
         with th.no_grad():
-            next_values, next_advantages = self._bootstrap_terms(batch.next_observations)
+            next_values, next_advantages, _ = self._bootstrap_terms(batch.next_observations)
             next_q = (next_values + next_advantages) * batch.next_alive
             next_total = self.policy.mixer_target(next_q, batch.next_states)
             targets = td_target(batch.team_rewards, batch.team_discounts, batch.team_dones, next_total)
