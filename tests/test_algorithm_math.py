@@ -17,7 +17,7 @@ from sb3_eps.common.buffers import (
 )
 from sb3_eps.common.losses import masked_huber
 from sb3_eps.common.utils import dueling_aggregation, td_target
-from sb3_eps.gdq import gdq_agent_targets
+from sb3_eps.gdq import GlobalValueNetwork, gdq_agent_targets
 from sb3_eps.qmix import QMixer, SumMixer
 
 GAMMA = 0.9
@@ -53,10 +53,55 @@ def test_gdq_agent_target_uses_global_value_instead_of_own_value() -> None:
     assert th.allclose(targets, th.tensor([[0.5 + 0.9 * 3.2, -1.0]]))
 
 
+def test_gdq_lambda_target_blends_global_and_own_value() -> None:
+    # lambda = 0.25: bootstrap value 0.25 * V_G' + 0.75 * V_i' = 0.25 * 2.0 + 0.75 * [1.0, -1.0] = [1.25, -0.25]
+    target = gdq_agent_targets(
+        th.tensor([[0.1, 0.2]]), th.full((1, 2), GAMMA), th.zeros(1, 2), th.tensor([2.0]),
+        th.tensor([[0.5, 0.0]]), own_next_value=th.tensor([[1.0, -1.0]]), global_bootstrap=0.25,
+    )  # fmt: skip
+    assert th.allclose(target, th.tensor([[0.1 + GAMMA * 1.75, 0.2 + GAMMA * -0.25]]))
+    with pytest.raises(ValueError, match="needs own_next_value"):
+        gdq_agent_targets(th.zeros(1, 2), th.ones(1, 2), th.zeros(1, 2), th.zeros(1), th.zeros(1, 2), None, 0.5)
+
+
 def test_global_value_target_hand_computation() -> None:
     # V_G target = r_team + gamma^k (1 - done) V_G'(v'), one-step: 0.3 + 0.9 * 2.0
     target = td_target(th.tensor([0.3]), th.tensor([GAMMA]), th.tensor([0.0]), th.tensor([2.0]))
     assert th.allclose(target, th.tensor([2.1]))
+
+
+@pytest.mark.parametrize("n_agents", [2, 4, 12])
+@pytest.mark.parametrize(("init", "scale"), [("sum", 1.0), ("mean", None)])
+def test_global_head_init_computes_sum_or_mean_exactly(n_agents: int, init: str, scale: float | None) -> None:
+    th.manual_seed(0)
+    head = GlobalValueNetwork(n_agents, [64, 64], init=init)
+    values = th.randn(32, n_agents) * 3.0
+    expected = values.sum(dim=1) * (scale if scale is not None else 1.0 / n_agents)
+    assert th.allclose(head(values), expected, atol=1e-5)
+    # The free units stay trainable: the output weights see their (non-zero) activations in the gradient.
+    head(values).sum().backward()
+    last = [module for module in head.net if isinstance(module, th.nn.Linear)][-1]
+    assert last.weight.grad is not None and last.weight.grad[0, 2 * n_agents :].abs().sum() > 0
+
+
+def test_global_head_random_init_is_not_the_sum() -> None:
+    th.manual_seed(0)
+    head = GlobalValueNetwork(2, [64, 64], init="random")
+    values = th.randn(32, 2)
+    assert not th.allclose(head(values), values.sum(dim=1), atol=1e-2)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"init": "identity"}, "global_init must be one of"),
+        ({"init": "sum", "net_arch": [64, 3]}, "at least 2 \\* n_agents = 4"),
+        ({"init": "sum", "activation_fn": th.nn.Tanh}, "needs activation_fn=nn.ReLU"),
+    ],
+)
+def test_global_head_init_rejects_what_it_cannot_build(kwargs: dict, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        GlobalValueNetwork(2, **kwargs)
 
 
 def test_qmix_mixer_is_monotonic_in_every_agent_q() -> None:

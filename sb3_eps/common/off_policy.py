@@ -15,7 +15,7 @@ from __future__ import annotations
 import io
 import pathlib
 from collections import defaultdict
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, NamedTuple, TypeVar
 
 import numpy as np
 import torch as th
@@ -36,9 +36,21 @@ from sb3_eps.common.buffers import (
     _Tick,
 )
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import epsilon_greedy, polyak_update_
+from sb3_eps.common.utils import epsilon_greedy
 
-SelfMultiAgentOffPolicyAlgorithm = TypeVar("SelfMultiAgentOffPolicyAlgorithm", bound="MultiAgentOffPolicyAlgorithm")
+SelfMultiAgentOffPolicyAlgorithm = TypeVar(
+    "SelfMultiAgentOffPolicyAlgorithm", bound="MultiAgentOffPolicyAlgorithm"
+)
+
+
+class TDTerms(NamedTuple):
+    """Agent-network terms of one batch (see :meth:`MultiAgentOffPolicyAlgorithm._td_terms`), each ``(B, n)``."""
+
+    values: th.Tensor  # V(s), with gradient
+    q_taken: th.Tensor  # Q(s, a) of the taken actions, with gradient
+    next_values: th.Tensor  # V(s') of the evaluating network (target if any), no gradient
+    next_advantage_term: th.Tensor  # A(s', a*) - mean A(s', .), no gradient
+    online_next_values: th.Tensor | None  # online V(s') when asked for (GDQ's v'), no gradient
 
 
 def find_multi_agent_env(env: VecEnv) -> Any:
@@ -200,7 +212,9 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         if values["team_reward_mode"] not in ("sum", "mean"):
             raise ValueError(f"team_reward_mode must be 'sum' or 'mean', got {values['team_reward_mode']!r}")
         if values["prioritized_replay_alpha"] < 0:
-            raise ValueError(f"prioritized_replay_alpha must be >= 0, got {values['prioritized_replay_alpha']}")
+            raise ValueError(
+                f"prioritized_replay_alpha must be >= 0, got {values['prioritized_replay_alpha']}"
+            )
 
     def _read_env_layout(self, env: VecEnv) -> None:
         """Read the agents-per-world layout from the bridge; check it against a loaded model's."""
@@ -217,7 +231,9 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         state_space = getattr(multi_agent_env, "state_space", None)
         state_dim = int(np.prod(state_space.shape)) if state_space is not None else 0
         if self.state_dim and state_dim != self.state_dim and self.requires_fixed_n_agents:
-            raise ValueError(f"the model's global state has {self.state_dim} entries; the env's has {state_dim}")
+            raise ValueError(
+                f"the model's global state has {self.state_dim} entries; the env's has {state_dim}"
+            )
         self.state_dim = state_dim
 
     @property
@@ -344,7 +360,9 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             n_collected_steps += 1
             callback.update_locals(locals())
             if not callback.on_step():
-                return RolloutReturn(n_collected_steps * env.num_envs, n_collected_episodes, continue_training=False)
+                return RolloutReturn(
+                    n_collected_steps * env.num_envs, n_collected_episodes, continue_training=False
+                )
             self._update_info_buffer(infos, dones)
             n_ended = self._store_joint_transition(actions, new_obs, rewards, dones, infos)
             self._update_current_progress_remaining(self.num_timesteps, self._total_timesteps)
@@ -412,48 +430,59 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         return int(world_ended.sum())
 
     # ------------------------------------------------------------------ learning
-    def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
+    def _compute_loss(
+        self, batch: JointReplayBufferSamples
+    ) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         """The algorithm's loss on a batch of joint rows.
 
         :return: ``(loss, per-row absolute TD error for the priorities, values to log under train/)``
         """
         raise NotImplementedError(f"{type(self).__name__} must implement _compute_loss")
 
-    def _bootstrap_terms(
-        self, next_obs: th.Tensor, need_online_values: bool = False
-    ) -> tuple[th.Tensor, th.Tensor, th.Tensor | None]:
-        """The pieces of every agent's bootstrap, ``Q(s', a*) = V(s') + [A(s', a*) - mean A(s', .)]``.
+    def _td_terms(self, batch: JointReplayBufferSamples, need_online_next_values: bool = False) -> TDTerms:
+        """Everything a value-based loss needs from the agent networks, in as few forward passes as possible.
 
-        ``a*`` is the online network's greedy action when ``double_q`` and a target network exist, the
-        evaluating network's own greedy action otherwise; values come from the target network if any.
-        The online network runs at most once on ``next_obs``, whoever needs it.
+        The prediction side keeps its gradient: ``V(s)`` and ``Q(s, a)`` of the taken actions. The bootstrap side
+        has none: ``Q(s', a*) = V(s') + [A(s', a*) - mean A(s', .)]``, where ``a*`` is the online network's greedy
+        action when ``double_q`` and a target network exist, the evaluating network's own greedy action
+        otherwise, and values come from the target network if any. When the online network is needed on the
+        next observations (no target network, double-Q, or GDQ's ``v'``), it runs once on ``s`` and ``s'``
+        stacked: one forward pass instead of two (``benchmarks/train_throughput.py``).
 
-        :param next_obs: ``(B, n, obs_dim)``
-        :param need_online_values: also return the online network's ``V(s')`` (GDQ's ``v'``)
-        :return: ``(V(s'), A(s', a*) - mean A(s', .), online V(s') or None)``, each ``(B, n)``, no gradient
+        :param need_online_next_values: also return the online network's ``V(s')`` (GDQ's ``v'``)
         """
-        batch_size, n_agents, obs_dim = next_obs.shape
-        flat = next_obs.reshape(batch_size * n_agents, obs_dim)
+        batch_size, n_agents, obs_dim = batch.observations.shape
+        rows = batch_size * n_agents
+        obs = batch.observations.reshape(rows, obs_dim)
+        next_obs = batch.next_observations.reshape(rows, obs_dim)
         target = self.policy.q_net_target
         double = self.double_q and target is not None
-        with th.no_grad():
-            online = None
-            if target is None or double or need_online_values:
-                online = self.policy.q_net.value_advantage(flat)
-            values, advantages = target.value_advantage(flat) if target is not None else online  # type: ignore[misc]
-            centred = advantages - advantages.mean(dim=1, keepdim=True)
-            chooser = online[1] if double else advantages  # type: ignore[index]
-            advantage_term = centred.gather(1, chooser.argmax(dim=1, keepdim=True))
-        online_values = online[0].reshape(batch_size, n_agents) if need_online_values else None  # type: ignore[index]
-        return values.reshape(batch_size, n_agents), advantage_term.reshape(batch_size, n_agents), online_values
-
-    def _online_terms(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, th.Tensor]:
-        """:return: ``(V(s) (B, n), Q(s, a) (B, n))`` of the taken actions, with gradient."""
-        batch_size, n_agents, obs_dim = batch.observations.shape
-        values, advantages = self.policy.q_net.value_advantage(batch.observations.reshape(-1, obs_dim))
+        online_next: tuple[th.Tensor, th.Tensor] | None = None
+        if target is None or double or need_online_next_values:
+            both_values, both_advantages = self.policy.q_net.value_advantage(th.cat([obs, next_obs]))
+            values, advantages = both_values[:rows], both_advantages[:rows]
+            online_next = (both_values[rows:].detach(), both_advantages[rows:].detach())
+        else:
+            values, advantages = self.policy.q_net.value_advantage(obs)
         q_values = values + advantages - advantages.mean(dim=1, keepdim=True)
         taken = q_values.gather(1, batch.actions.reshape(-1, 1))
-        return values.reshape(batch_size, n_agents), taken.reshape(batch_size, n_agents)
+        with th.no_grad():
+            if target is not None:
+                next_values, next_advantages = target.value_advantage(next_obs)
+            else:
+                assert online_next is not None
+                next_values, next_advantages = online_next
+            centred = next_advantages - next_advantages.mean(dim=1, keepdim=True)
+            chooser = online_next[1] if double else next_advantages  # type: ignore[index]
+            advantage_term = centred.gather(1, chooser.argmax(dim=1, keepdim=True))
+        shape = (batch_size, n_agents)
+        return TDTerms(
+            values=values.reshape(shape),
+            q_taken=taken.reshape(shape),
+            next_values=next_values.reshape(shape),
+            next_advantage_term=advantage_term.reshape(shape),
+            online_next_values=online_next[0].reshape(shape) if need_online_next_values else None,  # type: ignore[index]
+        )
 
     def _per_beta(self) -> float:
         progress = 1.0 - self._current_progress_remaining
@@ -477,8 +506,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             self.replay_buffer.update_priorities(batch.indices, td_errors)
             self._n_updates += 1
             if self._n_updates % self.target_update_interval == 0:
-                for target, online in self.policy.target_pairs():
-                    polyak_update_(target, online, self.tau)
+                self._update_targets()
             logs["loss"].append(loss.item())
             for key, value in info.items():
                 logs[key].append(value)
@@ -488,6 +516,33 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         for key, values in logs.items():
             self.logger.record(f"train/{key}", float(np.mean(values)))
 
+    def _update_targets(self) -> None:
+        """Polyak step of every target network. The parameter lists are gathered once per policy object (module
+        traversal costs more than the update itself for small networks); parameters are updated in place
+        everywhere (loading, EPS crossover), so the lists stay valid for that policy."""
+        cache = getattr(self, "_target_lists", None)
+        if cache is None or cache[0] is not self.policy:
+            pairs = [
+                (
+                    list(target.parameters()),
+                    list(online.parameters()),
+                    list(target.buffers()),
+                    list(online.buffers()),
+                )
+                for target, online in self.policy.target_pairs()
+            ]
+            for target_params, params, _, _ in pairs:
+                if len(target_params) != len(params):
+                    raise ValueError("target and online networks have different parameter lists")
+            cache = (self.policy, [pair for pair in pairs if pair[0] or pair[2]])
+            self._target_lists = cache
+        with th.no_grad():
+            for target_params, params, target_buffers, buffers in cache[1]:
+                if target_params:
+                    th._foreach_lerp_(target_params, params, self.tau)
+                for target_buffer, buffer in zip(target_buffers, buffers, strict=True):
+                    target_buffer.copy_(buffer)
+
     # ------------------------------------------------------------------ logging and saving
     def dump_logs(self) -> None:
         """SB3's logs plus the team metrics; episode statistics are per world (team), never per agent."""
@@ -495,14 +550,16 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         if episodes:
             self.logger.record("rollout/team_return", safe_mean([episode["r"] for episode in episodes]))
             if "collision" in episodes[0]:
-                self.logger.record("rollout/collision_rate", safe_mean([float(e["collision"]) for e in episodes]))
+                self.logger.record(
+                    "rollout/collision_rate", safe_mean([float(e["collision"]) for e in episodes])
+                )
             if "success" in episodes[0]:
                 self.logger.record("rollout/success_rate", safe_mean([float(e["success"]) for e in episodes]))
         self.logger.record("time/ticks", self.ticks)
         super().dump_logs()
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_collector", "_last_state"]
+        return [*super()._excluded_save_params(), "_collector", "_last_state", "_target_lists"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "policy.optimizer"], []
@@ -520,5 +577,3 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         if policy_name not in self.policy_aliases:
             raise ValueError(f"unknown policy {policy_name!r}; use one of {sorted(self.policy_aliases)}")
         return self.policy_aliases[policy_name]
-
-

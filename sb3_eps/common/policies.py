@@ -45,7 +45,10 @@ class DuelingQNetwork(BasePolicy):
         normalize_images: bool = True,
     ) -> None:
         super().__init__(
-            observation_space, action_space, features_extractor=features_extractor, normalize_images=normalize_images
+            observation_space,
+            action_space,
+            features_extractor=features_extractor,
+            normalize_images=normalize_images,
         )
         self.net_arch = list(DEFAULT_NET_ARCH if net_arch is None else net_arch)
         self.stream_arch = list(DEFAULT_STREAM_ARCH if stream_arch is None else stream_arch)
@@ -56,7 +59,9 @@ class DuelingQNetwork(BasePolicy):
         self.trunk = nn.Sequential(*trunk)
         trunk_dim = self.net_arch[-1] if self.net_arch else features_dim
         self.value_stream = nn.Sequential(*create_mlp(trunk_dim, 1, self.stream_arch, activation_fn))
-        self.advantage_stream = nn.Sequential(*create_mlp(trunk_dim, n_actions, self.stream_arch, activation_fn))
+        self.advantage_stream = nn.Sequential(
+            *create_mlp(trunk_dim, n_actions, self.stream_arch, activation_fn)
+        )
 
     def value_advantage(self, obs: PyTorchObs) -> tuple[th.Tensor, th.Tensor]:
         """:return: ``(V (batch, 1), A (batch, n_actions))`` for a batch of observations."""
@@ -169,7 +174,15 @@ class MultiAgentQPolicy(BasePolicy):
         self._build_joint_modules()
         trainable = [self.q_net, *(getattr(self, name) for name in self.joint_module_names())]
         parameters = [param for module in trainable for param in module.parameters()]
-        self.optimizer = self.optimizer_class(parameters, lr=lr_schedule(1), **self.optimizer_kwargs)
+        kwargs = dict(self.optimizer_kwargs)
+        if (
+            self.optimizer_class in (th.optim.Adam, th.optim.AdamW)
+            and not {"fused", "foreach"} & kwargs.keys()
+        ):
+            # The fused kernel updates every tensor in one call: about 0.4 ms less per gradient step on a CPU
+            # for our small networks (benchmarks/train_throughput.py); pass fused=False to opt out.
+            kwargs["fused"] = True
+        self.optimizer = self.optimizer_class(parameters, lr=lr_schedule(1), **kwargs)
 
     def _build_joint_modules(self) -> None:
         """Create the algorithm's joint modules and their targets (none for independent learners)."""

@@ -21,19 +21,30 @@ def gdq_agent_targets(
     dones: th.Tensor,
     global_next_value: th.Tensor,
     next_advantage_term: th.Tensor,
+    own_next_value: th.Tensor | None = None,
+    global_bootstrap: float = 1.0,
 ) -> th.Tensor:
     """Agent TD targets of GDQ: the joint value replaces each agent's own state-value in its bootstrap,
     ``y_i = r_i + gamma^k (1 - done_i) [V_G'(v') + A_i(s'_i, a*) - mean_a A_i(s'_i, a)]`` (ALGORITHMS.md s.1).
+    With ``global_bootstrap = lambda < 1`` (GDQ-lambda, not in the paper) the bootstrap value is
+    ``lambda V_G'(v') + (1 - lambda) V_i(s'_i)``.
 
     :param rewards: ``(B, n)`` individual n-step returns
     :param discounts: ``(B, n)`` ``gamma ** k``
     :param dones: ``(B, n)`` terminal flags
     :param global_next_value: ``(B,)`` ``V_G'(v')`` of the target global head
     :param next_advantage_term: ``(B, n)`` ``A(s', a*) - mean A(s', .)``
+    :param own_next_value: ``(B, n)`` ``V_i(s'_i)``, needed only when ``global_bootstrap < 1``
+    :param global_bootstrap: ``lambda`` in ``[0, 1]``
     """
     if global_next_value.dim() != 1 or global_next_value.shape[0] != rewards.shape[0]:
         raise ValueError(f"global_next_value must be (B,), got {tuple(global_next_value.shape)}")
-    return td_target(rewards, discounts, dones, global_next_value[:, None] + next_advantage_term)
+    value = global_next_value[:, None]
+    if global_bootstrap != 1.0:
+        if own_next_value is None or own_next_value.shape != rewards.shape:
+            raise ValueError("global_bootstrap < 1 needs own_next_value of the rewards' shape (B, n)")
+        value = global_bootstrap * value + (1.0 - global_bootstrap) * own_next_value
+    return td_target(rewards, discounts, dones, value + next_advantage_term)
 
 
 class GDQ(MultiAgentOffPolicyAlgorithm):
@@ -60,18 +71,34 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     # (a seed collapsed to "stay" after converging), without one it was stable (docs/modules/gdq.md).
     default_agent_target: ClassVar[bool] = False
 
-    def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
-        values, q_taken = self._online_terms(batch)
+    def _compute_loss(
+        self, batch: JointReplayBufferSamples
+    ) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
+        terms = self._td_terms(batch, need_online_next_values=True)
+        values, q_taken, own_next, next_advantages = (
+            terms.values,
+            terms.q_taken,
+            terms.next_values,
+            terms.next_advantage_term,
+        )
         with th.no_grad():
             # v': the agents' state-values of the next joint observation, from the current agent network
-            # (computed in the same forward pass as the bootstrap's advantages).
-            _, next_advantages, next_values = self._bootstrap_terms(batch.next_observations, need_online_values=True)
+            # (computed in the same forward pass as the prediction and the bootstrap's advantages).
+            next_values = terms.online_next_values
             assert next_values is not None
             global_next = self.policy.global_value_net_target(next_values * batch.next_alive)
             agent_targets = gdq_agent_targets(
-                batch.rewards, batch.discounts, batch.dones, global_next, next_advantages
+                batch.rewards,
+                batch.discounts,
+                batch.dones,
+                global_next,
+                next_advantages,
+                own_next,
+                self.policy.global_bootstrap,
             )
-            global_targets = td_target(batch.team_rewards, batch.team_discounts, batch.team_dones, global_next)
+            global_targets = td_target(
+                batch.team_rewards, batch.team_discounts, batch.team_dones, global_next
+            )
         agent_loss = masked_huber(q_taken, agent_targets, batch.alive, batch.weights)
         # V_G(v) with v detached: the global loss trains only the head.
         global_values = self.policy.global_value_net(values.detach() * batch.alive)

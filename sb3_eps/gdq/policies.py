@@ -11,6 +11,27 @@ from torch import nn
 from sb3_eps.common.policies import MultiAgentQPolicy
 
 DEFAULT_GLOBAL_NET_ARCH = [64, 64]
+GLOBAL_INITS = ("random", "sum", "mean")
+
+
+@th.no_grad()
+def _init_as_linear_sum(linears: list[nn.Linear], n_agents: int, scale: float) -> None:
+    """Set the weights of a ReLU MLP so that it computes ``scale * sum(v)`` exactly, through ``2 n`` carrier
+    units per hidden layer (``relu(v_i)`` and ``relu(-v_i)``). The other units keep their random input
+    weights; their output weights start at 0, so they contribute nothing until the TD loss trains them."""
+    width = 2 * n_agents
+    eye = th.eye(n_agents)
+    first, *hidden, last = linears
+    first.weight[:width] = th.cat([eye, -eye])
+    first.bias[:width] = 0.0
+    for layer in hidden:
+        layer.weight[:width] = 0.0
+        layer.weight[:width, :width] = th.eye(width)
+        layer.bias[:width] = 0.0
+    last.weight.zero_()
+    last.weight[0, :n_agents] = scale
+    last.weight[0, n_agents:width] = -scale
+    last.bias.zero_()
 
 
 class GlobalValueNetwork(nn.Module):
@@ -20,17 +41,45 @@ class GlobalValueNetwork(nn.Module):
     :param n_agents: agents per world (the input size)
     :param net_arch: hidden sizes (default ``[64, 64]``)
     :param activation_fn: activation function
+    :param init: ``"random"`` (PyTorch's default initialisation), ``"sum"`` or ``"mean"``: the same architecture
+        initialised to compute exactly ``sum(v)`` or ``mean(v)`` at step 0 (needs ReLU and hidden layers of at
+        least ``2 n_agents`` units). The papers do not give the head's initialisation; see ``docs/modules/gdq.md``
+        for why the default is ``"sum"``.
     """
 
-    def __init__(self, n_agents: int, net_arch: list[int] | None = None, activation_fn: type[nn.Module] = nn.ReLU):
+    def __init__(
+        self,
+        n_agents: int,
+        net_arch: list[int] | None = None,
+        activation_fn: type[nn.Module] = nn.ReLU,
+        init: str = "random",
+    ):
         super().__init__()
+        arch = list(DEFAULT_GLOBAL_NET_ARCH if net_arch is None else net_arch)
+        if init not in GLOBAL_INITS:
+            raise ValueError(f"global_init must be one of {GLOBAL_INITS}, got {init!r}")
+        if init != "random":
+            if activation_fn is not nn.ReLU:
+                raise ValueError(
+                    f"global_init={init!r} needs activation_fn=nn.ReLU, got {activation_fn.__name__}"
+                )
+            if not arch or min(arch) < 2 * n_agents:
+                raise ValueError(
+                    f"global_init={init!r} needs hidden layers of at least 2 * n_agents = {2 * n_agents} units, "
+                    f"got global_net_arch={arch}; widen it or use global_init='random'"
+                )
         self.n_agents = n_agents
-        self.net = nn.Sequential(*create_mlp(n_agents, 1, list(net_arch or DEFAULT_GLOBAL_NET_ARCH), activation_fn))
+        self.net = nn.Sequential(*create_mlp(n_agents, 1, arch, activation_fn))
+        if init != "random":
+            linears = [module for module in self.net if isinstance(module, nn.Linear)]
+            _init_as_linear_sum(linears, n_agents, 1.0 if init == "sum" else 1.0 / n_agents)
 
     def forward(self, agent_values: th.Tensor) -> th.Tensor:
         """:param agent_values: ``(B, n_agents)``; :return: ``V_G`` as ``(B,)``."""
         if agent_values.dim() != 2 or agent_values.shape[1] != self.n_agents:
-            raise ValueError(f"V_G expects (batch, {self.n_agents}) state-values, got {tuple(agent_values.shape)}")
+            raise ValueError(
+                f"V_G expects (batch, {self.n_agents}) state-values, got {tuple(agent_values.shape)}"
+            )
         return self.net(agent_values).squeeze(-1)
 
 
@@ -38,19 +87,35 @@ class GDQPolicy(MultiAgentQPolicy):
     """:class:`~sb3_eps.common.policies.MultiAgentQPolicy` with ``global_value_net`` and its target.
 
     :param global_net_arch: hidden sizes of the global value head (default ``[64, 64]``)
+    :param global_init: initialisation of the global value head, see :class:`GlobalValueNetwork`
+    :param global_bootstrap: ``lambda`` of the agents' bootstrap value ``lambda V_G'(v') + (1 - lambda) V_i(s'_i)``:
+        1 is the paper's GDQ (default), 0 is independent learning with a global head trained beside it
+        (``docs/modules/gdq.md``, "GDQ-lambda")
     :param kwargs: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`
     """
 
     global_value_net: GlobalValueNetwork
     global_value_net_target: GlobalValueNetwork
 
-    def __init__(self, *args: Any, global_net_arch: list[int] | None = None, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        *args: Any,
+        global_net_arch: list[int] | None = None,
+        global_init: str = "random",
+        global_bootstrap: float = 1.0,
+        **kwargs: Any,
+    ) -> None:
+        if not 0.0 <= global_bootstrap <= 1.0:
+            raise ValueError(f"global_bootstrap must be in [0, 1], got {global_bootstrap}")
+        self.global_bootstrap = float(global_bootstrap)
         self.global_net_arch = list(global_net_arch or DEFAULT_GLOBAL_NET_ARCH)
+        self.global_init = global_init
         super().__init__(*args, **kwargs)
 
     def _build_joint_modules(self) -> None:
-        self.global_value_net = GlobalValueNetwork(self.n_agents, self.global_net_arch, self.activation_fn)
-        self.global_value_net_target = GlobalValueNetwork(self.n_agents, self.global_net_arch, self.activation_fn)
+        args = (self.n_agents, self.global_net_arch, self.activation_fn, self.global_init)
+        self.global_value_net = GlobalValueNetwork(*args)
+        self.global_value_net_target = GlobalValueNetwork(*args)
         self.global_value_net_target.load_state_dict(self.global_value_net.state_dict())
         self.global_value_net_target.train(False)
         self.global_value_net.to(self.device)
@@ -61,7 +126,11 @@ class GDQPolicy(MultiAgentQPolicy):
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
-        data.update(global_net_arch=self.global_net_arch)
+        data.update(
+            global_net_arch=self.global_net_arch,
+            global_init=self.global_init,
+            global_bootstrap=self.global_bootstrap,
+        )
         return data
 
 

@@ -29,8 +29,8 @@ class IQL(MultiAgentOffPolicyAlgorithm):
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": MlpPolicy}
 
     def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
-        _, q_taken = self._online_terms(batch)
-        next_values, next_advantages, _ = self._bootstrap_terms(batch.next_observations)
+        terms = self._td_terms(batch)
+        q_taken, next_values, next_advantages = terms.q_taken, terms.next_values, terms.next_advantage_term
         # Double-Q n-step target per agent (its own reward, its own bootstrap).
         targets = td_target(batch.rewards, batch.discounts, batch.dones, next_values + next_advantages)
         loss = masked_huber(q_taken, targets, batch.alive, batch.weights)

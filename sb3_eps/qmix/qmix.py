@@ -29,11 +29,10 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     requires_fixed_n_agents: ClassVar[bool] = True
 
     def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
-        _, q_taken = self._online_terms(batch)
-        q_total = self.policy.mixer(q_taken * batch.alive, batch.states)
+        terms = self._td_terms(batch)
+        q_total = self.policy.mixer(terms.q_taken * batch.alive, batch.states)
         with th.no_grad():
-            next_values, next_advantages, _ = self._bootstrap_terms(batch.next_observations)
-            next_q = (next_values + next_advantages) * batch.next_alive
+            next_q = (terms.next_values + terms.next_advantage_term) * batch.next_alive
             next_total = self.policy.mixer_target(next_q, batch.next_states)
             targets = td_target(batch.team_rewards, batch.team_discounts, batch.team_dones, next_total)
         loss = weighted_huber(q_total, targets, batch.weights)

@@ -76,7 +76,13 @@ def package_policy_kwargs(algo: str) -> dict[str, Any]:
         "agent_target": bool(spec.algorithm_class.default_agent_target),
     }
     for name in spec.policy_params:
-        if name in ("global_net_arch", "mixing_embed_dim", "hypernet_hidden_dim") and name in defaults:
+        if name in (
+            "global_net_arch",
+            "global_init",
+            "global_bootstrap",
+            "mixing_embed_dim",
+            "hypernet_hidden_dim",
+        ):
             value = defaults[name]
             result[name] = list(value or fallbacks[name]) if name == "global_net_arch" else value
     return result

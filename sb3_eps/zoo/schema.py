@@ -178,7 +178,12 @@ COMMON_POLICY_PARAMS: dict[str, Param] = {
     "agent_target": Param("bool"),
     "normalize_images": Param("bool"),
 }
-GDQ_POLICY_PARAMS: dict[str, Param] = {**COMMON_POLICY_PARAMS, "global_net_arch": Param("int_list", low=1)}
+GDQ_POLICY_PARAMS: dict[str, Param] = {
+    **COMMON_POLICY_PARAMS,
+    "global_net_arch": Param("int_list", low=1),
+    "global_init": Param("choice", choices=("random", "sum", "mean")),
+    "global_bootstrap": Param("float", low=0, high=1),
+}
 QMIX_POLICY_PARAMS: dict[str, Param] = {
     **COMMON_POLICY_PARAMS,
     "mixing_embed_dim": Param("int", low=1),
