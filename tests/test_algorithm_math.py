@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch as th
@@ -12,6 +14,8 @@ from sb3_eps.common.buffers import (
     NStepJointCollector,
     PrioritizedJointReplayBuffer,
     SumTree,
+    _n_step_row_all_alive,
+    _n_step_row_general,
     _Tick,
     n_step_row,
 )
@@ -165,6 +169,28 @@ def test_n_step_return_across_an_agent_terminal() -> None:
     assert row.team_reward == pytest.approx(0.3 + GAMMA * 1.3 + GAMMA**2 * 0.4)
     assert row.team_done == 0.0 and row.team_discount == pytest.approx(GAMMA**3)
     assert row.next_observations[1, 0] == 3.0 and row.state[0] == 0.0 and row.next_state[0] == 3.0
+
+
+@pytest.mark.parametrize("mode", ["sum", "mean"])
+def test_n_step_fast_path_equals_the_general_fold(mode: str) -> None:
+    rng = np.random.default_rng(0)
+    for trial in range(300):
+        n_ticks, n_agents = int(rng.integers(1, 6)), int(rng.integers(1, 5))
+        last_ends = rng.random(n_agents) < 0.3
+        window = [
+            _tick(
+                rng.normal(size=n_agents).astype(np.float32).tolist(), [True] * n_agents,
+                ended=tuple(last_ends) if k == n_ticks - 1 else (False,) * n_agents,
+                terminated=tuple(last_ends & (rng.random(n_agents) < 0.5)) if k == n_ticks - 1 else (False,) * n_agents,
+                world_end=bool(k == n_ticks - 1 and last_ends.all()), world_term=bool(rng.random() < 0.2), tag=k,
+            )
+            for k in range(n_ticks)
+        ]  # fmt: skip
+        fast, general = _n_step_row_all_alive(window, 0.97, mode), _n_step_row_general(window, 0.97, mode)
+        for field in dataclasses.fields(fast):
+            name = field.name
+            assert np.array_equal(np.asarray(getattr(fast, name)), np.asarray(getattr(general, name))), (trial, name)
+        assert n_step_row(window, 0.97, mode) is not None
 
 
 def test_n_step_return_across_a_truncation_bootstraps() -> None:

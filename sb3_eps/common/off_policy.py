@@ -114,6 +114,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     # Algorithms whose joint modules are sized by the number of agents cannot change it after training.
     requires_fixed_n_agents: ClassVar[bool] = False
     default_agent_target: ClassVar[bool] = True
+    # Only state-conditioned mixers (QMIX) read the global state; the others neither query nor store it.
+    uses_global_state: ClassVar[bool] = False
 
     def __init__(
         self,
@@ -273,7 +275,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             self.buffer_size,
             self.observation_space,
             n_agents=self.n_agents,
-            state_dim=self.state_dim,
+            state_dim=self.state_dim if self.uses_global_state else 0,
             device=self.device,
             **buffer_kwargs,
         )
@@ -302,8 +304,14 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             self._collector = NStepJointCollector(
                 self.replay_buffer, self.n_worlds, self.n_steps, self.gamma, self.team_reward_mode
             )
-            self._last_state = self.multi_agent_env.get_state()
+            self._last_state = self._global_state()
         return total_timesteps, callback
+
+    def _global_state(self) -> np.ndarray:
+        """:return: ``(n_worlds, state_dim)``, or ``(n_worlds, 0)`` for algorithms that do not use the state."""
+        if self.uses_global_state:
+            return self.multi_agent_env.get_state()
+        return np.zeros((self.n_worlds, 0), dtype=np.float32)
 
     # ------------------------------------------------------------------ acting
     def predict(
@@ -331,8 +339,15 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         if self.num_timesteps < learning_starts:
             actions = np.random.randint(int(self.action_space.n), size=n_envs)  # type: ignore[attr-defined]
         else:
+            # The same as ``self.predict(self._last_obs)`` without SB3's generic input checks, which cost as much
+            # as the network itself for our small observations (the rollout's hot path).
             assert self._last_obs is not None
-            actions, _ = self.predict(self._last_obs, deterministic=False)  # type: ignore[arg-type]
+            self.policy.set_training_mode(False)
+            with th.no_grad():
+                observation = th.as_tensor(self._last_obs, device=self.device)
+                actions = self.policy._predict(observation, deterministic=True).cpu().numpy()
+            if self.exploration_rate > 0:
+                actions, _ = epsilon_greedy(actions, self.exploration_rate, int(self.action_space.n))  # type: ignore[attr-defined]
         return actions, actions
 
     def _on_step(self) -> None:
@@ -399,14 +414,15 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         ended = np.asarray(dones, dtype=bool) & alive
         terminated = ended & ~truncated
         world_ended = np.asarray(dones, dtype=bool).reshape(n_worlds, n_agents).all(axis=1)
-        new_state = self.multi_agent_env.get_state()
+        new_state = self._global_state()
         last_obs = np.asarray(self._last_obs, dtype=np.float32).reshape(n_worlds, n_agents, -1)
         shape = (n_worlds, n_agents)
         for world in range(n_worlds):
             next_state = new_state[world]
             world_terminated = False
             if world_ended[world]:
-                next_state = infos[world * n_agents].get("terminal_state", next_state)
+                if self.uses_global_state:
+                    next_state = infos[world * n_agents].get("terminal_state", next_state)
                 world_terminated = not truncated.reshape(shape)[world][alive.reshape(shape)[world]].any()
             agents = slice(world * n_agents, (world + 1) * n_agents)
             self._collector.add(
@@ -446,8 +462,9 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         has none: ``Q(s', a*) = V(s') + [A(s', a*) - mean A(s', .)]``, where ``a*`` is the online network's greedy
         action when ``double_q`` and a target network exist, the evaluating network's own greedy action
         otherwise, and values come from the target network if any. When the online network is needed on the
-        next observations (no target network, double-Q, or GDQ's ``v'``), it runs once on ``s`` and ``s'``
-        stacked: one forward pass instead of two (``benchmarks/train_throughput.py``).
+        next observations (no target network, double-Q, or GDQ's ``v'``), it runs once there for all of them.
+        (Stacking ``s`` and ``s'`` into one pass with gradient was measured slower on a CPU: the backward pass
+        then runs over both halves.)
 
         :param need_online_next_values: also return the online network's ``V(s')`` (GDQ's ``v'``)
         """
@@ -457,20 +474,20 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         next_obs = batch.next_observations.reshape(rows, obs_dim)
         target = self.policy.q_net_target
         double = self.double_q and target is not None
-        online_next: tuple[th.Tensor, th.Tensor] | None = None
-        if target is None or double or need_online_next_values:
-            both_values, both_advantages = self.policy.q_net.value_advantage(th.cat([obs, next_obs]))
-            values, advantages = both_values[:rows], both_advantages[:rows]
-            online_next = (both_values[rows:].detach(), both_advantages[rows:].detach())
-        else:
-            values, advantages = self.policy.q_net.value_advantage(obs)
+        online_next: tuple[th.Tensor | None, th.Tensor] | None = None
+        values, advantages = self.policy.q_net.value_advantage(obs)
+        with th.no_grad():
+            if target is None or need_online_next_values:
+                online_next = self.policy.q_net.value_advantage(next_obs)
+            elif double:  # only the online arg max is needed: skip the value stream
+                online_next = (None, self.policy.q_net.advantage(next_obs))
         q_values = values + advantages - advantages.mean(dim=1, keepdim=True)
         taken = q_values.gather(1, batch.actions.reshape(-1, 1))
         with th.no_grad():
             if target is not None:
                 next_values, next_advantages = target.value_advantage(next_obs)
             else:
-                assert online_next is not None
+                assert online_next is not None and online_next[0] is not None
                 next_values, next_advantages = online_next
             centred = next_advantages - next_advantages.mean(dim=1, keepdim=True)
             chooser = online_next[1] if double else next_advantages  # type: ignore[index]

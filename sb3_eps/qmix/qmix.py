@@ -27,6 +27,7 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     policy: QMIXPolicy
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": QMIXPolicy}
     requires_fixed_n_agents: ClassVar[bool] = True
+    uses_global_state: ClassVar[bool] = True
 
     def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         terms = self._td_terms(batch)
@@ -44,3 +45,4 @@ class VDN(QMIX):
     """VDN: as :class:`QMIX` with the additive mixer ``Q_tot = sum_i Q_i`` (no state needed)."""
 
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": VDNPolicy}
+    uses_global_state: ClassVar[bool] = False
