@@ -85,11 +85,18 @@ def test_same_seed_gives_identical_parameters(algorithm) -> None:
 @pytest.mark.parametrize("algorithm", ALGORITHMS, ids=lambda a: a.__name__)
 def test_learns_the_corridor_optimum(algorithm) -> None:
     """Two agents on a 4-cell corridor: agent 1 arrives first and parks, agent 0 keeps walking."""
+    model = _corridor_model(algorithm)
+    model.learn(4_000)
+    optimum = envs.make_parallel_env("Corridor-2-v0").optimal_team_return()
+    assert _corridor_team_return(model) == pytest.approx(optimum)
+
+
+def _corridor_model(algorithm, policy_kwargs=None):
     venv = make_vec_env("Corridor-2-v0", n_envs=2, seed=0)
-    model = algorithm(
+    return algorithm(
         "MlpPolicy",
         venv,
-        policy_kwargs={"net_arch": [32], "stream_arch": [32]},
+        policy_kwargs={"net_arch": [32], "stream_arch": [32], **(policy_kwargs or {})},
         learning_starts=200,
         batch_size=32,
         learning_rate=3e-3,
@@ -98,9 +105,10 @@ def test_learns_the_corridor_optimum(algorithm) -> None:
         gamma=0.95,
         seed=0,
     )
-    model.learn(4_000)
+
+
+def _corridor_team_return(model) -> float:
     eval_env = envs.make_parallel_env("Corridor-2-v0")
-    optimum = eval_env.optimal_team_return()
     observations, _ = eval_env.reset(seed=1)
     team_return = 0.0
     while eval_env.agents:
@@ -108,7 +116,7 @@ def test_learns_the_corridor_optimum(algorithm) -> None:
         actions, _ = model.predict(stacked, deterministic=True)
         observations, rewards, _, _, _ = eval_env.step(dict(zip(eval_env.agents, actions.tolist(), strict=True)))
         team_return += sum(rewards.values())
-    assert team_return == pytest.approx(optimum)
+    return team_return
 
 
 def test_exploration_coins_are_independent_per_agent() -> None:
@@ -185,3 +193,62 @@ def test_runs_on_the_robot_world(algorithm) -> None:
     assert algorithm.uses_global_state == (algorithm is QMIX)
     actions, _ = model.predict(np.zeros((5, 30), dtype=np.float32), deterministic=True)
     assert actions.shape == (5,) and ((actions >= 0) & (actions < 20)).all()
+
+
+def _gdq_with(tmp_path=None, **policy_kwargs):
+    venv = make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=0)
+    kwargs = {"learning_starts": 60, "batch_size": 16, "buffer_size": 2_000, "train_freq": 2, "seed": 0}
+    return GDQ("MlpPolicy", venv, policy_kwargs={**TINY, "global_net_arch": [16], **policy_kwargs}, **kwargs)
+
+
+def test_gdq_stored_values_are_the_networks_values_at_collection_time(tmp_path) -> None:
+    model = _gdq_with(global_values="stored")
+    model.learning_starts = 10_000  # no update: the network that collected is the network we query
+    model.learn(300)
+    buffer = model.replay_buffer
+    rows = buffer.size()
+    assert buffer.store_values and rows > 0
+    with th.no_grad():
+        values = model.policy.q_net.value(th.as_tensor(buffer.observations[:rows].reshape(-1, 18))).reshape(rows, 3)
+        next_values = model.policy.q_net.value(th.as_tensor(buffer.next_observations[:rows].reshape(-1, 18)))
+    np.testing.assert_allclose(buffer.values[:rows], values.numpy(), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(buffer.next_values[:rows], next_values.reshape(rows, 3).numpy(), rtol=1e-5, atol=1e-6)
+    # Training uses them, and they survive save/load with the option.
+    model.learning_starts = 60
+    model.learn(300, reset_num_timesteps=False)
+    batch = buffer.sample(8)
+    assert batch.values is not None and batch.values.shape == (8, 3)
+    model.save(tmp_path / "model")
+    loaded = GDQ.load(tmp_path / "model", env=make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=1))
+    assert loaded.policy.global_values == "stored" and loaded.replay_buffer.store_values
+
+
+def test_gdq_recomputed_values_are_the_default_and_not_stored() -> None:
+    model = _gdq_with()
+    model.learn(200)
+    assert model.policy.global_values == "recomputed" and not model.replay_buffer.store_values
+    assert model.replay_buffer.sample(4).values is None
+
+
+@pytest.mark.parametrize(
+    ("policy_kwargs", "match"),
+    [
+        ({"global_values": "cached"}, "global_values must be one of"),
+        ({"global_bootstrap": 1.5}, "global_bootstrap must be in"),
+        ({"global_init": "zeros"}, "global_init must be one of"),
+    ],
+)
+def test_gdq_rejects_bad_options(policy_kwargs, match) -> None:
+    with pytest.raises(ValueError, match=match):
+        _gdq_with(**policy_kwargs)
+
+
+@pytest.mark.parametrize(
+    "policy_kwargs",
+    [{"global_values": "stored"}, {"global_bootstrap": 0.1, "agent_target": True}],
+    ids=["stored-values", "gdq-lambda"],
+)
+def test_gdq_variants_learn_the_corridor_optimum(policy_kwargs) -> None:
+    model = _corridor_model(GDQ, policy_kwargs)
+    model.learn(4_000)
+    assert _corridor_team_return(model) == pytest.approx(envs.make_parallel_env("Corridor-2-v0").optimal_team_return())

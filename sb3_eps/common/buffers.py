@@ -27,7 +27,9 @@ class JointReplayBufferSamples(NamedTuple):
     ``dones``, ``discounts`` (B, n): individual n-step returns, terminal flags and ``gamma ** k`` of the
     bootstrap; ``alive`` / ``next_alive`` (B, n) float masks; ``team_rewards``, ``team_dones``,
     ``team_discounts`` (B,); ``states`` / ``next_states`` (B, state_dim); ``weights`` (B,) importance weights
-    (ones without prioritisation); ``indices`` (B,) numpy row indices, for priority updates.
+    (ones without prioritisation); ``indices`` (B,) numpy row indices, for priority updates; ``values`` /
+    ``next_values`` (B, n) the agents' state-values stored at collection time (``None`` unless the buffer keeps
+    them: GDQ with ``global_values="stored"``).
     """
 
     observations: th.Tensor
@@ -45,6 +47,8 @@ class JointReplayBufferSamples(NamedTuple):
     next_states: th.Tensor
     weights: th.Tensor
     indices: np.ndarray
+    values: th.Tensor | None = None
+    next_values: th.Tensor | None = None
 
 
 class JointReplayBuffer:
@@ -55,6 +59,8 @@ class JointReplayBuffer:
     :param n_agents: agents per world
     :param state_dim: length of the global state vector (0 when the env has none)
     :param device: torch device of the sampled tensors
+    :param store_values: also keep the agents' state-values of each row's first and bootstrap observations, as
+        the agent network computed them at collection time (rows must then carry ``values`` / ``next_values``)
     """
 
     def __init__(
@@ -64,6 +70,7 @@ class JointReplayBuffer:
         n_agents: int,
         state_dim: int = 0,
         device: th.device | str = "cpu",
+        store_values: bool = False,
     ) -> None:
         if buffer_size < 1:
             raise ValueError(f"buffer_size must be >= 1, got {buffer_size}")
@@ -91,6 +98,10 @@ class JointReplayBuffer:
         self.team_discounts = np.zeros(size, dtype=np.float32)
         self.states = np.zeros((size, self.state_dim), dtype=np.float32)
         self.next_states = np.zeros((size, self.state_dim), dtype=np.float32)
+        self.store_values = bool(store_values)
+        value_rows = size if self.store_values else 0
+        self.values = np.zeros((value_rows, n), dtype=np.float32)
+        self.next_values = np.zeros((value_rows, n), dtype=np.float32)
 
     def size(self) -> int:
         """:return: the number of rows stored."""
@@ -116,6 +127,13 @@ class JointReplayBuffer:
         if self.state_dim:
             self.states[index] = row.state
             self.next_states[index] = row.next_state
+        if self.store_values:
+            if row.values is None or row.next_values is None:
+                raise ValueError(
+                    "this buffer stores the agents' values: the row must carry values and next_values"
+                )
+            self.values[index] = row.values
+            self.next_values[index] = row.next_values
         self.pos = (self.pos + 1) % self.buffer_size
         self.full = self.full or self.pos == 0
         return index
@@ -159,6 +177,8 @@ class JointReplayBuffer:
             next_states=next_states,
             weights=th.as_tensor(weights, device=self.device),
             indices=indices,
+            values=tensor(self.values) if self.store_values else None,
+            next_values=tensor(self.next_values) if self.store_values else None,
         )
 
 
@@ -285,6 +305,8 @@ class JointRow:
     team_discount: float
     state: np.ndarray
     next_state: np.ndarray
+    values: np.ndarray | None = None
+    next_values: np.ndarray | None = None
 
 
 @dataclass
@@ -302,6 +324,10 @@ class _Tick:
     next_state: np.ndarray
     world_ended: bool
     world_terminated: bool
+    values: np.ndarray | None = (
+        None  # (n,) agents' state-values of ``observations`` (when the buffer stores them)
+    )
+    next_values: np.ndarray | None = None  # (n,) of ``next_observations``
 
 
 def n_step_row(ticks: list[_Tick], gamma: float, team_reward_mode: str = "sum") -> JointRow:
@@ -358,6 +384,8 @@ def _n_step_row_general(ticks: list[_Tick], gamma: float, team_reward_mode: str)
         team_discount=float(gamma**n_ticks),
         state=first.state,
         next_state=last.next_state,
+        values=first.values,
+        next_values=last.next_values,
     )
 
 
@@ -388,6 +416,8 @@ def _n_step_row_all_alive(ticks: list[_Tick], gamma: float, team_reward_mode: st
         team_discount=float(gamma ** len(ticks)),
         state=first.state,
         next_state=last.next_state,
+        values=first.values,
+        next_values=last.next_values,
     )
 
 

@@ -277,6 +277,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             n_agents=self.n_agents,
             state_dim=self.state_dim if self.uses_global_state else 0,
             device=self.device,
+            store_values=self._stores_agent_values(),
             **buffer_kwargs,
         )
         self.policy = self.policy_class(  # type: ignore[assignment]
@@ -306,6 +307,11 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             )
             self._last_state = self._global_state()
         return total_timesteps, callback
+
+    def _stores_agent_values(self) -> bool:
+        """Whether the replay rows carry the agents' state-values computed at collection time (GDQ's stored
+        ``v`` / ``v'`` option); read before the policy exists, so from the raw ``policy_kwargs``."""
+        return False
 
     def _global_state(self) -> np.ndarray:
         """:return: ``(n_worlds, state_dim)``, or ``(n_worlds, 0)`` for algorithms that do not use the state."""
@@ -417,6 +423,14 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         new_state = self._global_state()
         last_obs = np.asarray(self._last_obs, dtype=np.float32).reshape(n_worlds, n_agents, -1)
         shape = (n_worlds, n_agents)
+        values = next_values = None
+        if self.replay_buffer is not None and self.replay_buffer.store_values:
+            # v and v' as the agent network sees them now (the paper's "stored at collection time").
+            with th.no_grad():
+                both = self.policy.q_net.value(
+                    th.as_tensor(np.concatenate([last_obs.reshape(-1, last_obs.shape[-1]), next_obs]))
+                )
+            values, next_values = both.cpu().numpy().reshape(2, n_worlds, n_agents)
         for world in range(n_worlds):
             next_state = new_state[world]
             world_terminated = False
@@ -439,6 +453,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                     next_state=np.asarray(next_state, dtype=np.float32),
                     world_ended=bool(world_ended[world]),
                     world_terminated=world_terminated,
+                    values=None if values is None else values[world],
+                    next_values=None if next_values is None else next_values[world],
                 ),
             )
         self._last_obs = new_obs  # type: ignore[assignment]

@@ -12,7 +12,7 @@ from sb3_eps.common.losses import masked_huber, row_priority, weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.common.utils import td_target
-from sb3_eps.gdq.policies import GDQPolicy, MlpPolicy
+from sb3_eps.gdq.policies import GLOBAL_VALUES, GDQPolicy, MlpPolicy
 
 
 def gdq_agent_targets(
@@ -71,10 +71,17 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     # (a seed collapsed to "stay" after converging), without one it was stable (docs/modules/gdq.md).
     default_agent_target: ClassVar[bool] = False
 
+    def _stores_agent_values(self) -> bool:
+        mode = (self.policy_kwargs or {}).get("global_values", "recomputed")
+        if mode not in GLOBAL_VALUES:
+            raise ValueError(f"global_values must be one of {GLOBAL_VALUES}, got {mode!r}")
+        return mode == "stored"
+
     def _compute_loss(
         self, batch: JointReplayBufferSamples
     ) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
-        terms = self._td_terms(batch, need_online_next_values=True)
+        stored = batch.values is not None and batch.next_values is not None
+        terms = self._td_terms(batch, need_online_next_values=not stored)
         values, q_taken, own_next, next_advantages = (
             terms.values,
             terms.q_taken,
@@ -84,7 +91,8 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         with th.no_grad():
             # v': the agents' state-values of the next joint observation, from the current agent network
             # (computed in the same forward pass as the prediction and the bootstrap's advantages).
-            next_values = terms.online_next_values
+            # With global_values="stored", v and v' are those computed at collection time (the paper's way).
+            next_values = batch.next_values if stored else terms.online_next_values
             assert next_values is not None
             global_next = self.policy.global_value_net_target(next_values * batch.next_alive)
             agent_targets = gdq_agent_targets(
@@ -101,7 +109,8 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             )
         agent_loss = masked_huber(q_taken, agent_targets, batch.alive, batch.weights)
         # V_G(v) with v detached: the global loss trains only the head.
-        global_values = self.policy.global_value_net(values.detach() * batch.alive)
+        agent_values = batch.values if stored else values.detach()
+        global_values = self.policy.global_value_net(agent_values * batch.alive)  # type: ignore[operator]
         global_loss = weighted_huber(global_values, global_targets, batch.weights)
         priorities = row_priority(q_taken - agent_targets, batch.alive)
         logs = {

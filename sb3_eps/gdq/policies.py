@@ -12,6 +12,7 @@ from sb3_eps.common.policies import MultiAgentQPolicy
 
 DEFAULT_GLOBAL_NET_ARCH = [64, 64]
 GLOBAL_INITS = ("random", "sum", "mean")
+GLOBAL_VALUES = ("recomputed", "stored")
 
 
 @th.no_grad()
@@ -91,6 +92,9 @@ class GDQPolicy(MultiAgentQPolicy):
     :param global_bootstrap: ``lambda`` of the agents' bootstrap value ``lambda V_G'(v') + (1 - lambda) V_i(s'_i)``:
         1 is the paper's GDQ (default), 0 is independent learning with a global head trained beside it
         (``docs/modules/gdq.md``, "GDQ-lambda")
+    :param global_values: where ``v`` and ``v'`` (the inputs of ``V_G`` and ``V_G'``) come from:
+        ``"recomputed"`` at update time by the current agent network from the stored observations (default), or
+        ``"stored"`` in the replay rows at collection time, as the paper did (the algorithm reads this option)
     :param kwargs: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`
     """
 
@@ -103,8 +107,12 @@ class GDQPolicy(MultiAgentQPolicy):
         global_net_arch: list[int] | None = None,
         global_init: str = "random",
         global_bootstrap: float = 1.0,
+        global_values: str = "recomputed",
         **kwargs: Any,
     ) -> None:
+        if global_values not in GLOBAL_VALUES:
+            raise ValueError(f"global_values must be one of {GLOBAL_VALUES}, got {global_values!r}")
+        self.global_values = global_values
         if not 0.0 <= global_bootstrap <= 1.0:
             raise ValueError(f"global_bootstrap must be in [0, 1], got {global_bootstrap}")
         self.global_bootstrap = float(global_bootstrap)
@@ -130,6 +138,7 @@ class GDQPolicy(MultiAgentQPolicy):
             global_net_arch=self.global_net_arch,
             global_init=self.global_init,
             global_bootstrap=self.global_bootstrap,
+            global_values=self.global_values,
         )
         return data
 

@@ -53,6 +53,9 @@ def _signature_defaults(function: Any) -> dict[str, Any]:
     }
 
 
+GDQ_EXTRA_POLICY_DEFAULTS = ("global_init", "global_bootstrap", "global_values")
+
+
 def package_policy_kwargs(algo: str) -> dict[str, Any]:
     """:return: the policy defaults of an algorithm as canonical ``policy_kwargs`` (``None`` sizes resolved)."""
     from sb3_eps.common.policies import DEFAULT_NET_ARCH, DEFAULT_STREAM_ARCH, MultiAgentQPolicy
@@ -76,10 +79,8 @@ def package_policy_kwargs(algo: str) -> dict[str, Any]:
         "agent_target": bool(spec.algorithm_class.default_agent_target),
     }
     for name in spec.policy_params:
-        if name in (
+        if name in GDQ_EXTRA_POLICY_DEFAULTS or name in (
             "global_net_arch",
-            "global_init",
-            "global_bootstrap",
             "mixing_embed_dim",
             "hypernet_hidden_dim",
         ):
