@@ -252,3 +252,21 @@ def test_gdq_variants_learn_the_corridor_optimum(policy_kwargs) -> None:
     model = _corridor_model(GDQ, policy_kwargs)
     model.learn(4_000)
     assert _corridor_team_return(model) == pytest.approx(envs.make_parallel_env("Corridor-2-v0").optimal_team_return())
+
+
+def test_target_update_is_a_polyak_step_and_follows_set_parameters() -> None:
+    model = tiny_model(IQL, tau=0.25)
+    model.learn(100)
+    online, target = model.policy.q_net, model.policy.q_net_target
+    before = [p.detach().clone() for p in target.parameters()]
+    model._update_targets()
+    for old, new, source in zip(before, target.parameters(), online.parameters(), strict=True):
+        assert th.allclose(new, 0.25 * source + 0.75 * old, atol=1e-6)
+    # set_parameters loads in place, so the cached tensor lists keep pointing at the live weights.
+    params = model.get_parameters()
+    params["policy"] = {k: th.zeros_like(v) if k.startswith("q_net.") else v for k, v in params["policy"].items()}
+    model.set_parameters(params)
+    target_before = [p.detach().clone() for p in target.parameters()]
+    model._update_targets()
+    for old, new in zip(target_before, target.parameters(), strict=True):
+        assert th.allclose(new, 0.75 * old, atol=1e-6)

@@ -12,7 +12,7 @@ and writes a row once its window is full or the world's episode ended.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -324,10 +324,16 @@ class _Tick:
     next_state: np.ndarray
     world_ended: bool
     world_terminated: bool
-    values: np.ndarray | None = (
-        None  # (n,) agents' state-values of ``observations`` (when the buffer stores them)
-    )
-    next_values: np.ndarray | None = None  # (n,) of ``next_observations``
+    # (n,) the agents' state-values of ``observations`` / ``next_observations`` (when the buffer stores them)
+    values: np.ndarray | None = None
+    next_values: np.ndarray | None = None
+    # Summaries every window containing this tick asks for, computed once (see ``__post_init__``).
+    all_alive: bool = field(init=False)
+    any_ended: bool = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.all_alive = bool(self.alive.all())
+        self.any_ended = bool(self.ended.any())
 
 
 def n_step_row(ticks: list[_Tick], gamma: float, team_reward_mode: str = "sum") -> JointRow:
@@ -343,7 +349,7 @@ def n_step_row(ticks: list[_Tick], gamma: float, team_reward_mode: str = "sum") 
     :param gamma: discount factor
     :param team_reward_mode: ``"sum"`` or ``"mean"`` of the alive agents' rewards
     """
-    if all(tick.alive.all() for tick in ticks) and not any(tick.ended.any() for tick in ticks[:-1]):
+    if all(tick.all_alive for tick in ticks) and not any(tick.any_ended for tick in ticks[:-1]):
         return _n_step_row_all_alive(ticks, gamma, team_reward_mode)
     return _n_step_row_general(ticks, gamma, team_reward_mode)
 

@@ -36,7 +36,7 @@ from sb3_eps.common.buffers import (
     _Tick,
 )
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import epsilon_greedy
+from sb3_eps.common.utils import epsilon_greedy, polyak_update_tensors_
 
 SelfMultiAgentOffPolicyAlgorithm = TypeVar(
     "SelfMultiAgentOffPolicyAlgorithm", bound="MultiAgentOffPolicyAlgorithm"
@@ -550,31 +550,20 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             self.logger.record(f"train/{key}", float(np.mean(values)))
 
     def _update_targets(self) -> None:
-        """Polyak step of every target network. The parameter lists are gathered once per policy object (module
-        traversal costs more than the update itself for small networks); parameters are updated in place
-        everywhere (loading, EPS crossover), so the lists stay valid for that policy."""
+        """Polyak step of every target network. The tensor lists are gathered once per policy object; parameters
+        are updated in place everywhere (loading, EPS crossover), so the lists stay valid for that policy."""
         cache = getattr(self, "_target_lists", None)
         if cache is None or cache[0] is not self.policy:
-            pairs = [
-                (
-                    list(target.parameters()),
-                    list(online.parameters()),
-                    list(target.buffers()),
-                    list(online.buffers()),
-                )
-                for target, online in self.policy.target_pairs()
-            ]
-            for target_params, params, _, _ in pairs:
+            pairs = []
+            for target, online in self.policy.target_pairs():
+                target_params, params = list(target.parameters()), list(online.parameters())
                 if len(target_params) != len(params):
                     raise ValueError("target and online networks have different parameter lists")
-            cache = (self.policy, [pair for pair in pairs if pair[0] or pair[2]])
+                pairs.append((target_params, params, list(target.buffers()), list(online.buffers())))
+            cache = (self.policy, pairs)
             self._target_lists = cache
-        with th.no_grad():
-            for target_params, params, target_buffers, buffers in cache[1]:
-                if target_params:
-                    th._foreach_lerp_(target_params, params, self.tau)
-                for target_buffer, buffer in zip(target_buffers, buffers, strict=True):
-                    target_buffer.copy_(buffer)
+        for target_params, params, target_buffers, buffers in cache[1]:
+            polyak_update_tensors_(target_params, params, target_buffers, buffers, self.tau)
 
     # ------------------------------------------------------------------ logging and saving
     def dump_logs(self) -> None:

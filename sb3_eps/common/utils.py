@@ -42,14 +42,26 @@ def masked_mean(values: th.Tensor, mask: th.Tensor) -> th.Tensor:
 
 def polyak_update_(target: th.nn.Module, source: th.nn.Module, tau: float) -> None:
     """In place ``target = tau * source + (1 - tau) * target`` over parameters and buffers."""
+    target_params, params = list(target.parameters()), list(source.parameters())
+    if len(target_params) != len(params):
+        raise ValueError("polyak_update_: target and source have different parameter lists")
+    polyak_update_tensors_(target_params, params, list(target.buffers()), list(source.buffers()), tau)
+
+
+def polyak_update_tensors_(
+    target_params: list[th.Tensor],
+    params: list[th.Tensor],
+    target_buffers: list[th.Tensor],
+    buffers: list[th.Tensor],
+    tau: float,
+) -> None:
+    """:func:`polyak_update_` on lists gathered once (the per-step path: module traversal costs more than the update
+    for small networks). Buffers are copied."""
     with th.no_grad():
-        target_params, params = list(target.parameters()), list(source.parameters())
-        if len(target_params) != len(params):
-            raise ValueError("polyak_update_: target and source have different parameter lists")
         if target_params:  # a parameter-free module (VDN's sum mixer) has nothing to move
             # One fused call: target + tau * (source - target).
             th._foreach_lerp_(target_params, params, tau)
-        for target_buffer, buffer in zip(target.buffers(), source.buffers(), strict=True):
+        for target_buffer, buffer in zip(target_buffers, buffers, strict=True):
             target_buffer.copy_(buffer)
 
 
