@@ -17,6 +17,7 @@ from typing import Any
 
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.utils import LinearSchedule
 
 import envs  # noqa: F401
 from sb3_eps import GDQ, IQL, QMIX, VDN, make_vec_env
@@ -70,7 +71,12 @@ def main() -> None:
     parser.add_argument("--eval-every", type=int, default=10_000)
     parser.add_argument("--eval-episodes", type=int, default=100)
     parser.add_argument("--out", default="docs/results/learning_check")
-    parser.add_argument("--hyperparams", type=json.loads, default={}, help="JSON dict of algorithm arguments")
+    parser.add_argument(
+        "--hyperparams",
+        type=json.loads,
+        default={},
+        help='JSON dict of algorithm arguments; "learning_rate": "lin_<x>" is a linear decay from x to 0',
+    )
     args = parser.parse_args()
     th.set_num_threads(1)
     out = pathlib.Path(args.out)
@@ -84,7 +90,12 @@ def main() -> None:
             continue
         path.unlink(missing_ok=True)  # an unfinished seed restarts from scratch
         venv = make_vec_env(args.env, n_envs=args.n_envs, seed=seed)
-        model = ALGORITHMS[args.algo]("MlpPolicy", venv, seed=seed, **args.hyperparams)
+        hyperparams = dict(args.hyperparams)
+        learning_rate = hyperparams.get("learning_rate")
+        if isinstance(learning_rate, str) and learning_rate.startswith("lin_"):
+            # RL Zoo's lin_<x>: x at the start, decreasing linearly to 0 at the end of training.
+            hyperparams["learning_rate"] = LinearSchedule(float(learning_rate[4:]), 0.0, 1.0)
+        model = ALGORITHMS[args.algo]("MlpPolicy", venv, seed=seed, **hyperparams)
         callback = PeriodicTeamEval(args.env, args.eval_every, args.eval_episodes, path, seed)
         model.learn(args.ticks * venv.n_agents, callback=callback)
         if callback.next_eval - callback.eval_every < args.ticks:

@@ -18,7 +18,7 @@ import pathlib
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.pyplot as plt
 
 
 def read_group(pattern: str) -> dict[str, list[tuple[int, float]]]:
@@ -34,7 +34,9 @@ def read_group(pattern: str) -> dict[str, list[tuple[int, float]]]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--group", action="append", required=True, help="LABEL=GLOB of JSON-lines files")
     parser.add_argument("--out", required=True, help="the PNG to write")
     parser.add_argument("--title", default="MultiRobotNav-2-v0: greedy team success (100 episodes)")
