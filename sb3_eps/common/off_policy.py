@@ -428,7 +428,10 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             # v and v' as the agent network sees them now (the paper's "stored at collection time").
             with th.no_grad():
                 both = self.policy.q_net.value(
-                    th.as_tensor(np.concatenate([last_obs.reshape(-1, last_obs.shape[-1]), next_obs]))
+                    th.as_tensor(
+                        np.concatenate([last_obs.reshape(-1, last_obs.shape[-1]), next_obs]),
+                        device=self.device,
+                    )
                 )
             values, next_values = both.cpu().numpy().reshape(2, n_worlds, n_agents)
         for world in range(n_worlds):

@@ -90,7 +90,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         )
         with th.no_grad():
             # v': the agents' state-values of the next joint observation, from the current agent network
-            # (computed in the same forward pass as the prediction and the bootstrap's advantages).
+            # (computed in the same forward pass as the bootstrap's online advantages).
             # With global_values="stored", v and v' are those computed at collection time (the paper's way).
             next_values = batch.next_values if stored else terms.online_next_values
             assert next_values is not None
