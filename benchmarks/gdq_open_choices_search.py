@@ -118,28 +118,3 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
-
-
-def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--sampler-seed", type=int, default=0)
-    parser.add_argument("--trials", type=int, default=20)
-    parser.add_argument("--storage", default="sqlite:///logs/gdq_search.db")
-    parser.add_argument("--out", default="logs/gdq_search.jsonl")
-    parser.add_argument("--space", choices=SPACES, default="wide")
-    parser.add_argument("--eval-at", type=int, nargs="+", default=[60_000], help="ticks of the evaluations")
-    args = parser.parse_args()
-    study = optuna.create_study(
-        study_name=f"gdq-open-choices-{args.space}",
-        storage=args.storage,
-        direction="maximize",
-        load_if_exists=True,
-        sampler=optuna.samplers.TPESampler(seed=args.sampler_seed),
-    )
-    study.optimize(lambda trial: objective(trial, args), n_trials=args.trials)
-
-
-if __name__ == "__main__":
-    main()
