@@ -60,7 +60,10 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
 
     Options the papers leave open (defaults in brackets): ``policy_kwargs=dict(agent_target=...)`` an
     agent target network for the advantage term [False, as the paper]; ``team_reward_mode`` sum or
-    mean [sum]; ``policy_kwargs=dict(global_net_arch=...)`` [64, 64]. Other arguments are those of
+    mean [sum]; ``policy_kwargs=dict(global_net_arch=...)`` [64, 64]; ``global_values`` recomputed or
+    stored ``v``/``v'`` [recomputed]; ``global_init`` of ``V_G`` [random]; and our GDQ-lambda variant
+    ``global_bootstrap`` [1, the paper's target] (:class:`~sb3_eps.gdq.policies.GDQPolicy`). The setting that
+    learns ``MultiRobotNav-2-v0`` is in ``zoo_configs/gdq.yml``. Other arguments are those of
     :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`.
     """
 

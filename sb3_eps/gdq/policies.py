@@ -44,8 +44,8 @@ class GlobalValueNetwork(nn.Module):
     :param activation_fn: activation function
     :param init: ``"random"`` (PyTorch's default initialisation), ``"sum"`` or ``"mean"``: the same architecture
         initialised to compute exactly ``sum(v)`` or ``mean(v)`` at step 0 (needs ReLU and hidden layers of at
-        least ``2 n_agents`` units). The papers do not give the head's initialisation; see ``docs/modules/gdq.md``
-        for why the default is ``"sum"``.
+        least ``2 n_agents`` units). The papers do not give the head's initialisation; ``docs/modules/gdq.md``
+        says what each did (``"sum"`` is part of the setting that learns the 2-robot world).
     """
 
     def __init__(
