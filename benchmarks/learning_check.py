@@ -71,6 +71,8 @@ def main() -> None:
     parser.add_argument("--eval-every", type=int, default=10_000)
     parser.add_argument("--eval-episodes", type=int, default=100)
     parser.add_argument("--out", default="docs/results/learning_check")
+    parser.add_argument("--log-interval", type=int, default=20, help="episodes between two log rows")
+    parser.add_argument("--log-dir", default=None, help="write the train/ and rollout/ logs (progress.csv) here")
     parser.add_argument(
         "--hyperparams",
         type=json.loads,
@@ -96,8 +98,12 @@ def main() -> None:
             # RL Zoo's lin_<x>: x at the start, decreasing linearly to 0 at the end of training.
             hyperparams["learning_rate"] = LinearSchedule(float(learning_rate[4:]), 0.0, 1.0)
         model = ALGORITHMS[args.algo]("MlpPolicy", venv, seed=seed, **hyperparams)
+        if args.log_dir:
+            from stable_baselines3.common.logger import configure
+
+            model.set_logger(configure(f"{args.log_dir}/{args.algo}_{args.env}_seed{seed}", ["csv"]))
         callback = PeriodicTeamEval(args.env, args.eval_every, args.eval_episodes, path, seed)
-        model.learn(args.ticks * venv.n_agents, callback=callback)
+        model.learn(args.ticks * venv.n_agents, callback=callback, log_interval=args.log_interval)
         if callback.next_eval - callback.eval_every < args.ticks:
             callback.evaluate(model.ticks)
         venv.close()

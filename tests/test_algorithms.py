@@ -245,8 +245,12 @@ def test_gdq_rejects_bad_options(policy_kwargs, match) -> None:
 
 @pytest.mark.parametrize(
     "policy_kwargs",
-    [{"global_values": "stored"}, {"global_bootstrap": 0.1, "agent_target": True}],
-    ids=["stored-values", "gdq-lambda"],
+    [
+        {"global_values": "stored"},
+        {"global_bootstrap": 0.1, "agent_target": True},
+        {"global_values": "target", "agent_target": True},
+    ],
+    ids=["stored-values", "gdq-lambda", "target-values"],
 )
 def test_gdq_variants_learn_the_corridor_optimum(policy_kwargs) -> None:
     model = _corridor_model(GDQ, policy_kwargs)
@@ -270,3 +274,39 @@ def test_target_update_is_a_polyak_step_and_follows_set_parameters() -> None:
     model._update_targets()
     for old, new in zip(target_before, target.parameters(), strict=True):
         assert th.allclose(new, 0.75 * old, atol=1e-6)
+
+
+def test_gdq_target_values_feed_the_global_target_head_from_the_agent_target_network() -> None:
+    model = _gdq_with(global_values="target", agent_target=True)
+    model.learn(300)
+    batch = model.replay_buffer.sample(8)
+    seen = []
+    hook = model.policy.global_value_net_target.register_forward_hook(lambda module, args, out: seen.append(args[0]))
+    with th.no_grad():
+        # Move the online network far from its target: v' must not follow it.
+        for parameter in model.policy.q_net.parameters():
+            parameter.add_(1.0)
+    model._compute_loss(batch)
+    hook.remove()
+    with th.no_grad():
+        next_obs = batch.next_observations.reshape(-1, batch.next_observations.shape[-1])
+        expected = model.policy.q_net_target.value(next_obs).reshape(8, 3) * batch.next_alive
+    th.testing.assert_close(seen[0], expected)
+
+
+def test_gdq_target_values_need_an_agent_target_network() -> None:
+    with pytest.raises(ValueError, match="needs an agent target network"):
+        _gdq_with(global_values="target", agent_target=False)
+
+
+@pytest.mark.parametrize(("init", "gain"), [("sum", 1.0), ("mean", 1.0 / 3.0)])
+def test_gdq_diagnostics_measure_the_global_head_gain(init, gain) -> None:
+    model = _gdq_with(global_init=init)
+    model.learning_starts = 10_000
+    model.learn(300)
+    logs = model._compute_loss(model.replay_buffer.sample(16))[2]  # _n_updates = 0: a diagnostic step
+    # V_G starts as exactly sum(v) or mean(v), so dV_G/dv_i is 1 or 1/n for every agent.
+    assert logs["global_gain"] == pytest.approx(gain, rel=1e-5)
+    assert logs["global_gain_sum"] == pytest.approx(3 * gain, rel=1e-5)
+    assert 0.0 <= logs["action_margin_small"] <= 1.0 and logs["action_margin"] >= 0.0
+    assert logs["agent_value_std"] > 0.0

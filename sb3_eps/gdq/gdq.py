@@ -74,6 +74,30 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     # (a seed collapsed to "stay" after converging), without one it was stable (docs/modules/gdq.md).
     default_agent_target: ClassVar[bool] = False
 
+    # Gradient steps between two diagnostic records (g_i, action gap, value spread) in the train/ logs.
+    diagnostics_interval: ClassVar[int] = 250
+
+    def _diagnostics(self, inputs: th.Tensor, terms, batch: JointReplayBufferSamples) -> dict[str, float]:
+        """What explains GDQ's learning (docs/results/baselines.md): the gain ``g_i = dV_G/dv_i`` of the
+        global head, the greedy action's margin ``A(s, a*) - A(s, a_2nd)``, and the spread of the agents' values."""
+        probe = inputs.detach().clone().requires_grad_(True)
+        with th.enable_grad():
+            gain = th.autograd.grad(self.policy.global_value_net(probe).sum(), probe)[0]
+        alive = batch.alive.bool()
+        with th.no_grad():
+            obs = batch.observations.reshape(-1, batch.observations.shape[-1])
+            top2 = self.policy.q_net.advantage(obs).topk(2, dim=1).values
+            margin = (top2[:, 0] - top2[:, 1]).reshape(alive.shape)[alive]
+        values = terms.values.detach()[alive]
+        return {
+            "global_gain": float(gain[alive].mean()),
+            "global_gain_sum": float(gain.sum(dim=1).mean()),
+            "action_margin": float(margin.mean()),
+            "action_margin_small": float((margin < 0.01).float().mean()),
+            "agent_value_mean": float(values.mean()),
+            "agent_value_std": float(values.std()),
+        }
+
     def _stores_agent_values(self) -> bool:
         mode = (self.policy_kwargs or {}).get("global_values", "recomputed")
         if mode not in GLOBAL_VALUES:
@@ -84,7 +108,8 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         self, batch: JointReplayBufferSamples
     ) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         stored = batch.values is not None and batch.next_values is not None
-        terms = self._td_terms(batch, need_online_next_values=not stored)
+        from_target = self.policy.global_values == "target"
+        terms = self._td_terms(batch, need_online_next_values=not (stored or from_target))
         values, q_taken, own_next, next_advantages = (
             terms.values,
             terms.q_taken,
@@ -95,7 +120,11 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             # v': the agents' state-values of the next joint observation, from the current agent network
             # (computed in the same forward pass as the bootstrap's online advantages).
             # With global_values="stored", v and v' are those computed at collection time (the paper's way).
-            next_values = batch.next_values if stored else terms.online_next_values
+            # With global_values="target", v' comes from the agent target network, like the rest of the bootstrap.
+            if stored:
+                next_values = batch.next_values
+            else:
+                next_values = terms.next_values if from_target else terms.online_next_values
             assert next_values is not None
             global_next = self.policy.global_value_net_target(next_values * batch.next_alive)
             agent_targets = gdq_agent_targets(
@@ -121,4 +150,6 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             "global_value_loss": global_loss.item(),
             "global_value_mean": float(global_values.detach().mean()),
         }
+        if self._n_updates % self.diagnostics_interval == 0:
+            logs.update(self._diagnostics(agent_values * batch.alive, terms, batch))
         return agent_loss + global_loss, priorities.cpu().numpy(), logs

@@ -12,7 +12,7 @@ from sb3_eps.common.policies import MultiAgentQPolicy
 
 DEFAULT_GLOBAL_NET_ARCH = [64, 64]
 GLOBAL_INITS = ("random", "sum", "mean")
-GLOBAL_VALUES = ("recomputed", "stored")
+GLOBAL_VALUES = ("recomputed", "stored", "target")
 
 
 @th.no_grad()
@@ -94,7 +94,9 @@ class GDQPolicy(MultiAgentQPolicy):
         (``docs/modules/gdq.md``, "GDQ-lambda")
     :param global_values: where ``v`` and ``v'`` (the inputs of ``V_G`` and ``V_G'``) come from:
         ``"recomputed"`` at update time by the current agent network from the stored observations (default), or
-        ``"stored"`` in the replay rows at collection time, as the paper did (the algorithm reads this option)
+        ``"stored"`` in the replay rows at collection time, as the paper did, or ``"target"``: ``v'`` from the agent
+        target network (needs ``agent_target=True``), so that every bootstrap input moves slowly
+        (the algorithm reads this option)
     :param kwargs: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`
     """
 
@@ -112,6 +114,8 @@ class GDQPolicy(MultiAgentQPolicy):
     ) -> None:
         if global_values not in GLOBAL_VALUES:
             raise ValueError(f"global_values must be one of {GLOBAL_VALUES}, got {global_values!r}")
+        if global_values == "target" and not kwargs.get("agent_target", True):
+            raise ValueError("global_values='target' needs an agent target network: add agent_target=True")
         self.global_values = global_values
         if not 0.0 <= global_bootstrap <= 1.0:
             raise ValueError(f"global_bootstrap must be in [0, 1], got {global_bootstrap}")

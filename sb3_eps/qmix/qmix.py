@@ -38,7 +38,17 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
             targets = td_target(batch.team_rewards, batch.team_discounts, batch.team_dones, next_total)
         loss = weighted_huber(q_total, targets, batch.weights)
         priorities = (q_total - targets).detach().abs()
-        return loss, priorities.cpu().numpy(), {"q_total_mean": float(q_total.detach().mean())}
+        logs = {"q_total_mean": float(q_total.detach().mean()), "target_mean": float(targets.mean())}
+        if self._n_updates % 250 == 0:
+            probe = (terms.q_taken * batch.alive).detach().clone().requires_grad_(True)
+            with th.enable_grad():
+                gain = th.autograd.grad(self.policy.mixer(probe, batch.states).sum(), probe)[0]
+            logs.update(
+                mixer_gain_sum=float(gain.sum(dim=1).mean()),
+                agent_q_mean=float(terms.q_taken.detach().mean()),
+                agent_q_max=float(terms.q_taken.detach().abs().max()),
+            )
+        return loss, priorities.cpu().numpy(), logs
 
 
 class VDN(QMIX):

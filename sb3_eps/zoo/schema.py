@@ -183,7 +183,7 @@ GDQ_POLICY_PARAMS: dict[str, Param] = {
     "global_net_arch": Param("int_list", low=1),
     "global_init": Param("choice", choices=("random", "sum", "mean")),
     "global_bootstrap": Param("float", low=0, high=1),
-    "global_values": Param("choice", choices=("recomputed", "stored")),
+    "global_values": Param("choice", choices=("recomputed", "stored", "target")),
 }
 QMIX_POLICY_PARAMS: dict[str, Param] = {
     **COMMON_POLICY_PARAMS,
