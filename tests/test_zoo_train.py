@@ -129,3 +129,21 @@ def test_single_agent_pretraining_warm_starts_a_multi_agent_model(tmp_path) -> N
             )
         )
     assert not (tmp_path / "bad").exists()
+
+
+def test_a_run_reports_its_last_evaluation_against_its_best(run_dir, tmp_path) -> None:
+    from sb3_eps.zoo.callbacks import final_against_best
+
+    report = (run_dir / "final_vs_best.txt").read_text()
+    assert report.startswith("last evaluation: success") and "best: success" in report
+    # A run that fell after its best evaluation says so and names best_model.zip and --load-best.
+    records = {
+        "timesteps": [10, 20, 30], "ticks": [5, 10, 15], "results": [[1.0, 1.0], [3.0, 2.0], [0.0, -1.0]],
+        "successes": [[0.0, 1.0], [1.0, 1.0], [0.0, 0.0]],
+    }  # fmt: skip
+    line = final_against_best(records, tmp_path)
+    assert "success 0%," in line and "best: success 100% at tick 10" in line
+    assert "WARNING" in line and "--load-best" in line and "best_model.zip" in line
+    records["successes"][-1] = [1.0, 1.0]
+    assert "WARNING" not in final_against_best(records, tmp_path)
+    assert final_against_best({"timesteps": []}, tmp_path) is None

@@ -53,6 +53,30 @@ def team_score(summary: dict[str, Any]) -> tuple[float, float]:
     return float(summary.get("success_rate", 0.0)), float(summary["team_return_mean"])
 
 
+def final_against_best(records: dict[str, list[Any]], run_dir: str | Path, drop: float = 0.1) -> str | None:
+    """One line comparing a run's last evaluation with its best (by :func:`team_score`), or None without
+    evaluations. When the last success rate is ``drop`` or more below the best, the line says that learning fell
+    after its best evaluation and how to evaluate ``best_model.zip`` instead (``--load-best``)."""
+    if not records.get("timesteps"):
+        return None
+    summaries = [
+        {"success_rate": float(np.nanmean(successes)) if len(successes) else 0.0, "team_return_mean": float(np.mean(results))}
+        for successes, results in zip(records["successes"], records["results"], strict=True)
+    ]
+    best = max(range(len(summaries)), key=lambda index: team_score(summaries[index]))
+    last, top = summaries[-1], summaries[best]
+    line = (
+        f"last evaluation: success {last['success_rate']:.0%}, team return {last['team_return_mean']:.2f} at tick "
+        f"{records['ticks'][-1]}; best: success {top['success_rate']:.0%} at tick {records['ticks'][best]}"
+    )
+    if top["success_rate"] - last["success_rate"] >= drop - 1e-9:
+        line += (
+            f". WARNING: learning fell after its best evaluation; the best model is {Path(run_dir) / BEST_MODEL_NAME}: "
+            f"python -m sb3_eps.evaluate --run {run_dir} --load-best"
+        )
+    return line
+
+
 # ---------------------------------------------------------------------------------------------- monitor
 class TeamMonitor(BaseCallback):
     """One CSV row per world (team) episode: ``r`` team return, ``l`` ticks, ``t`` seconds, ``ticks`` / ``eps_ticks``

@@ -43,6 +43,7 @@ from sb3_eps.zoo.callbacks import (
     TeamMonitor,
     TrainingInterrupted,
     callback_state,
+    final_against_best,
     stop_on_signals,
 )
 from sb3_eps.zoo.checkpoint import (
@@ -67,6 +68,7 @@ from sb3_eps.zoo.schema import algorithm_kwargs, algorithm_spec, build_callbacks
 
 ARGS_NAME = "args.yml"
 CONFIG_NAME = "config.yml"
+FINAL_REPORT_NAME = "final_vs_best.txt"
 #: The evaluation worlds are seeded ``seed + EVAL_SEED_OFFSET``: other worlds than the training ones.
 EVAL_SEED_OFFSET = 10_000
 
@@ -510,6 +512,11 @@ def _run(prepared: PreparedRun, run_dir: Path, restore: dict[str, Any] | None) -
             checkpoint.save(complete=True)
         else:
             (run_dir / CHECKPOINT_NAME).unlink(missing_ok=True)
+    report = None if eval_callback is None else final_against_best(eval_callback.records, run_dir)
+    if report is not None:
+        (run_dir / FINAL_REPORT_NAME).write_text(report + "\n")
+        if options.verbose >= 1 or "WARNING" in report:
+            print(report, flush=True)
     if options.verbose >= 1:
         minutes = (time.time() - start) / 60
         print(
