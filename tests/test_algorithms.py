@@ -223,10 +223,11 @@ def test_gdq_stored_values_are_the_networks_values_at_collection_time(tmp_path) 
     assert loaded.policy.global_values == "stored" and loaded.replay_buffer.store_values
 
 
-def test_gdq_recomputed_values_are_the_default_and_not_stored() -> None:
+def test_gdq_target_values_are_the_default_and_not_stored() -> None:
     model = _gdq_with()
     model.learn(200)
-    assert model.policy.global_values == "recomputed" and not model.replay_buffer.store_values
+    assert model.policy.global_values == "target" and model.policy.agent_target
+    assert not model.replay_buffer.store_values
     assert model.replay_buffer.sample(4).values is None
 
 
@@ -295,7 +296,7 @@ def test_gdq_target_values_feed_the_global_target_head_from_the_agent_target_net
 
 
 def test_gdq_target_values_need_an_agent_target_network() -> None:
-    with pytest.raises(ValueError, match="needs an agent target network"):
+    with pytest.raises(ValueError, match="reads v' from the agent target network: with agent_target=False"):
         _gdq_with(global_values="target", agent_target=False)
 
 

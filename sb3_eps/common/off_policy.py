@@ -527,6 +527,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         """Sample joint rows, minimise the algorithm's loss, update priorities and target networks."""
         assert self.replay_buffer is not None
+        if self.replay_buffer.size() == 0:
+            return  # n-step rows appear n ticks after their first step: nothing to learn from yet
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
         beta = self._per_beta()

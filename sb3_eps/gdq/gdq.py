@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
+
+from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
 from sb3_eps.common.buffers import JointReplayBufferSamples
 from sb3_eps.common.losses import masked_huber, row_priority, weighted_huber
@@ -70,9 +72,48 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     policy: GDQPolicy
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": MlpPolicy}
     requires_fixed_n_agents: ClassVar[bool] = True
-    # The paper's agents had no target network; with one, GDQ was unstable in our corridor check
-    # (a seed collapsed to "stay" after converging), without one it was stable (docs/modules/gdq.md).
-    default_agent_target: ClassVar[bool] = False
+    # The paper's agents had no target network. With one, and v' read from it (global_values="target"), GDQ
+    # learned the robot worlds faster and without the collapses of the online v' (docs/results/baselines.md).
+    default_agent_target: ClassVar[bool] = True
+
+    def __init__(
+        self,
+        policy: str | type[MultiAgentQPolicy],
+        env: GymEnv | None,
+        learning_rate: float | Schedule = 3e-4,
+        buffer_size: int = 50_000,
+        learning_starts: int = 2_000,
+        batch_size: int = 64,
+        tau: float = 0.01,
+        gamma: float = 0.99,
+        train_freq: int | tuple[int, str] = 1,
+        gradient_steps: int = 1,
+        target_update_interval: int = 1,
+        n_steps: int = 30,
+        prioritized_replay: bool = True,
+        prioritized_replay_alpha: float = 0.6,
+        prioritized_replay_beta0: float = 0.4,
+        double_q: bool = True,
+        exploration_fraction: float = 0.05,
+        exploration_initial_eps: float = 1.0,
+        exploration_final_eps: float = 0.02,
+        max_grad_norm: float = 10.0,
+        team_reward_mode: str = "mean",
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ) -> None:
+        # GDQ's own defaults differ from the base's in n_steps (30: an agent's own rewards reach its target
+        # directly for 1.5 s, where V_G' passes them on with weight g_i ~ 1/n) and team_reward_mode ("mean":
+        # V_G on the scale of one agent's value, a common-mode gain of about gamma^n); docs/results/baselines.md.
+        arguments = dict(locals())
+        for name in ("self", "__class__", "policy", "env"):
+            arguments.pop(name, None)
+        super().__init__(policy, env, **arguments)
 
     # Gradient steps between two diagnostic records (g_i, action gap, value spread) in the train/ logs.
     diagnostics_interval: ClassVar[int] = 250

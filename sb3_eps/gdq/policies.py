@@ -107,15 +107,18 @@ class GDQPolicy(MultiAgentQPolicy):
         self,
         *args: Any,
         global_net_arch: list[int] | None = None,
-        global_init: str = "random",
+        global_init: str = "mean",
         global_bootstrap: float = 1.0,
-        global_values: str = "recomputed",
+        global_values: str = "target",
         **kwargs: Any,
     ) -> None:
         if global_values not in GLOBAL_VALUES:
             raise ValueError(f"global_values must be one of {GLOBAL_VALUES}, got {global_values!r}")
         if global_values == "target" and not kwargs.get("agent_target", True):
-            raise ValueError("global_values='target' needs an agent target network: add agent_target=True")
+            raise ValueError(
+                "global_values='target' (the default) reads v' from the agent target network: with "
+                "agent_target=False set global_values='recomputed' or 'stored'"
+            )
         self.global_values = global_values
         if not 0.0 <= global_bootstrap <= 1.0:
             raise ValueError(f"global_bootstrap must be in [0, 1], got {global_bootstrap}")
