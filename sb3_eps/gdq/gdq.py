@@ -56,17 +56,18 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     the joint state value ``V_G'(v')`` of the world instead of its own ``V_i(s'_i)``
     (:func:`gdq_agent_targets`). The global head ``V_G`` is trained by TD on the team reward,
     ``L = (r_team + gamma^k V_G'(v') - V_G(v))^2``, with ``v`` and ``v'`` entering as numbers (no gradient
-    into the agents). ``v'`` is recomputed at update time with the current agent network from the stored
-    next observations; agents that are no longer acting contribute 0. Action selection uses only ``A``
+    into the agents). By default ``v'`` comes from the agent target network, on the stored next observations;
+    agents that are no longer acting contribute 0. Action selection uses only ``A``
     (Eq. 3), so execution stays decentralised.
 
-    Options the papers leave open (defaults in brackets): ``policy_kwargs=dict(agent_target=...)`` an
-    agent target network for the advantage term [False, as the paper]; ``team_reward_mode`` sum or
-    mean [sum]; ``policy_kwargs=dict(global_net_arch=...)`` [64, 64]; ``global_values`` recomputed or
-    stored ``v``/``v'`` [recomputed]; ``global_init`` of ``V_G`` [random]; and our GDQ-lambda variant
-    ``global_bootstrap`` [1, the paper's target] (:class:`~sb3_eps.gdq.policies.GDQPolicy`). The setting that
-    learns ``MultiRobotNav-2-v0`` is in ``zoo_configs/gdq.yml``. Other arguments are those of
-    :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`.
+    Options the papers leave open (package defaults in brackets, measured in ``docs/results/baselines.md``):
+    ``n_steps`` [30: own rewards reach the target directly, where ``V_G'`` passes them on with weight
+    ``g_i ~ 1/n``]; ``team_reward_mode`` sum or mean [mean]; ``policy_kwargs=dict(agent_target=...)`` an agent
+    target network [True; the paper had none]; ``global_values`` where ``v'`` comes from: the agent target
+    network, recomputed online, or stored at collection time [target]; ``global_init`` of ``V_G`` [mean];
+    ``global_net_arch`` [64, 64]; and our GDQ-lambda variant ``global_bootstrap`` [1, the paper's target]
+    (:class:`~sb3_eps.gdq.policies.GDQPolicy`). Diagnostics (``g_i``, the greedy action's margin) are logged
+    under ``train/``. Other arguments are those of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`.
     """
 
     policy: GDQPolicy
