@@ -26,6 +26,7 @@ from sb3_eps.eps.evaluation import (
     check_eval_env_id,
     evaluate_population,
     make_eval_env,
+    population_fitness,
 )
 from sb3_eps.eps.mutations import (
     Parameters,
@@ -61,7 +62,7 @@ PAPER_SETTINGS: dict[str, Any] = {
     "frozen_groups": [],
     "fitness": "return",
     "min_gain": 0.0,
-    "reevaluate": False,
+    "n_reevaluation_episodes": 0,
     "max_eps_share": None,
     "eval_env_kwargs": {},
 }
@@ -98,7 +99,7 @@ class EvolutionCallback(BaseCallback):
     :param eval_env_id: the single-agent evaluation world (``"SingleRobotNav-v0"`` for the robots,
         ``"CooperativeNavigationSingle-v0"`` for Cooperative Navigation; see ``envs.eps_env_id_for``). Its
         observation and action spaces must equal the model's.
-    :param population_size: ``m``, the number of mutated copies; ``m + 1`` individuals are evaluated. Default 6
+    :param population_size: ``m``, the number of mutated copies; ``m + 1`` individuals are evaluated. Default 5
         (paper: 10, the author's earlier evolutionary work)
     :param period: the least number of ``period_unit`` between two rounds (``e_s`` of Algorithm 1). Default 10,000
         ticks; the budget ``max_eps_share`` usually spaces the rounds further
@@ -108,8 +109,8 @@ class EvolutionCallback(BaseCallback):
     :param sigma: the noise scale ``G ~ N(0, sigma)``. With ``target_flip_share`` it is only the calibration's first
         guess (later rounds start from the previous round's scale). Default None: 0.001 for ``mutation="safe"``,
         0.03 for ``"gaussian"``
-    :param alpha: share of the best individual in the crossover, Eq. 5, in [0, 1]. Default 0.1 (paper: 0.3; it
-        found alpha >= 0.4 harmful)
+    :param alpha: share of the best individual in the crossover, Eq. 5, in [0, 1]. Default 0.3 (the paper found
+        alpha >= 0.4 harmful), decaying under ``alpha_schedule``
     :param alpha_schedule: ``"linear"`` (default): ``alpha`` times the share of training still to come
         (``model._current_progress_remaining``), so crossovers fade out before the final evaluations;
         ``"constant"``: always ``alpha``
@@ -123,10 +124,14 @@ class EvolutionCallback(BaseCallback):
         ``[]`` evolves every weight (paper)
     :param fitness: ``"outcome"`` (default: mean of +1 reached / 0 timed out / -1 failed per episode, plus 0.01 x
         the mean return) or ``"return"`` (the paper's mean return); see :func:`population_fitness`
-    :param min_gain: the winner's fitness must exceed copy 0's by more than this (default 0: any gain)
-    :param reevaluate: before a crossover, play copy 0 and the winner again on ``n_eval_episodes`` fresh episodes;
-        cross over only if the winner still beats copy 0 by more than ``min_gain`` there (default True; the
-        ticks count as EPS ticks). Against the winner's curse: the best of ``m + 1`` noisy scores
+    :param min_gain: the winner's fitness must exceed copy 0's by more than this, in the selection and in the
+        reevaluation. Default 0.05: with ``fitness="outcome"`` more than the return's tie-break can give (0.01 x a
+        few units of return), so at least one episode must end better on balance; 0 accepts any gain (paper)
+    :param n_reevaluation_episodes: before a crossover, play copy 0 and the winner again on this many fresh
+        common-random-number episodes (rounded up to a multiple of ``n_eval_episodes``) and cross over only if the
+        winner beats copy 0 by more than ``min_gain`` there too; the ticks count as EPS ticks. Against the winner's
+        curse: the best of ``m + 1`` noisy scores wins by chance (docs/results/eps_probes.md). Default 8; 0: no
+        reevaluation (paper)
     :param max_eps_share: a round starts only if the EPS ticks so far plus the expected cost of the round stay
         within this share of the training ticks (default 0.1; None: no budget). The expected cost is the mean of the
         previous rounds, or before the first round half of the most the round can cost
@@ -161,19 +166,19 @@ class EvolutionCallback(BaseCallback):
     def __init__(
         self,
         eval_env_id: str = "SingleRobotNav-v0",
-        population_size: int = 6,
+        population_size: int = 5,
         period: int = 10_000,
         period_unit: str = "ticks",
         sigma: float | None = None,
-        alpha: float = 0.1,
+        alpha: float = 0.3,
         alpha_schedule: str = "linear",
         n_eval_episodes: int = 4,
         mutation: str = "safe",
         target_flip_share: float | None = 0.1,
         frozen_groups: list[str] | None = None,
         fitness: str = "outcome",
-        min_gain: float = 0.0,
-        reevaluate: bool = True,
+        min_gain: float = 0.05,
+        n_reevaluation_episodes: int = 8,
         max_eps_share: float | None = 0.1,
         sensitivity_batch_size: int = 128,
         sensitivity_floor: float = 0.01,
@@ -214,7 +219,7 @@ class EvolutionCallback(BaseCallback):
         self.frozen_groups: list[str] | None = arguments["frozen_groups"]
         self.fitness: str = arguments["fitness"]
         self.min_gain: float = arguments["min_gain"]
-        self.reevaluate: bool = arguments["reevaluate"]
+        self.n_reevaluation_episodes: int = arguments["n_reevaluation_episodes"]
         self.max_eps_share: float | None = arguments["max_eps_share"]
         self.sensitivity_batch_size = sensitivity_batch_size
         self.sensitivity_floor = sensitivity_floor
@@ -360,7 +365,7 @@ class EvolutionCallback(BaseCallback):
             "mean_abs_q": float(outputs[0].abs().mean()),
         }
         try:
-            result = self._evaluate(population, record, "")  # line 10
+            result = self._evaluate(population, record)  # line 10
             winner = select_best(result.fitness)  # line 11, Eq. 4
             accepted = self._accept(population, result, winner, record)
         except EvaluationFailed as error:
@@ -398,40 +403,75 @@ class EvolutionCallback(BaseCallback):
         self._scale, _ = calibrate_scale(flip_share_at, self.target_flip_share, initial)
         return self._scale
 
-    def _evaluate(
-        self, population: Parameters, record: dict[str, Any], prefix: str, active: np.ndarray | None = None
-    ) -> PopulationResult:
-        """Play the population on fresh common-random-number episodes; count the ticks; note the episodes."""
+    def _play(
+        self, population: Parameters, active: np.ndarray | None = None
+    ) -> tuple[list[int], PopulationResult]:
+        """Play the population on fresh common-random-number episodes and count their ticks."""
         assert self._pool is not None and self._rng is not None
         seeds = [int(seed) for seed in self._rng.integers(2**31 - 1, size=self.n_eval_episodes)]
         result = evaluate_population(self._pool, population, seeds, self.eval_timeout, self.fitness, active)
         self.eps_ticks += int(result.lengths.sum())
-        record[f"{prefix}round_ticks"] = int(result.lengths.sum())
-        record[f"{prefix}episode_seeds"] = seeds
-        record[f"{prefix}returns"] = result.returns.tolist()
-        record[f"{prefix}successes"] = result.successes.astype(int).tolist()
-        record[f"{prefix}outcomes"] = result.outcomes.tolist() if result.outcomes is not None else None
-        record[f"{prefix}episode_lengths"] = result.lengths.tolist()
-        record[f"{prefix}fitness"] = result.fitness.tolist()
+        return seeds, result
+
+    def _evaluate(self, population: Parameters, record: dict[str, Any]) -> PopulationResult:
+        """Algorithm 1, line 10, with every episode noted in the round's record."""
+        seeds, result = self._play(population)
+        outcomes = result.outcomes if result.outcomes is not None else np.zeros_like(result.lengths)
+        record.update(
+            round_ticks=int(result.lengths.sum()),
+            episode_seeds=seeds,
+            returns=result.returns.tolist(),
+            successes=result.successes.astype(int).tolist(),
+            outcomes=outcomes.tolist(),
+            episode_lengths=result.lengths.tolist(),
+            fitness=result.fitness.tolist(),
+        )
         return result
 
     def _accept(
         self, population: Parameters, result: PopulationResult, winner: int, record: dict[str, Any]
     ) -> bool:
-        """The acceptance rule: a gain over copy 0 beyond ``min_gain``, again on fresh episodes if ``reevaluate``."""
+        """The acceptance rule: a gain over copy 0 beyond ``min_gain``, and again on fresh episodes."""
         fitness = result.fitness
         gain = float(fitness[winner] - fitness[0]) if np.isfinite(fitness[0]) else float("nan")
         finite = np.sort(fitness[np.isfinite(fitness)])
         record["gain"] = gain
         record["runner_up_margin"] = float(finite[-1] - finite[-2]) if finite.size >= 2 else float("nan")
         accepted = winner != 0 and gain_accepted(gain, self.min_gain)
-        if accepted and self.reevaluate:
-            active = np.zeros(self.n_individuals, dtype=bool)
-            active[[0, winner]] = True
-            fresh = self._evaluate(population, record, "reevaluation_", active)
-            record["reevaluation_gain"] = float(fresh.fitness[winner] - fresh.fitness[0])
+        if accepted and self.n_reevaluation_episodes > 0:
+            record["reevaluation"] = self._reevaluate(population, winner)
+            record["reevaluation_gain"] = record["reevaluation"]["gain"]
             accepted = gain_accepted(record["reevaluation_gain"], self.min_gain)
         return accepted
+
+    def _reevaluate(self, population: Parameters, winner: int) -> dict[str, Any]:
+        """Copy 0 and the winner on ``n_reevaluation_episodes`` fresh episodes (in batches of the pool's size)."""
+        active = np.zeros(self.n_individuals, dtype=bool)
+        active[[0, winner]] = True
+        pair = [0, winner]
+        seeds: list[int] = []
+        returns, outcomes, lengths = [], [], []
+        for _ in range(-(-self.n_reevaluation_episodes // self.n_eval_episodes)):  # ceil
+            batch_seeds, result = self._play(population, active)
+            seeds += batch_seeds
+            returns.append(result.returns[pair])
+            outcomes.append(
+                result.outcomes[pair] if result.outcomes is not None else np.zeros_like(result.lengths[pair])
+            )
+            lengths.append(result.lengths[pair])
+            valid = result.valid[pair]
+        returns_, outcomes_ = np.concatenate(returns, axis=1), np.concatenate(outcomes, axis=1)
+        fitness = population_fitness(returns_, outcomes_, valid, self.fitness)
+        return {
+            "episode_seeds": seeds,
+            "returns": returns_.tolist(),
+            "successes": (outcomes_ == 1).astype(int).tolist(),
+            "outcomes": outcomes_.tolist(),
+            "episode_lengths": np.concatenate(lengths, axis=1).tolist(),
+            "fitness": fitness.tolist(),
+            "gain": float(fitness[1] - fitness[0]) if np.isfinite(fitness[0]) else float("nan"),
+            "ticks": int(sum(int(part.sum()) for part in lengths)),
+        }
 
     def _current_alpha(self) -> float:
         """Eq. 5's alpha of this round under ``alpha_schedule``."""
@@ -466,8 +506,9 @@ class EvolutionCallback(BaseCallback):
         if done:
             expected = float(np.mean(done))
         else:  # half of the most a round can cost, reevaluation included
-            n_played = self.n_individuals + (2 if self.reevaluate else 0)
-            expected = 0.5 * n_played * self.n_eval_episodes * self._episode_limit
+            n_reevaluations = -(-self.n_reevaluation_episodes // self.n_eval_episodes)  # ceil
+            n_played = (self.n_individuals + 2 * n_reevaluations) * self.n_eval_episodes
+            expected = 0.5 * n_played * self._episode_limit
         return self.eps_ticks + expected <= self.max_eps_share * self._model_ticks()
 
     def _sensitivities(self, q_net: nn.Module, observations: th.Tensor) -> list[Parameters]:
@@ -537,7 +578,7 @@ class EvolutionCallback(BaseCallback):
     def _record_round(self, record: dict[str, Any], wall_time: float) -> None:
         self.n_rounds += 1
         self.eps_time += wall_time
-        ticks_spent = record["round_ticks"] + record.get("reevaluation_round_ticks", 0)
+        ticks_spent = record["round_ticks"] + record.get("reevaluation", {}).get("ticks", 0)
         ticks_spent += record.get("team_check_ticks", 0)
         record = {
             "round": self.n_rounds,
@@ -777,6 +818,10 @@ def _check_arguments(**values: Any) -> None:
     max_share = values["max_eps_share"]
     if max_share is not None and not max_share > 0:
         raise ValueError(f"max_eps_share must be > 0 or None (no budget), got {max_share!r}")
+    if not isinstance(values["n_reevaluation_episodes"], int) or values["n_reevaluation_episodes"] < 0:
+        raise ValueError(
+            f"n_reevaluation_episodes must be an int >= 0 (0: no reevaluation), got {values['n_reevaluation_episodes']!r}"
+        )
     if not isinstance(values["n_team_check_episodes"], int) or values["n_team_check_episodes"] < 0:
         raise ValueError(
             f"n_team_check_episodes must be an int >= 0, got {values['n_team_check_episodes']!r}"
