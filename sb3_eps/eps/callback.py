@@ -567,7 +567,8 @@ class EvolutionCallback(BaseCallback):
             return None
         if self.diagnostics_path is not None:
             return RoundLog(self.diagnostics_path)
-        folder = self.logger.get_dir() if self.logger is not None else None
+        logger = getattr(self.model, "_logger", None)  # set by learn(); absent when init_callback is called alone
+        folder = logger.get_dir() if logger is not None else None
         return RoundLog(os.path.join(folder, DIAGNOSTICS_NAME)) if folder else None
 
     def _write(self, record: dict[str, Any]) -> None:
@@ -745,7 +746,8 @@ class EvolutionCallback(BaseCallback):
                 f"eval_env_kwargs {self.eval_env_kwargs} do not fit {self.eval_env_id!r}: {error}"
             ) from None
         spec_limit = env.spec.max_episode_steps if env.spec is not None else None
-        self._episode_limit = int(getattr(env, "max_episode_steps", None) or spec_limit or 0)
+        limit = getattr(env, "max_episode_steps", None) or getattr(env, "max_cycles", None) or spec_limit
+        self._episode_limit = int(limit or 0)
         try:
             for kind in ("observation_space", "action_space"):
                 ours, theirs = getattr(env, kind), getattr(self.model, kind)
