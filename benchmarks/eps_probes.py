@@ -11,6 +11,9 @@
 - ``quality``: how good the mutants are, measured on many episodes: for target shares of changed greedy actions,
   every mutant and copy 0 on ``--episodes`` common-random-number episodes; the distribution of the mutants' gains
   over copy 0 (what a selection on few episodes tries to find).
+- ``acceptance``: rounds as the defaults run them (calibrated mutants, outcome fitness, ``--episode-counts``
+  episodes, ``min_gain`` 0.05, copy 0 and the winner reevaluated on ``--fresh`` episodes), and every winner's true
+  gain estimated on ``--truth`` further episodes: do accepted winners beat copy 0, and rejected ones not?
 - ``margins``: EPS rounds without crossover (calibrated mutants, outcome fitness) for several numbers of
   episodes: how often a mutant wins, by how much, and whether its gain holds on fresh episodes (copy 0 and the
   winner replayed on ``--fresh`` new episodes).
@@ -268,12 +271,67 @@ def probe_quality(model: GDQ, args: argparse.Namespace) -> None:
     pool.close()
 
 
+def probe_acceptance(model: GDQ, args: argparse.Namespace) -> None:
+    q_net = model.policy.q_net
+    observations = visited_observations(model, args.ticks, args.seed)
+    rng = np.random.default_rng(args.seed + 1)
+    kwargs = {"scenario": "eps_pillars", "max_episode_steps": 400}
+    n_episodes = args.episode_counts[0]
+    pool = InProcessEnvPool(EPS_ENV, kwargs, args.mutants + 1, n_episodes, q_net)
+    pair_pools = {
+        count: InProcessEnvPool(EPS_ENV, kwargs, 2, count, q_net) for count in (args.fresh, args.truth)
+    }
+
+    def pair_gain(population: dict[str, th.Tensor], winner: int, count: int) -> float:
+        pair = {name: th.stack([stacked[0], stacked[winner]]) for name, stacked in population.items()}
+        seeds = [int(seed) for seed in rng.integers(2**31 - 1, size=count)]
+        fitness = evaluate_population(pair_pools[count], pair, seeds, 900, "outcome").fitness
+        return float(fitness[1] - fitness[0])
+
+    print(f"| round | winner | selection gain ({n_episodes} ep.) | fresh gain ({args.fresh} ep.) | accepted | "
+          f"true gain ({args.truth} ep.) |")  # fmt: skip
+    print("|---|---|---|---|---|---|")
+    rows = []
+    for round_index in range(args.rounds):
+        population, _ = calibrated_population(q_net, observations, rng, args.mutants, 0.1)
+        seeds = [int(seed) for seed in rng.integers(2**31 - 1, size=n_episodes)]
+        result = evaluate_population(pool, population, seeds, 900, "outcome")
+        winner = select_best(result.fitness)
+        gain = float(result.fitness[winner] - result.fitness[0])
+        if winner == 0:
+            print(f"| {round_index} | 0 | 0 | | no | |")
+            continue
+        fresh = pair_gain(population, winner, args.fresh) if gain > 0.05 else float("nan")
+        accepted = gain > 0.05 and fresh > 0.05
+        truth = pair_gain(population, winner, args.truth)
+        rows.append((accepted, gain > 0.05, truth))
+        print(
+            f"| {round_index} | {winner} | {gain:.3f} | {fresh:.3f} | {'yes' if accepted else 'no'} | {truth:.3f} |"
+        )
+    for pool_ in (pool, *pair_pools.values()):
+        pool_.close()
+    print("\n| winners | count | mean true gain | true gain > 0 |")
+    print("|---|---|---|---|")
+    groups = {
+        "all winners (paper rule: any gain)": rows,
+        "selection gain > 0.05": [row for row in rows if row[1]],
+        "accepted (also fresh gain > 0.05)": [row for row in rows if row[0]],
+        "rejected": [row for row in rows if not row[0]],
+    }
+    for label, group in groups.items():
+        truths = [row[2] for row in group]
+        mean = f"{np.mean(truths):.3f}" if truths else "-"
+        print(f"| {label} | {len(group)} | {mean} | {sum(t > 0 for t in truths)} |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("model", help="a GDQ model of MultiRobotNav-4-v0 (.zip)")
-    parser.add_argument("--probe", choices=("mutation", "worlds", "quality", "margins"), required=True)
+    parser.add_argument(
+        "--probe", choices=("mutation", "worlds", "quality", "acceptance", "margins"), required=True
+    )
     parser.add_argument("--targets", type=float, nargs="+", default=[0.05, 0.1, 0.3], help="(quality)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--ticks", type=int, default=500, help="ticks of greedy play for the observations")
@@ -282,7 +340,10 @@ def main() -> None:
     parser.add_argument("--episode-counts", type=int, nargs="+", default=[2, 4, 8], help="(margins)")
     parser.add_argument("--rounds", type=int, default=5, help="rounds per episode count (margins)")
     parser.add_argument(
-        "--fresh", type=int, default=16, help="fresh episodes of copy 0 and the winner (margins)"
+        "--fresh", type=int, default=16, help="fresh episodes of copy 0 and the winner (margins, acceptance)"
+    )
+    parser.add_argument(
+        "--truth", type=int, default=24, help="episodes estimating a winner's true gain (acceptance)"
     )
     args = parser.parse_args()
     th.set_num_threads(1)
@@ -292,6 +353,7 @@ def main() -> None:
         "mutation": probe_mutation,
         "worlds": probe_worlds,
         "quality": probe_quality,
+        "acceptance": probe_acceptance,
         "margins": probe_margins,
     }
     probes[args.probe](model, args)
