@@ -355,7 +355,8 @@ def test_gaussian_mutation_and_per_robot_sensitivity_run() -> None:
 
 def test_it_runs_with_gdq_on_the_robot_worlds() -> None:
     model = tiny_model(GDQ, env_id="MultiRobotNav-2-v0", n_envs=1, train_freq=4)
-    callback = EvolutionCallback(  # the default EPS (calibrated, outcome fitness, reevaluation), without budget
+    # The default EPS (calibrated, outcome fitness, reevaluation), without the tick budget.
+    callback = EvolutionCallback(
         eval_env_id=envs.eps_env_id_for("MultiRobotNav-2-v0"),
         population_size=2,
         period=40,

@@ -567,7 +567,8 @@ class EvolutionCallback(BaseCallback):
             return None
         if self.diagnostics_path is not None:
             return RoundLog(self.diagnostics_path)
-        logger = getattr(self.model, "_logger", None)  # set by learn(); absent when init_callback is called alone
+        # The logger is set by learn(); it is absent when init_callback is called on its own.
+        logger = getattr(self.model, "_logger", None)
         folder = logger.get_dir() if logger is not None else None
         return RoundLog(os.path.join(folder, DIAGNOSTICS_NAME)) if folder else None
 
