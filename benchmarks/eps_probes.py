@@ -310,8 +310,9 @@ def probe_acceptance(model: GDQ, args: argparse.Namespace) -> None:
         )
     for pool_ in (pool, *pair_pools.values()):
         pool_.close()
-    print("\n| winners | count | mean true gain | true gain > 0 |")
-    print("|---|---|---|---|")
+    # Beyond 0.02 a gain is at least one episode ending better on balance, not the return's tie-break alone.
+    print("\n| winners | count | mean true gain | true gain > 0.02 | true gain < -0.02 |")
+    print("|---|---|---|---|---|")
     groups = {
         "all winners (paper rule: any gain)": rows,
         "selection gain > 0.05": [row for row in rows if row[1]],
@@ -321,7 +322,8 @@ def probe_acceptance(model: GDQ, args: argparse.Namespace) -> None:
     for label, group in groups.items():
         truths = [row[2] for row in group]
         mean = f"{np.mean(truths):.3f}" if truths else "-"
-        print(f"| {label} | {len(group)} | {mean} | {sum(t > 0 for t in truths)} |")
+        better, worse = sum(t > 0.02 for t in truths), sum(t < -0.02 for t in truths)
+        print(f"| {label} | {len(group)} | {mean} | {better} | {worse} |")
 
 
 def main() -> None:
