@@ -429,3 +429,11 @@ def test_state_dict_round_trip() -> None:
     assert restored._scale == callback._scale and restored.eps_ticks == callback.eps_ticks
     assert th.equal(restored._generator.get_state(), callback._generator.get_state())
     restored._on_training_end()
+    # The attribute dictionary of checkpoints written before state_dict() existed.
+    old_format = {
+        "eps_ticks": 7, "n_rounds": 1, "n_skipped_rounds": 0, "eps_time": 1.0,
+        "history": [{"round": 1, "episode_lengths": [[3, 4]], "skipped": False}],
+        "_rng": np.random.default_rng(1), "_last_round_mark": 5, "_generator": state["generator"],
+    }  # fmt: skip
+    restored.load_state_dict(old_format)
+    assert restored.eps_ticks == 7 and restored._last_round_mark == 5 and restored._scale is None

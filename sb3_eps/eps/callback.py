@@ -292,7 +292,18 @@ class EvolutionCallback(BaseCallback):
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Restore :meth:`state_dict` (after ``init_callback``, which made the generators)."""
+        """Restore :meth:`state_dict` (after ``init_callback``, which made the generators).
+
+        Also takes the attribute dictionary that checkpoints held before the callback had a ``state_dict``.
+        """
+        if "_rng" in state:
+            state = {
+                **state,
+                "scale": None,
+                "rng": state["_rng"],
+                "generator": state.get("_generator"),
+                "last_round_mark": state["_last_round_mark"],
+            }
         self.eps_ticks, self.n_rounds = int(state["eps_ticks"]), int(state["n_rounds"])
         self.n_skipped_rounds, self.eps_time = int(state["n_skipped_rounds"]), float(state["eps_time"])
         self.history = copy.deepcopy(state["history"])
@@ -502,7 +513,11 @@ class EvolutionCallback(BaseCallback):
         """Whether a round now keeps the EPS ticks within ``max_eps_share`` of the training ticks."""
         if self.max_eps_share is None:
             return True
-        done = [record["ticks_spent"] for record in self.history if not record.get("skipped")]
+        done = [
+            record.get("ticks_spent", int(np.sum(record.get("episode_lengths", 0))))
+            for record in self.history
+            if not record.get("skipped")
+        ]
         if done:
             expected = float(np.mean(done))
         else:  # half of the most a round can cost, reevaluation included
