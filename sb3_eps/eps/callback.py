@@ -195,32 +195,31 @@ class EvolutionCallback(BaseCallback):
         verbose: int = 0,
     ) -> None:
         super().__init__(verbose=verbose)
-        arguments = {
-            name: value
-            for name, value in locals().items()
-            if name in PAPER_SETTINGS and name != "eval_env_kwargs"
-        }
         _check_arguments(
-            **arguments, sigma=sigma, mutation=mutation, sensitivity_batch_size=sensitivity_batch_size,
-            sensitivity_floor=sensitivity_floor, max_step=max_step, n_workers=n_workers, eval_timeout=eval_timeout,
-            per_robot=per_robot, n_team_check_episodes=n_team_check_episodes,
+            population_size=population_size, period=period, period_unit=period_unit, sigma=sigma, alpha=alpha,
+            alpha_schedule=alpha_schedule, n_eval_episodes=n_eval_episodes, mutation=mutation,
+            target_flip_share=target_flip_share, frozen_groups=frozen_groups, fitness=fitness, min_gain=min_gain,
+            n_reevaluation_episodes=n_reevaluation_episodes, max_eps_share=max_eps_share,
+            sensitivity_batch_size=sensitivity_batch_size, sensitivity_floor=sensitivity_floor, max_step=max_step,
+            n_workers=n_workers, eval_timeout=eval_timeout, per_robot=per_robot,
+            n_team_check_episodes=n_team_check_episodes,
         )  # fmt: skip
         check_eval_env_id(eval_env_id)
         self.eval_env_id = eval_env_id
-        self.population_size: int = arguments["population_size"]
-        self.period: int = arguments["period"]
-        self.period_unit: str = arguments["period_unit"]
+        self.population_size = population_size
+        self.period = period
+        self.period_unit = period_unit
         self.sigma = DEFAULT_SIGMA[mutation] if sigma is None else sigma
-        self.alpha: float = arguments["alpha"]
-        self.alpha_schedule: str = arguments["alpha_schedule"]
-        self.n_eval_episodes: int = arguments["n_eval_episodes"]
+        self.alpha = alpha
+        self.alpha_schedule = alpha_schedule
+        self.n_eval_episodes = n_eval_episodes
         self.mutation = mutation
-        self.target_flip_share: float | None = arguments["target_flip_share"]
-        self.frozen_groups: list[str] | None = arguments["frozen_groups"]
-        self.fitness: str = arguments["fitness"]
-        self.min_gain: float = arguments["min_gain"]
-        self.n_reevaluation_episodes: int = arguments["n_reevaluation_episodes"]
-        self.max_eps_share: float | None = arguments["max_eps_share"]
+        self.target_flip_share = target_flip_share
+        self.frozen_groups = None if frozen_groups is None else list(frozen_groups)
+        self.fitness = fitness
+        self.min_gain = min_gain
+        self.n_reevaluation_episodes = n_reevaluation_episodes
+        self.max_eps_share = max_eps_share
         self.sensitivity_batch_size = sensitivity_batch_size
         self.sensitivity_floor = sensitivity_floor
         self.max_step = max_step
