@@ -412,9 +412,14 @@ def test_bad_new_arguments_raise_value_errors(kwargs, message) -> None:
         new_callback(**kwargs)
 
 
-def test_an_unknown_frozen_group_fails_before_training() -> None:
+def test_an_unknown_frozen_group_or_an_unknown_team_env_fails_before_training() -> None:
     with pytest.raises(ValueError, match="names no parameter"):
         tiny_model(IQL).learn(30, callback=new_callback(frozen_groups=["value"]))
+    from stable_baselines3 import DQN
+
+    dqn = DQN("MlpPolicy", envs.make_single_env(MPE_SINGLE), policy_kwargs={"net_arch": [16]})
+    with pytest.raises(ValueError, match="n_team_check_episodes"):
+        dqn.learn(30, callback=new_callback(n_team_check_episodes=1))
 
 
 def test_state_dict_round_trip() -> None:

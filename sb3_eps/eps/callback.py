@@ -494,9 +494,7 @@ class EvolutionCallback(BaseCallback):
             return
         from sb3_eps.common.evaluation import evaluate_team
 
-        env_id = getattr(self.model.get_env(), "env_id", None)
-        if env_id is None:
-            raise ValueError("n_team_check_episodes > 0 needs a training env made by sb3_eps.make_vec_env")
+        env_id = self.model.get_env().env_id  # type: ignore[union-attr]  # checked in _check_model
         if when == "before":
             record["team_check_seed"] = int(self._rng.integers(2**31 - 1))  # type: ignore[union-attr]
         summary = evaluate_team(
@@ -747,6 +745,11 @@ class EvolutionCallback(BaseCallback):
             raise ValueError(
                 f"EvolutionCallback samples visited observations from model.replay_buffer; "
                 f"{type(self.model).__name__} has no replay buffer: use an off-policy model (IQL, GDQ, QMIX, VDN)"
+            )
+        if self.n_team_check_episodes > 0 and getattr(self.model.get_env(), "env_id", None) is None:
+            raise ValueError(
+                "n_team_check_episodes > 0 replays the training env, which needs a vec env made by "
+                "sb3_eps.make_vec_env (it records its env_id); set n_team_check_episodes=0"
             )
         if self.per_robot and int(getattr(self.model, "n_agents", 0)) < 1:
             raise ValueError("per_robot=True needs a multi-agent model (model.n_agents); set per_robot=False")
