@@ -233,8 +233,9 @@ def _scripted(monkeypatch, selection: list[float], fresh: list[float], calls: li
 
 @pytest.mark.parametrize(("fresh", "crossed"), [([1.0, 1.0], False), ([1.0, 30.0], True)])
 def test_reevaluation_decides_the_crossover(monkeypatch, fresh, crossed) -> None:
-    model = tiny_model(GDQ, learning_starts=10**6, n_steps=1)
+    model = tiny_model(IQL, learning_starts=10**6, n_steps=1)  # IQL: a target network too
     before = network_parameters(model.policy.q_net)
+    target_before = network_parameters(model.policy.q_net_target)
     calls: list = []
     _scripted(monkeypatch, [0.0, 20.0, 1.0, 2.0], fresh, calls)  # individual 1 wins the selection by 0.2
     callback = new_callback(period=1, fitness="outcome", alpha=0.5, alpha_schedule="constant")
@@ -249,11 +250,16 @@ def test_reevaluation_decides_the_crossover(monkeypatch, fresh, crossed) -> None
         for name, param in model.policy.q_net.named_parameters()
         if not th.equal(param.detach(), before[name])
     }
+    target_changed = {
+        name
+        for name, param in model.policy.q_net_target.named_parameters()
+        if not th.equal(param.detach(), target_before[name])
+    }
     if crossed:
-        assert changed == set(callback.evolved_parameters) and record["mean_abs_delta"] > 0
+        assert changed == target_changed == set(callback.evolved_parameters) and record["mean_abs_delta"] > 0
         assert not any(name.startswith("value_stream") for name in changed)
     else:
-        assert changed == set() and record["mean_abs_delta"] == 0.0
+        assert changed == target_changed == set() and record["mean_abs_delta"] == 0.0
     # The reevaluation's ticks (copy 0 and the winner, 2 episodes each) are EPS ticks.
     assert callback.eps_ticks == 4 * 2 * MPE_EPISODE + 2 * 2 * MPE_EPISODE == record["ticks_spent"]
 
