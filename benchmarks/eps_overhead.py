@@ -150,8 +150,9 @@ def round_seconds(model: GDQ, args: argparse.Namespace) -> None:
     for _ in range(args.repeats):
         for name, kwargs in configs:
             model.policy.load_state_dict(snapshot)
-            # period 1 tick: a round at every rollout end, i.e. rounds_per_config rounds.
-            callback = EvolutionCallback(
+            # period 1 tick: a round at every rollout end, i.e. rounds_per_config rounds. Algorithm 1's settings
+            # (population 10, 2 episodes, no budget, no reevaluation) keep the rounds comparable with the table.
+            callback = EvolutionCallback.paper(
                 eval_env_id=envs.eps_env_id_for(args.env),
                 period=1,
                 period_unit="ticks",

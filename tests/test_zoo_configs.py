@@ -177,7 +177,7 @@ def test_hyperparams_override_and_round_trip(tmp_path) -> None:
     assert entry["learning_rate"] == "lin_1e-3" and entry["train_freq"] == [2, "episode"]
     assert entry["policy_kwargs"] == {"net_arch": [32], "activation_fn": "nn.Tanh"}  # a full mapping replaces
     assert entry["callback"][0][EVOLUTION_CALLBACK]["sigma"] == 0.01
-    assert entry["callback"][0][EVOLUTION_CALLBACK]["population_size"] == 10  # the others stay
+    assert entry["callback"][0][EVOLUTION_CALLBACK]["population_size"] == 5  # the others stay (the default)
     assert entry["env_kwargs"] == {"max_cycles": 10} and entry["gamma"] == 0.1 and entry["n_timesteps"] == 123
     kwargs = algorithm_kwargs(entry)
     assert kwargs["learning_rate"](1.0) == pytest.approx(1e-3) and kwargs["learning_rate"](

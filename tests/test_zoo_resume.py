@@ -14,6 +14,7 @@ import torch as th
 from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_eps import train
+from sb3_eps.eps.diagnostics import read_round_log
 from sb3_eps.zoo.checkpoint import read_checkpoint_meta
 from sb3_eps.zoo.errors import ConfigError
 
@@ -28,6 +29,8 @@ ARGV = [
     "learning_starts:300", "batch_size:16", "buffer_size:2000", "train_freq:3", "n_envs:2",
     "callback.population_size:2", "callback.n_workers:0", "callback.period:6", "callback.n_eval_episodes:1",
     "callback.sensitivity_batch_size:16",
+    # A round every 6 world episodes as before issue 10's defaults (a round every 10k ticks within a 10 % budget).
+    "callback.period_unit:episodes", "callback.max_eps_share:1.0", "callback.n_reevaluation_episodes:1",
 ]  # fmt: skip
 
 
@@ -100,6 +103,11 @@ def test_resume_equals_the_uninterrupted_run(uninterrupted, tmp_path, stop) -> N
     for key in expected_evaluations:
         np.testing.assert_array_equal(evaluations[key], expected_evaluations[key], err_msg=key)
     assert evaluations["eps_ticks"][-1] > 0  # EPS rounds ran, before and after the interruption
+    # The EPS round log holds each round once, as the uninterrupted run's (wall times aside).
+    rounds, expected_rounds = (read_round_log(folder / "eps_rounds.jsonl") for folder in (run, uninterrupted))
+    assert len(rounds) == len(expected_rounds) >= 2
+    for record, expected_record in zip(rounds, expected_rounds, strict=True):
+        assert {**record, "wall_time": 0} == {**expected_record, "wall_time": 0}
     assert not (run / "checkpoint.zip").exists()
 
     # A finished run is not trained again.

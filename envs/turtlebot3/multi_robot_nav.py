@@ -75,9 +75,10 @@ class MultiRobotNavEnv(ParallelEnv):
       ``"targets"`` ``(n, 2)``, and in the unseen world ``"target_set"`` (index into its fixed sequence);
       other keys are ignored.
 
-    :param n_robots: number of robots (1-16 in ``"arena"``, 1-4 in ``"eps"`` and ``"unseen"``)
+    :param n_robots: number of robots (1-16 in ``"arena"``, 1-4 in the ``"eps*"`` worlds and ``"unseen"``)
     :param scenario: ``"arena"`` (walls only, side 3 m + 0.25 m per robot), ``"eps"`` (the single-robot EPS
-        world with bars) or ``"unseen"`` (the evaluation room: fixed starts, fixed cycling target sequence)
+        world with bars), ``"eps_pillars"`` (the 4 m arena with three robot-sized pillars), ``"eps_open"`` (the
+        4 m arena, walls only) or ``"unseen"`` (the evaluation room: fixed starts, fixed cycling target sequence)
     :param max_episode_steps: time limit in ticks; None = 150 ticks per metre of the room's side
         (600 = 30 s for the 4 m arena)
     :param render_mode: None, ``"rgb_array"`` (top-down picture) or ``"human"`` (PyBullet GUI; needs a display)

@@ -6,7 +6,8 @@ a thin one-robot view, so a policy moves between the two worlds unchanged.
 
 Version history (``metadata["name"]``; bump the suffix on any change of behaviour):
 
-- ``single_robot_nav_v0``: first version.
+- ``single_robot_nav_v0``: first version. The ``eps_pillars`` and ``eps_open`` scenarios were added later as new
+  options; the default world is unchanged, so the suffix stays.
 """
 
 from __future__ import annotations
@@ -28,8 +29,10 @@ class SingleRobotNavEnv(gymnasium.Env):
     terminates on arrival (reward +1, ``info["is_success"] = True``) or on a collision (-1), and is truncated
     after ``max_episode_steps`` ticks. ``info`` also carries ``"arrived"``, ``"collided"`` and ``"team"``.
 
-    :param scenario: ``"eps"`` (default: the EPS world with bars), ``"arena"`` (the 1-robot arena, walls only)
-        or ``"unseen"`` (robot 0 of the unseen room)
+    :param scenario: ``"eps"`` (default: the EPS world with bars, paper Fig. 3 left), ``"eps_pillars"`` (the
+        4-robot arena's 4 m walls with three robot-sized static pillars in place of the other robots: what
+        ``EvolutionCallback`` evaluates in by default), ``"eps_open"`` (the 4 m walls only), ``"arena"`` (the
+        1-robot arena, 3.25 m, walls only) or ``"unseen"`` (robot 0 of the unseen room)
     :param max_episode_steps: time limit in ticks; None = 150 ticks per metre of the room's side (600 here)
     :param render_mode: None, ``"rgb_array"`` or ``"human"`` (PyBullet GUI; needs a display)
     :param lidar_noise_std: standard deviation of Gaussian range noise [m]

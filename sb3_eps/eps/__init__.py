@@ -1,6 +1,7 @@
 """Evolutionary Policy Search (Marchesini & Farinelli, ICRA 2022) as an SB3 callback, and its math."""
 
-from sb3_eps.eps.callback import EvolutionCallback
+from sb3_eps.eps.callback import PAPER_SETTINGS, EvolutionCallback
+from sb3_eps.eps.diagnostics import RoundLog, read_round_log
 from sb3_eps.eps.evaluation import (
     EvaluationFailed,
     InProcessEnvPool,
@@ -8,26 +9,35 @@ from sb3_eps.eps.evaluation import (
     PopulationResult,
     SubprocessEnvPool,
     evaluate_population,
+    population_fitness,
 )
 from sb3_eps.eps.mutations import (
+    calibrate_scale,
     mutate_population,
     output_sensitivity,
+    policy_change,
     polyak_crossover_,
     safe_mutation_step,
     select_best,
 )
 
 __all__ = [
+    "PAPER_SETTINGS",
     "EvaluationFailed",
     "EvolutionCallback",
     "InProcessEnvPool",
     "PopulationForward",
     "PopulationResult",
+    "RoundLog",
     "SubprocessEnvPool",
+    "calibrate_scale",
     "evaluate_population",
     "mutate_population",
     "output_sensitivity",
+    "policy_change",
     "polyak_crossover_",
+    "population_fitness",
+    "read_round_log",
     "safe_mutation_step",
     "select_best",
 ]

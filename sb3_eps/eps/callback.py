@@ -15,7 +15,9 @@ import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 from torch import nn
 
+from sb3_eps.eps.diagnostics import DIAGNOSTICS_NAME, RoundLog
 from sb3_eps.eps.evaluation import (
+    FITNESS_KINDS,
     EnvPool,
     EvaluationFailed,
     InProcessEnvPool,
@@ -24,104 +26,165 @@ from sb3_eps.eps.evaluation import (
     check_eval_env_id,
     evaluate_population,
     make_eval_env,
+    population_fitness,
 )
 from sb3_eps.eps.mutations import (
     Parameters,
+    calibrate_scale,
+    evolved_parameter_names,
     individual,
-    mutate_population,
+    mutation_directions,
     network_parameters,
     output_sensitivity,
+    policy_change,
     polyak_crossover_,
+    population_from_directions,
+    population_outputs,
     select_best,
 )
 
 MUTATIONS = ("safe", "gaussian")
-# Noise scales giving a mean |Q change| of about 5-10 % of |Q| on a mid-training GDQ robot network (measured).
+# Noise scales giving a mean |Q change| of about 5-10 % of |Q| on a mid-training GDQ robot network (measured); with
+# a target_flip_share they are only the first scale the calibration tries.
 DEFAULT_SIGMA = {"safe": 0.001, "gaussian": 0.03}
 PERIOD_UNITS = ("episodes", "ticks")
+ALPHA_SCHEDULES = ("constant", "linear")
+#: Algorithm 1 as the paper gives it (and this package's EPS before issue 10's measurements): the arguments
+#: :meth:`EvolutionCallback.paper` sets. The bars world is ``SingleRobotNav-v0``'s default scenario.
+PAPER_SETTINGS: dict[str, Any] = {
+    "population_size": 10,
+    "period": 100,
+    "period_unit": "episodes",
+    "alpha": 0.3,
+    "alpha_schedule": "constant",
+    "n_eval_episodes": 2,
+    "target_flip_share": None,
+    "frozen_groups": [],
+    "fitness": "return",
+    "min_gain": 0.0,
+    "n_reevaluation_episodes": 0,
+    "max_eps_share": None,
+    "eval_env_kwargs": {},
+}
+#: The evaluation world's options when ``eval_env_kwargs`` is None, by evaluation env id: the default EPS world
+#: drops the thin bars the training worlds never show and puts three robot-sized pillars in the 4-robot arena's
+#: room, with a 400-tick limit (docs/results/eps_probes.md). Other ids: their own defaults.
+DEFAULT_EVAL_ENV_KWARGS: dict[str, dict[str, Any]] = {
+    "SingleRobotNav-v0": {"scenario": "eps_pillars", "max_episode_steps": 400},
+}
+#: The dueling network's state-value stream: greedy actions (hence fitness) never see it, GDQ feeds it to V_G'.
+VALUE_STREAM = "value_stream"
 
 
 class EvolutionCallback(BaseCallback):
     """Evolutionary Policy Search (EPS; Marchesini & Farinelli, "Enhancing Deep Reinforcement Learning
     Approaches for Multi-Robot Navigation via Single-Robot Evolutionary Policy Search", ICRA 2022, Algorithm 1).
 
-    Every ``period`` episodes (or ticks) of multi-agent training, at the end of a rollout (before the gradient
-    steps): copy the shared agent network ``model.policy.q_net`` ``population_size + 1`` times; mutate all copies
-    but copy 0 with Gaussian noise normalised by the output-gradient sensitivity of Eq. 6 (computed on visited
-    observations from the replay buffer); evaluate every copy greedily for ``n_eval_episodes`` episodes in
-    independent single-agent worlds; pick the best mean return (Eq. 4) and move the agent network (and its target
-    network, if any) toward it by Polyak averaging (Eq. 5). When the unmutated copy 0 wins nothing changes.
-    See ``docs/modules/eps.md`` for Algorithm 1 line by line.
+    A round, at the end of a rollout (before the gradient steps): copy the shared agent network
+    ``model.policy.q_net`` ``population_size + 1`` times; mutate all copies but copy 0 with Gaussian noise
+    normalised by the output-gradient sensitivity of Eq. 6 (computed on visited observations from the replay
+    buffer); evaluate every copy greedily for ``n_eval_episodes`` common-random-number episodes in independent
+    single-agent worlds; pick the best (Eq. 4) and move the agent network (and its target network, if any) toward it
+    by Polyak averaging (Eq. 5). When the unmutated copy 0 wins nothing changes. See ``docs/modules/eps.md``.
 
-    The defaults are chosen so that EPS costs at most about 10 % of GDQ's time on ``MultiRobotNav-4-v0``
-    (``benchmarks/eps_overhead.py``; figures in ``docs/benchmarks.md``).
+    :meth:`EvolutionCallback.paper` is Algorithm 1 as published (:data:`PAPER_SETTINGS`: fixed noise scale, every
+    weight mutated, mean return as fitness, any gain accepted, a round every 100 episodes, the bars world). The
+    defaults change what the measurements of ``docs/results/eps_probes.md`` showed to go wrong: the
+    mutation size is calibrated each round to change ``target_flip_share`` of the greedy actions on visited states;
+    the value stream is neither mutated nor crossed over; fitness ranks reaching the target above the shaped return
+    and waiting above crashing; the winner must beat copy 0 again on fresh episodes; alpha decays to 0 by the end of
+    training; rounds come by ticks and only while EPS has spent at most ``max_eps_share`` of the training ticks; the
+    evaluation world is the training arena's room with robot-sized pillars.
 
-    :param eval_env_id: the single-agent evaluation world (``"SingleRobotNav-v0"``, the robots' EPS world with
-        static obstacles; ``"CooperativeNavigationSingle-v0"`` for Cooperative Navigation; see
-        ``envs.eps_env_id_for``). Its observation and action spaces must equal the model's.
-    :param population_size: ``m``, the number of mutated copies; ``m + 1`` individuals are evaluated (the paper
-        adds the unmutated copy to the ``m`` mutants). Default 10, the population of the author's earlier
-        evolutionary work (ALGORITHMS.md section 2).
-    :param period: ``e_s`` of Algorithm 1, in ``period_unit``. Default 100 episodes of the multi-agent worlds
-        (episodes of all ``n_envs`` worlds together). The paper does not report ``e_s``; a default round on the
-        robot world costs about 4 CPU seconds (7-11k evaluation ticks), and 100 world episodes of
-        ``MultiRobotNav-4-v0`` (16k ticks or more) keep that within 10 % of GDQ's time (measured,
-        ``docs/benchmarks.md``). Lower it where evaluation is cheap (Cooperative Navigation) or cores are free.
-    :param period_unit: ``"episodes"`` (world episodes, as the paper's epochs) or ``"ticks"`` (simulator steps of
-        one world, summed over the worlds: ``model.ticks``). A round starts at the first rollout end after
-        ``period`` units since the previous round.
-    :param sigma: standard deviation of the Gaussian noise ``G ~ N(0, sigma)`` (Algorithm 1's baseline mutation).
-        Default None: 0.001 for ``mutation="safe"``, 0.03 for ``"gaussian"``. Both move the Q-values of a
-        mid-training GDQ robot network by about 5-10 % of their mean magnitude (measured, docs/modules/eps.md):
-        dividing by the sensitivity enlarges the noise wherever ``omega < 1``, which is most weights, so equal
-        sigmas would not compare the two operators at equal disruption. The paper reports no value.
-    :param alpha: share of the best individual in the crossover, Eq. 5, in [0, 1]. Default 0.3: the paper found
-        alpha >= 0.4 harmful and alpha < 0.4 helpful.
-    :param n_eval_episodes: episodes per individual; fitness is their mean return (Eq. 4). Default 2: with
-        common random numbers (every individual plays the same seeded episodes) two episodes already compare
-        individuals fairly, and evaluation dominates the cost of a round.
-    :param mutation: ``"safe"`` (Eq. 6-normalised noise, the paper's operator) or ``"gaussian"`` (plain noise,
-        the ablation).
+    :param eval_env_id: the single-agent evaluation world (``"SingleRobotNav-v0"`` for the robots,
+        ``"CooperativeNavigationSingle-v0"`` for Cooperative Navigation; see ``envs.eps_env_id_for``). Its
+        observation and action spaces must equal the model's.
+    :param population_size: ``m``, the number of mutated copies; ``m + 1`` individuals are evaluated. Default 5
+        (paper: 10, the author's earlier evolutionary work)
+    :param period: the least number of ``period_unit`` between two rounds (``e_s`` of Algorithm 1). Default 10,000
+        ticks; the budget ``max_eps_share`` usually spaces the rounds further
+    :param period_unit: ``"ticks"`` (simulator steps of one world, summed over the worlds: ``model.ticks``) or
+        ``"episodes"`` (world episodes, the paper's epochs). A round starts at the first rollout end after ``period``
+        units since the previous round (and within the budget)
+    :param sigma: the noise scale ``G ~ N(0, sigma)``. With ``target_flip_share`` it is only the calibration's first
+        guess (later rounds start from the previous round's scale). Default None: 0.001 for ``mutation="safe"``,
+        0.03 for ``"gaussian"``
+    :param alpha: share of the best individual in the crossover, Eq. 5, in [0, 1]. Default 0.3 (the paper found
+        alpha >= 0.4 harmful), decaying under ``alpha_schedule``
+    :param alpha_schedule: ``"linear"`` (default): ``alpha`` times the share of training still to come
+        (``model._current_progress_remaining``), so crossovers fade out before the final evaluations;
+        ``"constant"``: always ``alpha``
+    :param n_eval_episodes: common-random-number episodes per individual. Default 4 (paper settings: 2)
+    :param mutation: ``"safe"`` (Eq. 6-normalised noise, the paper's operator) or ``"gaussian"`` (plain noise)
+    :param target_flip_share: calibrate the noise scale each round so that the mutants change on average this share
+        of the greedy actions on the visited observations of the sensitivity batch (:func:`calibrate_scale`);
+        None keeps the fixed ``sigma``. Default 0.1
+    :param frozen_groups: parameter groups (module or parameter names of ``q_net``) neither mutated nor crossed
+        over. Default None: the value stream of a dueling network (``["value_stream"]``), nothing for other networks;
+        ``[]`` evolves every weight (paper)
+    :param fitness: ``"outcome"`` (default: mean of +1 reached / 0 timed out / -1 failed per episode, plus 0.01 x
+        the mean return) or ``"return"`` (the paper's mean return); see :func:`population_fitness`
+    :param min_gain: the winner's fitness must exceed copy 0's by more than this, in the selection and in the
+        reevaluation. Default 0.05: with ``fitness="outcome"`` more than the return's tie-break can give (0.01 x a
+        few units of return), so at least one episode must end better on balance; 0 accepts any gain (paper)
+    :param n_reevaluation_episodes: before a crossover, play copy 0 and the winner again on this many fresh
+        common-random-number episodes (rounded up to a multiple of ``n_eval_episodes``) and cross over only if the
+        winner beats copy 0 by more than ``min_gain`` there too; the ticks count as EPS ticks. Against the winner's
+        curse: the best of ``m + 1`` noisy scores wins by chance (docs/results/eps_probes.md). Default 8; 0: no
+        reevaluation (paper)
+    :param max_eps_share: a round starts only if the EPS ticks so far plus the expected cost of the round stay
+        within this share of the training ticks (default 0.1; None: no budget). The expected cost is the mean of the
+        previous rounds, or before the first round half of the most the round can cost
     :param sensitivity_batch_size: ``|b|``, visited observations (alive agents' entries) sampled from the replay
-        buffer for Eq. 6. Default 128, about the 100 states of Lehman et al.'s safe mutations.
-    :param sensitivity_floor: lower bound on the sensitivity ``omega`` (a sensitivity of exactly 0 counts as 1),
-        so a step is at most ``|G| / floor``. Default 0.01, as in Lehman et al.'s reference implementation.
-    :param max_step: per-weight clip on the safe mutation's step. Default 0.2, Lehman et al.'s value (their maze
-        domain); ``float("inf")`` disables it. Not applied to ``mutation="gaussian"``.
-    :param n_workers: evaluation worker processes, each evaluating a block of whole individuals; 0 evaluates in
-        the main process. Default None: one per CPU core (at most one per individual), because training waits for
-        the round. On a machine whose cores are busy with other jobs they bring nothing (measured).
-    :param eval_timeout: seconds a whole evaluation round may take before its workers count as hung; the round
-        is then skipped and the workers restarted. It also bounds the first round's wait for the workers to build
-        their envs (they build them while training goes on). Default 120 (a default round takes a few seconds).
-    :param batched_forward: compute the greedy actions of a block of individuals in one ``vmap``-ed
-        ``functional_call`` over their stacked weights (default True; 0.9 ms instead of 2.1 ms per tick for 11
-        individuals x 2 episodes of the robot network) instead of one forward pass per individual. Env steps
-        dominate a round: it evaluates 10-15 % more ticks per second (measured, docs/benchmarks.md).
+        buffer for Eq. 6, the calibration and the diagnostics. Default 128
+    :param sensitivity_floor: lower bound on the sensitivity ``omega`` (a sensitivity of exactly 0 counts as 1).
+        Default 0.01, as in Lehman et al.'s reference implementation
+    :param max_step: per-weight clip on the safe mutation's step. Default 0.2, Lehman et al.'s value;
+        ``float("inf")`` disables it. Not applied to ``mutation="gaussian"``
+    :param n_team_check_episodes: greedy episodes of the multi-robot training env (``model.get_env().env_id``)
+        played before and after every crossover, with the same seeds, to see what the crossover did to the team;
+        their ticks count as EPS ticks. Default 0: no check
+    :param diagnostics_path: JSON-lines file of the per-round records (``history``). Default None: ``eps_rounds.jsonl``
+        in the logger's folder when it has one (the run folder of ``python -m sb3_eps.train``, or SB3's
+        ``tensorboard_log`` run folder), else no file; ``""`` writes none
+    :param n_workers: evaluation worker processes; 0 evaluates in the main process. Default None: one per CPU core
+        (at most one per individual)
+    :param eval_timeout: seconds a whole evaluation round may take before its workers count as hung; the round is
+        then skipped and the workers restarted. Default 120
+    :param batched_forward: one ``vmap``-ed ``functional_call`` per tick for a block of individuals (default True)
     :param per_robot: normalise mutant ``i`` by the sensitivity computed on robot ``i % n_agents``'s own visited
-        observations instead of all robots' (paper III-B's "individual experiences"; with
-        ``population_size = n_agents`` every robot gets one mutant). The weights stay shared: no algorithm of
-        this package holds per-robot networks (see docs/modules/eps.md). Needs ``mutation="safe"``.
-    :param eval_env_kwargs: constructor arguments of the evaluation env
+        observations (paper III-B's "individual experiences"). Needs ``mutation="safe"``
+    :param eval_env_kwargs: constructor arguments of the evaluation env. Default None: the world of
+        :data:`DEFAULT_EVAL_ENV_KWARGS` (robot-sized pillars for ``SingleRobotNav-v0``); ``{}``: the env's own
+        defaults (the bars world, paper)
     :param worker_start_method: multiprocessing start method of the workers; None: ``"fork"`` where available
     :param seed: seed of the noise, the buffer sampling and the evaluation episodes; None: derived from the
-        model's seed (a seeded model gives a reproducible EPS), or random when the model has none.
+        model's seed (a seeded model gives a reproducible EPS), or random when the model has none
     :param verbose: 0 silent, 1 one line per round, 2 also worker restarts
     """
 
     def __init__(
         self,
         eval_env_id: str = "SingleRobotNav-v0",
-        population_size: int = 10,
-        period: int = 100,
-        period_unit: str = "episodes",
+        population_size: int = 5,
+        period: int = 10_000,
+        period_unit: str = "ticks",
         sigma: float | None = None,
         alpha: float = 0.3,
-        n_eval_episodes: int = 2,
+        alpha_schedule: str = "linear",
+        n_eval_episodes: int = 4,
         mutation: str = "safe",
+        target_flip_share: float | None = 0.1,
+        frozen_groups: list[str] | None = None,
+        fitness: str = "outcome",
+        min_gain: float = 0.05,
+        n_reevaluation_episodes: int = 8,
+        max_eps_share: float | None = 0.1,
         sensitivity_batch_size: int = 128,
         sensitivity_floor: float = 0.01,
         max_step: float = 0.2,
+        n_team_check_episodes: int = 0,
+        diagnostics_path: str | None = None,
         n_workers: int | None = None,
         eval_timeout: float = 120.0,
         batched_forward: bool = True,
@@ -134,9 +197,12 @@ class EvolutionCallback(BaseCallback):
         super().__init__(verbose=verbose)
         _check_arguments(
             population_size=population_size, period=period, period_unit=period_unit, sigma=sigma, alpha=alpha,
-            n_eval_episodes=n_eval_episodes, mutation=mutation, sensitivity_batch_size=sensitivity_batch_size,
-            sensitivity_floor=sensitivity_floor, max_step=max_step, n_workers=n_workers, eval_timeout=eval_timeout,
-            per_robot=per_robot,
+            alpha_schedule=alpha_schedule, n_eval_episodes=n_eval_episodes, mutation=mutation,
+            target_flip_share=target_flip_share, frozen_groups=frozen_groups, fitness=fitness, min_gain=min_gain,
+            n_reevaluation_episodes=n_reevaluation_episodes, max_eps_share=max_eps_share,
+            sensitivity_batch_size=sensitivity_batch_size, sensitivity_floor=sensitivity_floor, max_step=max_step,
+            n_workers=n_workers, eval_timeout=eval_timeout, per_robot=per_robot,
+            n_team_check_episodes=n_team_check_episodes,
         )  # fmt: skip
         check_eval_env_id(eval_env_id)
         self.eval_env_id = eval_env_id
@@ -145,16 +211,27 @@ class EvolutionCallback(BaseCallback):
         self.period_unit = period_unit
         self.sigma = DEFAULT_SIGMA[mutation] if sigma is None else sigma
         self.alpha = alpha
+        self.alpha_schedule = alpha_schedule
         self.n_eval_episodes = n_eval_episodes
         self.mutation = mutation
+        self.target_flip_share = target_flip_share
+        self.frozen_groups = None if frozen_groups is None else list(frozen_groups)
+        self.fitness = fitness
+        self.min_gain = min_gain
+        self.n_reevaluation_episodes = n_reevaluation_episodes
+        self.max_eps_share = max_eps_share
         self.sensitivity_batch_size = sensitivity_batch_size
         self.sensitivity_floor = sensitivity_floor
         self.max_step = max_step
+        self.n_team_check_episodes = n_team_check_episodes
+        self.diagnostics_path = diagnostics_path
         self.n_workers = n_workers
         self.eval_timeout = eval_timeout
         self.batched_forward = batched_forward
         self.per_robot = per_robot
-        self.eval_env_kwargs = dict(eval_env_kwargs or {})
+        if eval_env_kwargs is None:
+            eval_env_kwargs = DEFAULT_EVAL_ENV_KWARGS.get(eval_env_id, {})
+        self.eval_env_kwargs = copy.deepcopy(dict(eval_env_kwargs))
         self.worker_start_method = worker_start_method
         self.seed = seed
         # Public counters and records (they survive across learn() calls).
@@ -164,13 +241,25 @@ class EvolutionCallback(BaseCallback):
         self.n_skipped_rounds = 0
         self.eps_time = 0.0
         self.history: list[dict[str, Any]] = []
-        """One record per round: fitness of every individual, winner, gain, applied change, time, ticks."""
+        """One record per round (see docs/modules/eps.md, "The round record"); also in ``diagnostics_path``."""
+        self._scale: float | None = None  # the last calibrated noise scale: the next calibration starts there
         self._rng: np.random.Generator | None = None
         self._generator: th.Generator | None = None
         self._pool: EnvPool | None = None
         self._pool_finalizer: weakref.finalize | None = None
         self._last_round_mark: int | None = None
         self._training_start = 0.0
+        self._episode_limit = 0  # the evaluation env's time limit, for the first round's cost estimate
+        self._evolved: list[str] = []
+        self._round_log: RoundLog | None = None
+
+    @classmethod
+    def paper(cls, **kwargs: Any) -> EvolutionCallback:
+        """Algorithm 1 as published: :data:`PAPER_SETTINGS`, updated by ``kwargs``.
+
+        :param kwargs: any constructor argument (``EvolutionCallback.paper(alpha=0.2)``)
+        """
+        return cls(**{**copy.deepcopy(PAPER_SETTINGS), **kwargs})
 
     @property
     def n_individuals(self) -> int:
@@ -182,16 +271,65 @@ class EvolutionCallback(BaseCallback):
         """Process ids of the evaluation workers (empty when the envs run in the main process or are closed)."""
         return self._pool.pids if self._pool is not None else []
 
+    @property
+    def evolved_parameters(self) -> list[str]:
+        """Names of the ``q_net`` parameters that EPS mutates and crosses over (known after ``init_callback``)."""
+        return list(self._evolved)
+
+    def state_dict(self) -> dict[str, Any]:
+        """The training state (counters, records, generators, calibrated scale), for checkpoints."""
+        return {
+            "eps_ticks": self.eps_ticks,
+            "n_rounds": self.n_rounds,
+            "n_skipped_rounds": self.n_skipped_rounds,
+            "eps_time": self.eps_time,
+            "history": copy.deepcopy(self.history),
+            "scale": self._scale,
+            "rng": copy.deepcopy(self._rng),
+            "generator": self._generator.get_state() if self._generator is not None else None,
+            "last_round_mark": self._last_round_mark,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore :meth:`state_dict` (after ``init_callback``, which made the generators).
+
+        Also takes the attribute dictionary that checkpoints held before the callback had a ``state_dict``.
+        """
+        if "_rng" in state:
+            state = {
+                **state,
+                "scale": None,
+                "rng": state["_rng"],
+                "generator": state.get("_generator"),
+                "last_round_mark": state["_last_round_mark"],
+            }
+        self.eps_ticks, self.n_rounds = int(state["eps_ticks"]), int(state["n_rounds"])
+        self.n_skipped_rounds, self.eps_time = int(state["n_skipped_rounds"]), float(state["eps_time"])
+        self.history = copy.deepcopy(state["history"])
+        self._scale, self._last_round_mark = state["scale"], state["last_round_mark"]
+        self._rng = copy.deepcopy(state["rng"])
+        if state["generator"] is not None and self._generator is not None:
+            self._generator.set_state(state["generator"])
+
     # ------------------------------------------------------------------ SB3 hooks
     def _init_callback(self) -> None:
         q_net = self._check_model()
         self._check_eval_env()
+        frozen = self.frozen_groups
+        if frozen is None:  # auto: the dueling value stream when there is one
+            frozen = (
+                [VALUE_STREAM]
+                if any(n.startswith(f"{VALUE_STREAM}.") for n, _ in q_net.named_parameters())
+                else []
+            )
+        self._evolved = evolved_parameter_names(q_net, frozen)
         if self._rng is None:
             model_seed = getattr(self.model, "seed", None)
             self._rng = np.random.default_rng(self.seed if self.seed is not None else model_seed)
             device = next(q_net.parameters()).device
             self._generator = th.Generator(device=device)
             self._generator.manual_seed(int(self._rng.integers(2**62)))
+        self._round_log = self._make_round_log()
         self._start_pool()
         # A learn() that continues the count (reset_num_timesteps=False) keeps the period running.
         if self._last_round_mark is None or self._progress() < self._last_round_mark:
@@ -204,10 +342,10 @@ class EvolutionCallback(BaseCallback):
     def _on_rollout_end(self) -> None:
         # The rollout has been stored and the episodes counted; the gradient steps come next.
         assert self._last_round_mark is not None
-        if self._progress() - self._last_round_mark < self.period:
+        if self._progress() - self._last_round_mark < self.period or not self._within_budget():
             return
-        if self.mutation == "safe" and not self._visited_mask(None).any():
-            return  # nothing visited yet: Eq. 6 needs states; try again after the next rollout
+        if not self._visited_mask(None).any():
+            return  # nothing visited yet: Eq. 6 and the calibration need states; try after the next rollout
         self._last_round_mark = self._progress()
         self._run_round()
 
@@ -219,33 +357,176 @@ class EvolutionCallback(BaseCallback):
         start = time.perf_counter()
         q_net = self._q_net()
         theta = network_parameters(q_net)  # line 5: the copies of theta^e
-        sensitivities = self._sensitivities(q_net) if self.mutation == "safe" else None  # lines 7-8
-        assert self._generator is not None and self._rng is not None
-        population = mutate_population(  # lines 6 and 9: G ~ N(0, sigma), theta_p = theta + G / omega
-            theta, self.population_size, self.sigma, self._generator, sensitivities,
-            self.sensitivity_floor, self.max_step,
-        )  # fmt: skip
-        episode_seeds = [int(seed) for seed in self._rng.integers(2**31 - 1, size=self.n_eval_episodes)]
+        observations = self._visited_observations(None, self.sensitivity_batch_size)
+        assert observations is not None and self._generator is not None and self._rng is not None
+        sensitivities = self._sensitivities(q_net, observations) if self.mutation == "safe" else None  # 7-8
+        directions = mutation_directions(  # lines 6 and 9 at unit scale: G ~ N(0, 1), G / omega
+            theta, self.population_size, self._generator, sensitivities, self.sensitivity_floor, self._evolved
+        )
+        max_step = self.max_step if self.mutation == "safe" else float("inf")
+        scale = self._mutation_scale(q_net, theta, directions, observations, max_step)
+        population = population_from_directions(theta, directions, scale, max_step)
+        outputs = population_outputs(q_net, population, observations)
+        flip_share, mean_abs_dq = policy_change(outputs)
+        record: dict[str, Any] = {
+            "scale": scale,
+            "flip_share": flip_share[1:].tolist(),
+            "mean_abs_dq": mean_abs_dq[1:].tolist(),
+            "mean_abs_q": float(outputs[0].abs().mean()),
+        }
         try:
-            assert self._pool is not None
-            result = evaluate_population(self._pool, population, episode_seeds, self.eval_timeout)  # line 10
+            result = self._evaluate(population, record)  # line 10
+            winner = select_best(result.fitness)  # line 11, Eq. 4
+            accepted = self._accept(population, result, winner, record)
         except EvaluationFailed as error:
-            self._skip_round(error, time.perf_counter() - start)
+            self._skip_round(error, time.perf_counter() - start, record)
             return
-        winner = select_best(result.fitness)  # line 11, Eq. 4
-        mean_change = 0.0
-        if winner != 0:  # line 13, Eq. 5 (copy 0 winning would leave theta as it is)
+        alpha = self._current_alpha()
+        record.update(winner=winner, accepted=accepted, alpha=alpha, mean_abs_delta=0.0)
+        if accepted and alpha > 0:  # line 13, Eq. 5 (copy 0 winning would leave theta as it is)
+            self._team_check(record, "before")
             best = individual(population, winner)
-            mean_change = polyak_crossover_(q_net, best, self.alpha)
+            record["mean_abs_delta"] = polyak_crossover_(q_net, best, alpha, self._evolved)
             target = getattr(self.model.policy, "q_net_target", None)
             if isinstance(target, nn.Module):
-                polyak_crossover_(target, best, self.alpha)
-        self._record_round(result, winner, mean_change, time.perf_counter() - start)
+                polyak_crossover_(target, best, alpha, self._evolved)
+            self._team_check(record, "after")
+        self._record_round(record, time.perf_counter() - start)
 
-    def _sensitivities(self, q_net: nn.Module) -> list[Parameters]:
+    def _mutation_scale(
+        self,
+        q_net: nn.Module,
+        theta: Parameters,
+        directions: Parameters,
+        observations: th.Tensor,
+        max_step: float,
+    ) -> float:
+        """The noise scale of this round: ``sigma``, or calibrated to ``target_flip_share`` of greedy actions."""
+        if self.target_flip_share is None:
+            return self.sigma
+
+        def flip_share_at(scale: float) -> float:
+            population = population_from_directions(theta, directions, scale, max_step)
+            return float(policy_change(population_outputs(q_net, population, observations))[0][1:].mean())
+
+        initial = self._scale if self._scale is not None else self.sigma
+        self._scale, _ = calibrate_scale(flip_share_at, self.target_flip_share, initial)
+        return self._scale
+
+    def _play(
+        self, population: Parameters, active: np.ndarray | None = None
+    ) -> tuple[list[int], PopulationResult]:
+        """Play the population on fresh common-random-number episodes and count their ticks."""
+        assert self._pool is not None and self._rng is not None
+        seeds = [int(seed) for seed in self._rng.integers(2**31 - 1, size=self.n_eval_episodes)]
+        result = evaluate_population(self._pool, population, seeds, self.eval_timeout, self.fitness, active)
+        self.eps_ticks += int(result.lengths.sum())
+        return seeds, result
+
+    def _evaluate(self, population: Parameters, record: dict[str, Any]) -> PopulationResult:
+        """Algorithm 1, line 10, with every episode noted in the round's record."""
+        seeds, result = self._play(population)
+        outcomes = result.outcomes if result.outcomes is not None else np.zeros_like(result.lengths)
+        record.update(
+            round_ticks=int(result.lengths.sum()),
+            episode_seeds=seeds,
+            returns=result.returns.tolist(),
+            successes=result.successes.astype(int).tolist(),
+            outcomes=outcomes.tolist(),
+            episode_lengths=result.lengths.tolist(),
+            fitness=result.fitness.tolist(),
+        )
+        return result
+
+    def _accept(
+        self, population: Parameters, result: PopulationResult, winner: int, record: dict[str, Any]
+    ) -> bool:
+        """The acceptance rule: a gain over copy 0 beyond ``min_gain``, and again on fresh episodes."""
+        fitness = result.fitness
+        gain = float(fitness[winner] - fitness[0]) if np.isfinite(fitness[0]) else float("nan")
+        finite = np.sort(fitness[np.isfinite(fitness)])
+        record["gain"] = gain
+        record["runner_up_margin"] = float(finite[-1] - finite[-2]) if finite.size >= 2 else float("nan")
+        accepted = winner != 0 and gain_accepted(gain, self.min_gain)
+        if accepted and self.n_reevaluation_episodes > 0:
+            record["reevaluation"] = self._reevaluate(population, winner)
+            record["reevaluation_gain"] = record["reevaluation"]["gain"]
+            accepted = gain_accepted(record["reevaluation_gain"], self.min_gain)
+        return accepted
+
+    def _reevaluate(self, population: Parameters, winner: int) -> dict[str, Any]:
+        """Copy 0 and the winner on ``n_reevaluation_episodes`` fresh episodes (in batches of the pool's size)."""
+        active = np.zeros(self.n_individuals, dtype=bool)
+        active[[0, winner]] = True
+        pair = [0, winner]
+        seeds: list[int] = []
+        returns, outcomes, lengths = [], [], []
+        for _ in range(-(-self.n_reevaluation_episodes // self.n_eval_episodes)):  # ceil
+            batch_seeds, result = self._play(population, active)
+            seeds += batch_seeds
+            returns.append(result.returns[pair])
+            outcomes.append(
+                result.outcomes[pair] if result.outcomes is not None else np.zeros_like(result.lengths[pair])
+            )
+            lengths.append(result.lengths[pair])
+            valid = result.valid[pair]
+        returns_, outcomes_ = np.concatenate(returns, axis=1), np.concatenate(outcomes, axis=1)
+        fitness = population_fitness(returns_, outcomes_, valid, self.fitness)
+        return {
+            "episode_seeds": seeds,
+            "returns": returns_.tolist(),
+            "successes": (outcomes_ == 1).astype(int).tolist(),
+            "outcomes": outcomes_.tolist(),
+            "episode_lengths": np.concatenate(lengths, axis=1).tolist(),
+            "fitness": fitness.tolist(),
+            "gain": float(fitness[1] - fitness[0]) if np.isfinite(fitness[0]) else float("nan"),
+            "ticks": int(sum(int(part.sum()) for part in lengths)),
+        }
+
+    def _current_alpha(self) -> float:
+        """Eq. 5's alpha of this round under ``alpha_schedule``."""
+        remaining = float(getattr(self.model, "_current_progress_remaining", 1.0))
+        return scheduled_alpha(self.alpha, self.alpha_schedule, remaining)
+
+    def _team_check(self, record: dict[str, Any], when: str) -> None:
+        """Greedy episodes of the training env, same seeds before and after the crossover (optional)."""
+        if self.n_team_check_episodes == 0:
+            return
+        from sb3_eps.common.evaluation import evaluate_team
+
+        env_id = self.model.get_env().env_id  # type: ignore[union-attr]  # checked in _check_model
+        if when == "before":
+            record["team_check_seed"] = int(self._rng.integers(2**31 - 1))  # type: ignore[union-attr]
+        summary = evaluate_team(
+            self.model, env_id, self.n_team_check_episodes, n_envs=1, seed=record["team_check_seed"]
+        )
+        ticks = int(sum(episode["l"] for episode in summary["episodes"]))
+        self.eps_ticks += ticks
+        record[f"team_success_{when}"] = summary.get("success_rate", float("nan"))
+        record[f"team_return_{when}"] = summary["team_return_mean"]
+        record["team_check_ticks"] = record.get("team_check_ticks", 0) + ticks
+
+    def _within_budget(self) -> bool:
+        """Whether a round now keeps the EPS ticks within ``max_eps_share`` of the training ticks."""
+        if self.max_eps_share is None:
+            return True
+        done = [
+            record.get("ticks_spent", int(np.sum(record.get("episode_lengths", 0))))
+            for record in self.history
+            if not record.get("skipped")
+        ]
+        if done:
+            expected = float(np.mean(done))
+        else:  # half of the most a round can cost, reevaluation included
+            n_reevaluations = -(-self.n_reevaluation_episodes // self.n_eval_episodes)  # ceil
+            n_played = (self.n_individuals + 2 * n_reevaluations) * self.n_eval_episodes
+            expected = 0.5 * n_played * self._episode_limit
+        return self.eps_ticks + expected <= self.max_eps_share * self._model_ticks()
+
+    def _sensitivities(self, q_net: nn.Module, observations: th.Tensor) -> list[Parameters]:
         """Eq. 6 on a batch of visited observations: one for all mutants, or one per robot (``per_robot``)."""
         if not self.per_robot:
-            return [self._sensitivity_of(q_net, None)]
+            return [output_sensitivity(q_net, observations)]
         # Mutant i follows robot i % n: the paper's m = n when population_size = n_agents.
         n_agents = int(self._model.n_agents)
         robots = sorted({index % n_agents for index in range(self.population_size)})
@@ -293,56 +574,96 @@ class EvolutionCallback(BaseCallback):
         return th.as_tensor(flat[chosen], dtype=th.float32, device=device)
 
     # ------------------------------------------------------------------ records
-    def _record_round(
-        self, result: PopulationResult, winner: int, mean_change: float, wall_time: float
-    ) -> None:
+    def _make_round_log(self) -> RoundLog | None:
+        if self.diagnostics_path == "":
+            return None
+        if self.diagnostics_path is not None:
+            return RoundLog(self.diagnostics_path)
+        # The logger is set by learn(); it is absent when init_callback is called on its own.
+        logger = getattr(self.model, "_logger", None)
+        folder = logger.get_dir() if logger is not None else None
+        return RoundLog(os.path.join(folder, DIAGNOSTICS_NAME)) if folder else None
+
+    def _write(self, record: dict[str, Any]) -> None:
+        if self._round_log is not None:
+            self._round_log.append(record, n_before=len(self.history))
+        self.history.append(record)
+
+    def _record_round(self, record: dict[str, Any], wall_time: float) -> None:
         self.n_rounds += 1
-        self.eps_ticks += int(result.lengths.sum())
         self.eps_time += wall_time
-        fitness = result.fitness
-        gain = float(fitness[winner] - fitness[0]) if np.isfinite(fitness[0]) else float("nan")
-        finite = fitness[np.isfinite(fitness)]
+        ticks_spent = record["round_ticks"] + record.get("reevaluation", {}).get("ticks", 0)
+        ticks_spent += record.get("team_check_ticks", 0)
         record = {
             "round": self.n_rounds,
             "model_ticks": self._model_ticks(),
             "eps_ticks": self.eps_ticks,
-            "fitness": fitness.tolist(),
-            "episode_lengths": result.lengths.tolist(),
-            "winner": winner,
-            "gain": gain,
-            "mean_abs_delta": mean_change,
+            "ticks_spent": ticks_spent,
+            **record,
             "wall_time": wall_time,
             "skipped": False,
         }
-        self.history.append(record)
+        self._write(record)
+        self._log(record, wall_time)
+
+    def _log(self, record: dict[str, Any], wall_time: float) -> None:
+        fitness = np.asarray(record["fitness"], dtype=float)
+        finite = fitness[np.isfinite(fitness)]
+        successes = np.asarray(record["successes"], dtype=float).mean(axis=1)
+        winner = record["winner"]
         logger = self.logger
         logger.record("eps/round", self.n_rounds)
         logger.record("eps/ticks", self.eps_ticks)
         logger.record("eps/total_ticks", self._model_ticks() + self.eps_ticks)
+        logger.record("eps/round_ticks", record["ticks_spent"])
+        logger.record("eps/tick_share", self.eps_ticks / max(self._model_ticks(), 1))
         for index, value in enumerate(fitness):
             logger.record(f"eps/fitness_{index}", float(value))
         logger.record("eps/fitness_mean", float(finite.mean()) if finite.size else float("-inf"))
         logger.record("eps/fitness_max", float(fitness.max()))
         logger.record("eps/fitness_min", float(fitness.min()))
-        logger.record("eps/n_invalid", int((~result.valid).sum()))
+        logger.record("eps/success_0", float(successes[0]))
+        logger.record("eps/success_max", float(successes.max()))
+        logger.record("eps/n_invalid", int((~np.isfinite(fitness)).sum()))
         logger.record("eps/winner", winner)
-        logger.record("eps/fitness_gain", gain)
-        logger.record("eps/mean_abs_delta", mean_change)
+        logger.record("eps/fitness_gain", record["gain"])
+        logger.record("eps/runner_up_margin", record["runner_up_margin"])
+        logger.record("eps/reevaluation_gain", record.get("reevaluation_gain", float("nan")))
+        logger.record("eps/accepted", int(record["accepted"]))
+        logger.record("eps/alpha", record["alpha"])
+        logger.record("eps/mutation_scale", record["scale"])
+        logger.record("eps/flip_share", float(np.mean(record["flip_share"])))
+        logger.record("eps/mean_abs_dq", float(np.mean(record["mean_abs_dq"])))
+        logger.record("eps/mean_abs_q", record["mean_abs_q"])
+        logger.record("eps/mean_abs_delta", record["mean_abs_delta"])
+        for when in ("before", "after"):
+            if f"team_success_{when}" in record:
+                logger.record(f"eps/team_success_{when}", record[f"team_success_{when}"])
         logger.record("eps/round_time", wall_time)
         logger.record("eps/time_share", self._time_share())
         logger.record("eps/skipped_rounds", self.n_skipped_rounds)
         if self.verbose >= 1:
+            verdict = "crossed over" if record["mean_abs_delta"] > 0 else "kept"
             print(
-                f"EPS round {self.n_rounds}: copy 0 {fitness[0]:.3f}, best {fitness[winner]:.3f} (individual "
-                f"{winner}), mean |dtheta| {mean_change:.2e}, {wall_time:.2f} s ({100 * self._time_share():.1f} % "
-                f"of training), {self.eps_ticks} EPS ticks"
+                f"EPS round {self.n_rounds}: copy 0 {fitness[0]:.3f} ({100 * successes[0]:.0f} % reached), best "
+                f"{fitness[winner]:.3f} (individual {winner}), {verdict} (alpha {record['alpha']:.3f}); scale "
+                f"{record['scale']:.2e} flipped {100 * np.mean(record['flip_share']):.0f} % of greedy actions; "
+                f"{record['ticks_spent']} ticks, {wall_time:.2f} s; {self.eps_ticks} EPS ticks "
+                f"({100 * self.eps_ticks / max(self._model_ticks(), 1):.1f} % of training)"
             )
 
-    def _skip_round(self, error: EvaluationFailed, wall_time: float) -> None:
+    def _skip_round(self, error: EvaluationFailed, wall_time: float, record: dict[str, Any]) -> None:
         self.n_skipped_rounds += 1
         self.eps_time += wall_time
-        self.history.append(
-            {"round": None, "model_ticks": self._model_ticks(), "skipped": True, "reason": str(error)}
+        self._write(
+            {
+                "round": None,
+                "model_ticks": self._model_ticks(),
+                "eps_ticks": self.eps_ticks,
+                "ticks_spent": record.get("round_ticks", 0),
+                "skipped": True,
+                "reason": str(error),
+            }
         )
         warnings.warn(
             f"EPS round skipped, restarting the evaluation workers: {error}", RuntimeWarning, stacklevel=2
@@ -425,13 +746,26 @@ class EvolutionCallback(BaseCallback):
                 f"EvolutionCallback samples visited observations from model.replay_buffer; "
                 f"{type(self.model).__name__} has no replay buffer: use an off-policy model (IQL, GDQ, QMIX, VDN)"
             )
+        if self.n_team_check_episodes > 0 and getattr(self.model.get_env(), "env_id", None) is None:
+            raise ValueError(
+                "n_team_check_episodes > 0 replays the training env, which needs a vec env made by "
+                "sb3_eps.make_vec_env (it records its env_id); set n_team_check_episodes=0"
+            )
         if self.per_robot and int(getattr(self.model, "n_agents", 0)) < 1:
             raise ValueError("per_robot=True needs a multi-agent model (model.n_agents); set per_robot=False")
         return q_net
 
     def _check_eval_env(self) -> None:
         """The evaluation world must speak the model's language: equal observation and action spaces."""
-        env = make_eval_env(self.eval_env_id, self.eval_env_kwargs)
+        try:
+            env = make_eval_env(self.eval_env_id, self.eval_env_kwargs)
+        except TypeError as error:
+            raise ValueError(
+                f"eval_env_kwargs {self.eval_env_kwargs} do not fit {self.eval_env_id!r}: {error}"
+            ) from None
+        spec_limit = env.spec.max_episode_steps if env.spec is not None else None
+        limit = getattr(env, "max_episode_steps", None) or getattr(env, "max_cycles", None) or spec_limit
+        self._episode_limit = int(limit or 0)
         try:
             for kind in ("observation_space", "action_space"):
                 ours, theirs = getattr(env, kind), getattr(self.model, kind)
@@ -483,3 +817,56 @@ def _check_arguments(**values: Any) -> None:
         raise ValueError(f"eval_timeout must be > 0 seconds, got {values['eval_timeout']!r}")
     if values["per_robot"] and values["mutation"] != "safe":
         raise ValueError("per_robot=True chooses each mutant's sensitivity: it needs mutation='safe'")
+    if values["alpha_schedule"] not in ALPHA_SCHEDULES:
+        raise ValueError(f"alpha_schedule must be one of {ALPHA_SCHEDULES}, got {values['alpha_schedule']!r}")
+    share = values["target_flip_share"]
+    if share is not None and not 0.0 < share < 1.0:
+        raise ValueError(
+            f"target_flip_share (share of greedy actions a mutant changes) must be in (0, 1) or None, got {share!r}"
+        )
+    groups = values["frozen_groups"]
+    if groups is not None and (
+        isinstance(groups, str) or not all(isinstance(group, str) for group in groups)
+    ):
+        raise ValueError(
+            f"frozen_groups must be a list of parameter-group names (e.g. ['value_stream']) or None, got {groups!r}"
+        )
+    if values["fitness"] not in FITNESS_KINDS:
+        raise ValueError(f"unknown fitness {values['fitness']!r}; use one of {FITNESS_KINDS}")
+    if not np.isfinite(values["min_gain"]) or values["min_gain"] < 0:
+        raise ValueError(f"min_gain must be a finite number >= 0, got {values['min_gain']!r}")
+    max_share = values["max_eps_share"]
+    if max_share is not None and not max_share > 0:
+        raise ValueError(f"max_eps_share must be > 0 or None (no budget), got {max_share!r}")
+    if not isinstance(values["n_reevaluation_episodes"], int) or values["n_reevaluation_episodes"] < 0:
+        raise ValueError(
+            f"n_reevaluation_episodes must be an int >= 0 (0: no reevaluation), got {values['n_reevaluation_episodes']!r}"
+        )
+    if not isinstance(values["n_team_check_episodes"], int) or values["n_team_check_episodes"] < 0:
+        raise ValueError(
+            f"n_team_check_episodes must be an int >= 0, got {values['n_team_check_episodes']!r}"
+        )
+
+
+def gain_accepted(gain: float, min_gain: float) -> bool:
+    """The acceptance rule: a finite fitness gain over copy 0 strictly above ``min_gain``.
+
+    :param gain: winner's fitness minus copy 0's (NaN when copy 0 was disqualified)
+    :param min_gain: the margin (>= 0)
+    """
+    return bool(np.isfinite(gain) and gain > min_gain)
+
+
+def scheduled_alpha(alpha: float, schedule: str, progress_remaining: float) -> float:
+    """Eq. 5's alpha at a point of training.
+
+    :param alpha: the base share of the best individual
+    :param schedule: ``"constant"`` or ``"linear"`` (``alpha`` times the share of training still to come, so it
+        reaches 0 at the end)
+    :param progress_remaining: SB3's ``_current_progress_remaining``: 1 at the start, 0 at the end
+    """
+    if schedule not in ALPHA_SCHEDULES:
+        raise ValueError(f"alpha_schedule must be one of {ALPHA_SCHEDULES}, got {schedule!r}")
+    if schedule == "constant":
+        return alpha
+    return alpha * float(np.clip(progress_remaining, 0.0, 1.0))

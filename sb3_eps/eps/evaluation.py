@@ -147,14 +147,14 @@ class _Block:
 
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Play every episode of every valid individual greedily, all envs in lockstep.
 
         :param population: the block's weights ``(n_individuals, *shape)``
         :param seeds: ``n_episodes`` reset seeds, the same for every individual (common random numbers)
         :param valid: ``(n_individuals,)`` False for individuals not to run (non-finite weights)
-        :return: returns ``(n_individuals, n_episodes)``, lengths (same shape), valid ``(n_individuals,)``:
-            False also where an output was not finite
+        :return: returns ``(n_individuals, n_episodes)``, lengths (same shape), outcomes (same shape, see
+            :data:`OUTCOMES`), valid ``(n_individuals,)``: False also where an output was not finite
         """
         shape = (self.n_individuals, self.n_episodes)
         if len(seeds) != self.n_episodes:
@@ -162,6 +162,7 @@ class _Block:
         valid = np.array(valid, dtype=bool)
         self.forward.load(population)
         returns, lengths = np.zeros(shape), np.zeros(shape, dtype=np.int64)
+        outcomes = np.zeros(shape, dtype=np.int64)
         active = np.repeat(valid, self.n_episodes)
         obs_shape = self.envs[0].observation_space.shape or ()
         obs = np.zeros((len(self.envs), *obs_shape), dtype=np.float32)
@@ -176,12 +177,14 @@ class _Block:
                 active &= np.repeat(valid, self.n_episodes)
             actions = outputs.argmax(dim=-1).reshape(-1).numpy()
             for index in np.flatnonzero(active):
-                next_obs, reward, terminated, truncated, _ = self.envs[index].step(int(actions[index]))
+                next_obs, reward, terminated, truncated, info = self.envs[index].step(int(actions[index]))
                 obs[index] = next_obs
                 returns.flat[index] += float(reward)
                 lengths.flat[index] += 1
                 active[index] = not (terminated or truncated)
-        return returns, lengths, valid
+                if terminated or truncated:
+                    outcomes.flat[index] = episode_outcome(bool(terminated), info)
+        return returns, lengths, outcomes, valid
 
     def close(self) -> None:
         for env in self.envs:
@@ -228,14 +231,14 @@ class EnvPool(ABC):
     @abstractmethod
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Play every episode of every valid individual (see :meth:`_Block.evaluate`).
 
         :param population: weights ``(n_individuals, *shape)`` on the CPU
         :param seeds: ``n_episodes`` reset seeds
         :param valid: ``(n_individuals,)`` individuals to run
         :param deadline: ``time.monotonic()`` value after which the pool gives up (:class:`EvaluationFailed`)
-        :return: returns and lengths ``(n_individuals, n_episodes)``, valid ``(n_individuals,)``
+        :return: returns, lengths and outcomes ``(n_individuals, n_episodes)``, valid ``(n_individuals,)``
         """
 
     @abstractmethod
@@ -273,7 +276,7 @@ class InProcessEnvPool(EnvPool):
 
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         return self._block.evaluate(population, seeds, valid)
 
     def close(self) -> None:
@@ -348,7 +351,7 @@ class SubprocessEnvPool(EnvPool):
 
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         self.wait_ready(deadline)
         for connection, block in zip(self._connections, self.blocks, strict=True):
             weights = {name: stacked[block].cpu().numpy() for name, stacked in population.items()}
@@ -357,8 +360,9 @@ class SubprocessEnvPool(EnvPool):
             except (BrokenPipeError, OSError) as error:
                 raise EvaluationFailed(f"an evaluation worker is gone ({error})") from error
         answers = self._gather(deadline)
-        returns, lengths, valid_parts = zip(*answers, strict=True)
-        return np.concatenate(returns), np.concatenate(lengths), np.concatenate(valid_parts)
+        parts = zip(*answers, strict=True)
+        returns, lengths, outcomes, valid_parts = (np.concatenate(part) for part in parts)
+        return returns, lengths, outcomes, valid_parts
 
     def close(self) -> None:
         for connection in self._connections:
@@ -399,18 +403,73 @@ class PopulationResult:
 
     :param returns: ``(P, E)`` undiscounted return of every individual's episodes
     :param lengths: ``(P, E)`` ticks of every episode (0 for an individual disqualified before its first tick)
-    :param valid: ``(P,)`` False for an individual whose weights or outputs were not finite
-    :param fitness: ``(P,)`` mean return (Eq. 4's ``F``); ``-inf`` where not valid
+    :param valid: ``(P,)`` False for an individual whose weights or outputs were not finite, or not run
+    :param fitness: ``(P,)`` Eq. 4's ``F`` (:func:`population_fitness`); ``-inf`` where not valid
+    :param outcomes: ``(P, E)`` how every episode ended (:data:`OUTCOMES`); zeros when not recorded
     """
 
     returns: np.ndarray
     lengths: np.ndarray
     valid: np.ndarray
     fitness: np.ndarray
+    outcomes: np.ndarray | None = None
+
+    @property
+    def successes(self) -> np.ndarray:
+        """``(P, E)`` bool: the episodes that reached the target."""
+        outcomes = self.outcomes if self.outcomes is not None else np.zeros_like(self.lengths)
+        return outcomes == OUTCOMES["success"]
+
+
+#: How an episode ended: reached the target (``info["is_success"]``), stopped by the time limit (or not run), or
+#: terminated without success (a collision in the robot worlds).
+OUTCOMES = {"success": 1, "timeout": 0, "failure": -1}
+FITNESS_KINDS = ("return", "outcome")
+#: Weight of the mean return beside the mean outcome in ``fitness="outcome"``: small enough that one more success
+#: or one less failure in up to 50 episodes always outranks any return difference of the robot worlds (|return|
+#: below 5 per episode), large enough to rank equal outcomes by return.
+OUTCOME_RETURN_WEIGHT = 0.01
+
+
+def episode_outcome(terminated: bool, info: dict[str, Any]) -> int:
+    """:return: the :data:`OUTCOMES` code of an episode that just ended."""
+    if info.get("is_success", False):
+        return OUTCOMES["success"]
+    return OUTCOMES["failure"] if terminated else OUTCOMES["timeout"]
+
+
+def population_fitness(
+    returns: np.ndarray, outcomes: np.ndarray, valid: np.ndarray, kind: str = "return"
+) -> np.ndarray:
+    """Eq. 4's fitness ``F`` of every individual from its episodes.
+
+    ``"return"`` (the paper): the mean undiscounted return. ``"outcome"``: the mean outcome (+1 reached the target,
+    0 timed out, -1 failed) plus :data:`OUTCOME_RETURN_WEIGHT` times the mean return: reaching the target ranks
+    first, and waiting (a timeout, 0) ranks above crashing (-1) whatever the step costs added up to, which the
+    plain return gets the other way round in ``SingleRobotNav-v0`` (a 600-tick wait scores -3.0, a crash -1.1 to
+    -2.2; docs/modules/eps.md). The return breaks ties between equal outcomes.
+
+    :param returns: ``(P, E)``
+    :param outcomes: ``(P, E)`` :data:`OUTCOMES` codes
+    :param valid: ``(P,)``; invalid individuals get ``-inf``
+    :param kind: one of :data:`FITNESS_KINDS`
+    :return: ``(P,)``
+    """
+    if kind not in FITNESS_KINDS:
+        raise ValueError(f"unknown fitness {kind!r}; use one of {FITNESS_KINDS}")
+    score = returns.mean(axis=1)
+    if kind == "outcome":
+        score = outcomes.mean(axis=1) + OUTCOME_RETURN_WEIGHT * score
+    return np.where(valid, score, -np.inf)
 
 
 def evaluate_population(
-    pool: EnvPool, population: Parameters, episode_seeds: Sequence[int], timeout: float
+    pool: EnvPool,
+    population: Parameters,
+    episode_seeds: Sequence[int],
+    timeout: float,
+    fitness: str = "return",
+    active: np.ndarray | None = None,
 ) -> PopulationResult:
     """Run every individual greedily for ``len(episode_seeds)`` episodes, episode ``j`` seeded with
     ``episode_seeds[j]`` for all individuals (common random numbers). Algorithm 1, line 10.
@@ -419,6 +478,8 @@ def evaluate_population(
     :param population: stacked weights ``(P, *shape)``
     :param episode_seeds: ``E`` reset seeds
     :param timeout: seconds for the whole round
+    :param fitness: how episodes become fitness (:func:`population_fitness`)
+    :param active: ``(P,)`` bool, the individuals to run (None: all); the others get no episode and ``-inf``
     :raises EvaluationFailed: when a worker crashed, raised or timed out
     """
     n_individuals = next(iter(population.values())).shape[0]
@@ -430,6 +491,8 @@ def evaluate_population(
     deadline = time.monotonic() + timeout
     cpu_population = {name: stacked.detach().cpu() for name, stacked in population.items()}
     valid = finite_individuals(cpu_population)
-    returns, lengths, valid = pool.evaluate(cpu_population, list(episode_seeds), valid, deadline)
-    fitness = np.where(valid, returns.mean(axis=1), -np.inf)
-    return PopulationResult(returns=returns, lengths=lengths, valid=valid, fitness=fitness)
+    if active is not None:
+        valid &= np.asarray(active, dtype=bool)
+    returns, lengths, outcomes, valid = pool.evaluate(cpu_population, list(episode_seeds), valid, deadline)
+    scores = population_fitness(returns, outcomes, valid, fitness)
+    return PopulationResult(returns=returns, lengths=lengths, valid=valid, fitness=scores, outcomes=outcomes)

@@ -1,6 +1,8 @@
 """The math of one EPS round (Marchesini & Farinelli, ICRA 2022, Section III): the output-gradient sensitivity
 (Eq. 6), the safe and the plain Gaussian mutation (Algorithm 1, line 9), the selection of the best individual
-(Eq. 4) and the Polyak mean crossover (Eq. 5).
+(Eq. 4) and the Polyak mean crossover (Eq. 5); and what this package adds to them (docs/modules/eps.md, "Beyond
+Algorithm 1"): parameter groups left out of mutation and crossover, the effect of a mutation on the greedy policy
+(share of greedy actions changed, mean |dQ|), and the calibration of the mutation size to a target share.
 
 Weights travel as dictionaries ``{parameter name: tensor}`` (the names of ``network.named_parameters()``), so
 that :func:`torch.func.functional_call` can run a network on any set of them. A *population* is such a
@@ -9,6 +11,8 @@ unmutated copy of the network.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable, Collection
 
 import numpy as np
 import torch as th
@@ -103,6 +107,7 @@ def mutate_population(
     sensitivities: list[Parameters] | None = None,
     floor: float = 0.01,
     max_step: float = 0.2,
+    names: Collection[str] | None = None,
 ) -> Parameters:
     """The population of Algorithm 1, lines 5-9: ``n_mutants + 1`` copies of ``parameters``, every copy but
     copy 0 perturbed by ``G ~ N(0, sigma)`` per weight, normalised by the sensitivity when one is given.
@@ -115,25 +120,172 @@ def mutate_population(
         mutants (a list of one) or one per mutant (a list of ``n_mutants``)
     :param floor: see :func:`safe_mutation_step`
     :param max_step: see :func:`safe_mutation_step`
+    :param names: the parameters to mutate (None: all); the others are copied unchanged into every individual
     :return: the population, each tensor ``(n_mutants + 1, *shape)``; row 0 equals ``parameters``
     """
-    if n_mutants < 1 or sigma <= 0:
-        raise ValueError(f"n_mutants must be >= 1 and sigma > 0, got {n_mutants} and {sigma}")
+    if sigma <= 0:
+        raise ValueError(f"sigma must be > 0, got {sigma}")
+    directions = mutation_directions(parameters, n_mutants, generator, sensitivities, floor, names)
+    # Lehman et al.'s clip belongs to the safe step; plain Gaussian noise is left unclipped.
+    return population_from_directions(
+        parameters, directions, sigma, max_step if sensitivities is not None else float("inf")
+    )
+
+
+def mutation_directions(
+    parameters: Parameters,
+    n_mutants: int,
+    generator: th.Generator,
+    sensitivities: list[Parameters] | None = None,
+    floor: float = 0.01,
+    names: Collection[str] | None = None,
+) -> Parameters:
+    """Unit-scale mutation steps ``G / omega`` with ``G ~ N(0, 1)`` (Algorithm 1, lines 6 and 9, before the
+    noise scale and the clip): :func:`population_from_directions` turns them into a population at any scale, so
+    the scale can be calibrated on their effect (:func:`calibrate_scale`) without drawing new noise.
+
+    :param parameters: the network's weights ``theta``
+    :param n_mutants: ``m`` (>= 1)
+    :param generator: torch generator of the noise (one ``randn`` per parameter, in ``parameters`` order)
+    :param sensitivities: None (plain Gaussian noise) or 1 or ``n_mutants`` sensitivities ``omega``
+    :param floor: lower bound on ``omega`` (see :func:`safe_mutation_step`)
+    :param names: the parameters to mutate (None: all)
+    :return: ``{name: (n_mutants, *shape)}`` for the mutated parameters only
+    """
+    if n_mutants < 1:
+        raise ValueError(f"n_mutants must be >= 1, got {n_mutants}")
     if sensitivities is not None and len(sensitivities) not in (1, n_mutants):
         raise ValueError(f"give 1 or {n_mutants} sensitivities, got {len(sensitivities)}")
-    population: Parameters = {}
+    directions: Parameters = {}
     for name, theta in parameters.items():
+        if names is not None and name not in names:
+            continue
         noise = th.randn(
             (n_mutants, *theta.shape), generator=generator, device=theta.device, dtype=theta.dtype
         )
-        noise = noise * sigma
-        if sensitivities is None:
-            steps = noise
-        else:
+        if sensitivities is not None:
             omega = th.stack([sensitivity[name] for sensitivity in sensitivities])
-            steps = safe_mutation_step(noise, omega, floor, max_step)
-        population[name] = th.cat([theta.unsqueeze(0), theta.unsqueeze(0) + steps])
+            noise = safe_mutation_step(noise, omega, floor, float("inf"))
+        directions[name] = noise
+    return directions
+
+
+def population_from_directions(
+    parameters: Parameters, directions: Parameters, scale: float, max_step: float = float("inf")
+) -> Parameters:
+    """``theta_p = theta + clip(scale * direction_p, -max_step, max_step)`` for every mutant ``p``; copy 0 and the
+    parameters without a direction stay ``theta``.
+
+    :param parameters: the network's weights ``theta``
+    :param directions: :func:`mutation_directions`
+    :param scale: the noise scale ``sigma`` (> 0)
+    :param max_step: per-weight clip of the step (``inf``: none)
+    :return: the population, each tensor ``(n_mutants + 1, *shape)``
+    """
+    if not scale > 0 or not max_step > 0:
+        raise ValueError(f"scale and max_step must be > 0, got {scale} and {max_step}")
+    n_mutants = next(iter(directions.values())).shape[0] if directions else 0
+    if n_mutants == 0:
+        raise ValueError("no parameter to mutate: directions is empty")
+    population: Parameters = {}
+    for name, theta in parameters.items():
+        copies = theta.unsqueeze(0).expand(n_mutants + 1, *theta.shape).clone()
+        if name in directions:
+            copies[1:] += (scale * directions[name]).clamp(-max_step, max_step)
+        population[name] = copies
     return population
+
+
+def population_outputs(network: nn.Module, population: Parameters, observations: th.Tensor) -> th.Tensor:
+    """Outputs of every individual on the same observations (one ``vmap``-ed ``functional_call``).
+
+    :param network: the architecture (its own weights are not used)
+    :param population: ``{name: (P, *shape)}``; parameters missing from it are taken from ``network``
+    :param observations: ``(B, obs_dim)``
+    :return: ``(P, B, n_outputs)``
+    """
+    buffers = dict(network.named_buffers())
+    fixed = {name: param.detach() for name, param in network.named_parameters() if name not in population}
+
+    def outputs_of(weights: Parameters) -> th.Tensor:
+        return functional_call(network, ({**fixed, **weights}, buffers), (observations,))
+
+    with th.no_grad():
+        return vmap(outputs_of)(population)
+
+
+def policy_change(outputs: th.Tensor) -> tuple[np.ndarray, np.ndarray]:
+    """How much each individual's greedy policy differs from individual 0's on the same observations.
+
+    :param outputs: ``(P, B, n_actions)`` Q-values (:func:`population_outputs`); individual 0 is the reference
+    :return: per individual, the share of observations whose greedy action differs from individual 0's, and the
+        mean ``|Q_p - Q_0|`` over observations and actions (both 0 for individual 0); NaN outputs count as changed
+    """
+    if outputs.dim() != 3 or outputs.shape[0] < 1:
+        raise ValueError(f"outputs must be (P, B, n_actions), got {tuple(outputs.shape)}")
+    greedy = outputs.argmax(dim=-1)
+    changed = (greedy != greedy[:1]) | ~th.isfinite(outputs).all(dim=-1)
+    flip_share = changed.float().mean(dim=1)
+    mean_abs_dq = (outputs - outputs[:1]).abs().mean(dim=(1, 2))
+    return flip_share.cpu().numpy().astype(np.float64), mean_abs_dq.cpu().numpy().astype(np.float64)
+
+
+def calibrate_scale(
+    flip_share_at: Callable[[float], float],
+    target: float,
+    initial: float,
+    tolerance: float = 0.2,
+    max_evaluations: int = 24,
+    bounds: tuple[float, float] = (1e-9, 1e3),
+) -> tuple[float, float]:
+    """Find a noise scale whose mutants change a ``target`` share of greedy actions (a search in log scale).
+
+    Lehman et al.'s safe mutations fix the output change through the sensitivity; with a floor on it, the step
+    is set by the floor instead (docs/modules/eps.md). Here the scale is chosen each round by its measured effect:
+    the share grows with the scale (in expectation), so the search doubles/halves the scale by factors of 4 until
+    it brackets the target, then bisects in log space until the share is within ``tolerance * target``.
+
+    :param flip_share_at: the mean share of greedy actions changed by the mutants at a scale
+    :param target: the share to reach, in (0, 1)
+    :param initial: the first scale to try (the previous round's result, or ``sigma``)
+    :param tolerance: relative tolerance on the share
+    :param max_evaluations: evaluations of ``flip_share_at`` at most
+    :param bounds: the scales searched
+    :return: the scale and the share it gave (the closest one tried, in log-ratio to the target, when the
+        tolerance was not met)
+    """
+    if not 0.0 < target < 1.0:
+        raise ValueError(f"target flip share must be in (0, 1), got {target}")
+    low_bound, high_bound = bounds
+    scale = float(np.clip(initial, low_bound, high_bound))
+    low: tuple[float, float] | None = None  # (scale, share) with share < target
+    high: tuple[float, float] | None = None  # with share > target
+    best = (scale, float("nan"))
+
+    def closeness(share: float) -> float:
+        return abs(np.log(max(share, 1e-6) / target))
+
+    for _ in range(max_evaluations):
+        share = float(flip_share_at(scale))
+        if np.isnan(best[1]) or closeness(share) < closeness(best[1]):
+            best = (scale, share)
+        if abs(share - target) <= tolerance * target:
+            return scale, share
+        if share < target:
+            low = (scale, share)
+        else:
+            high = (scale, share)
+        if low is not None and high is not None:
+            scale = float(np.sqrt(low[0] * high[0]))
+        elif high is None:
+            if scale >= high_bound:
+                break
+            scale = min(scale * 4.0, high_bound)
+        else:
+            if scale <= low_bound:
+                break
+            scale = max(scale / 4.0, low_bound)
+    return best
 
 
 def select_best(fitness: np.ndarray) -> int:
@@ -152,20 +304,25 @@ def select_best(fitness: np.ndarray) -> int:
     return int(np.argmax(safe))
 
 
-def polyak_crossover_(network: nn.Module, best: Parameters, alpha: float) -> float:
+def polyak_crossover_(
+    network: nn.Module, best: Parameters, alpha: float, names: Collection[str] | None = None
+) -> float:
     """Mean crossover by Polyak averaging, EPS paper Eq. 5: ``theta = alpha * theta* + (1 - alpha) * theta``,
     in place on ``network``'s parameters.
 
     :param network: the network to move toward the best individual (the online or the target agent network)
     :param best: the best individual's weights ``theta*``
     :param alpha: share of the best individual, in [0, 1]
-    :return: the mean ``|delta theta|`` over all weights
+    :param names: the parameters to cross over (None: all); the others are left as they are
+    :return: the mean ``|delta theta|`` over the crossed-over weights
     """
     if not 0.0 <= alpha <= 1.0:
         raise ValueError(f"alpha must be in [0, 1], got {alpha}")
     total_change, n_weights = 0.0, 0
     with th.no_grad():
         for name, param in network.named_parameters():
+            if names is not None and name not in names:
+                continue
             if best[name].shape != param.shape:
                 raise ValueError(f"{name}: best {tuple(best[name].shape)} != network {tuple(param.shape)}")
             mixed = alpha * best[name] + (1.0 - alpha) * param  # Eq. 5
@@ -173,6 +330,31 @@ def polyak_crossover_(network: nn.Module, best: Parameters, alpha: float) -> flo
             n_weights += param.numel()
             param.copy_(mixed)
     return total_change / max(n_weights, 1)
+
+
+def evolved_parameter_names(network: nn.Module, frozen_groups: Collection[str]) -> list[str]:
+    """The parameters EPS mutates and crosses over: all but those under a frozen group.
+
+    :param network: the agent network
+    :param frozen_groups: module names (``"value_stream"``) or parameter names left out
+    :return: the names of the evolved parameters, in the network's order
+    :raises ValueError: when a group names nothing in the network, or every parameter is frozen
+    """
+    names = [name for name, _ in network.named_parameters()]
+    for group in frozen_groups:
+        if not any(name == group or name.startswith(f"{group}.") for name in names):
+            groups = sorted({name.split(".")[0] for name in names})
+            raise ValueError(
+                f"frozen_groups: {group!r} names no parameter of the agent network; its groups are {groups}"
+            )
+    evolved = [
+        name
+        for name in names
+        if not any(name == group or name.startswith(f"{group}.") for group in frozen_groups)
+    ]
+    if not evolved:
+        raise ValueError(f"frozen_groups {list(frozen_groups)} leave no parameter to evolve")
+    return evolved
 
 
 def individual(population: Parameters, index: int) -> Parameters:

@@ -34,12 +34,21 @@ EPS_LISTED_ARGUMENTS = (
     "period_unit",
     "sigma",
     "alpha",
+    "alpha_schedule",
     "n_eval_episodes",
     "mutation",
+    "target_flip_share",
+    "frozen_groups",
+    "fitness",
+    "min_gain",
+    "n_reevaluation_episodes",
+    "max_eps_share",
     "sensitivity_batch_size",
     "sensitivity_floor",
     "max_step",
     "per_robot",
+    "n_team_check_episodes",
+    "eval_env_kwargs",
 )
 # Run keys of the default entries (not package defaults: a budget and the number of worlds of make_vec_env).
 _RUN_DEFAULTS = {"tuned": False, "notes": "package defaults (docs/modules/common.md)", "n_timesteps": 800_000}
