@@ -105,6 +105,7 @@ class TrainOptions:
     log_interval: int = -1
     num_threads: int = 1
     init_from: str | None = None
+    vec_env: str | None = None
 
     @classmethod
     def from_namespace(cls, namespace: argparse.Namespace) -> TrainOptions:
@@ -122,6 +123,8 @@ class TrainOptions:
         ):
             if value < low:
                 raise ConfigError(f"{flag} must be >= {low}, got {value} (use 0 to turn off a *-freq)")
+        if self.vec_env not in (None, "dummy", "subproc"):
+            raise ConfigError(f"--vec-env must be dummy or subproc, got {self.vec_env!r}")
         if self.seed is not None and self.seed < 0:
             raise ConfigError(f"--seed must be a non-negative int, got {self.seed}")
         if self.init_from is not None and not Path(self.init_from).is_file():
@@ -155,9 +158,14 @@ def env_kwargs_of(config: ResolvedConfig) -> dict[str, Any]:
 
 
 def build_env(
-    config: ResolvedConfig, seed: int | None, env_id: str | None = None, n_envs: int | None = None
+    config: ResolvedConfig,
+    seed: int | None,
+    env_id: str | None = None,
+    n_envs: int | None = None,
+    vec_env: str | None = None,
 ) -> MultiAgentVecEnv:
-    """Make the vector env of a config (``env_id`` / ``n_envs`` override the config's, for evaluation worlds).
+    """Make the vector env of a config (``env_id`` / ``n_envs`` override the config's, for evaluation worlds;
+    ``vec_env``, ``"dummy"`` or ``"subproc"``, the config's ``vec_env``).
 
     :raises ConfigError: when the env refuses the config's ``env_kwargs``
     """
@@ -168,6 +176,7 @@ def build_env(
             n_envs=n_envs or config.entry.get("n_envs", 1),
             seed=seed,
             env_kwargs=env_kwargs_of(config),
+            vec_env_cls=vec_env or config.entry.get("vec_env"),
         )
     except (TypeError, ValueError) as error:
         raise ConfigError(
@@ -276,7 +285,7 @@ def prepare_run(
         options.seed = random.SystemRandom().randrange(2**31 - 1)
     if options.num_threads > 0:
         th.set_num_threads(options.num_threads)
-    env = build_env(config, options.seed)
+    env = build_env(config, options.seed, vec_env=options.vec_env)
     model: Any = None
     eval_env = None
     try:
@@ -285,7 +294,9 @@ def prepare_run(
             if options.init_from is not None:
                 load_agent_weights(model, options.init_from)
         if options.eval_freq > 0:
-            eval_env = build_env(config, options.seed + EVAL_SEED_OFFSET, eval_env_id, options.n_eval_envs)
+            eval_env = build_env(
+                config, options.seed + EVAL_SEED_OFFSET, eval_env_id, options.n_eval_envs, options.vec_env
+            )
             if model is not None:
                 check_eval_env(model, eval_env)
         user_callbacks = build_callbacks(config.entry, config.env_id, options.verbose, config.source)
