@@ -40,6 +40,11 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=None, help="random seed (default: drawn and recorded)")
     parser.add_argument("-f", "--log-folder", dest="folder", default="logs", help="folder of the run folders")
     parser.add_argument(
+        "--run-name",
+        default=None,
+        help="run folder name under <log folder>/<algo>/ (default: <env id>_<next free number>)",
+    )
+    parser.add_argument(
         "--eval-freq", type=int, default=25_000, help="timesteps between team evaluations (0: none)"
     )
     parser.add_argument("--eval-episodes", type=int, default=10, help="world episodes per evaluation")

@@ -221,7 +221,7 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         return [process.pid for process in self._processes]
 
     def _start_workers(self, payloads: list[tuple[str, Any]]) -> None:
-        context = mp.get_context(self.start_method)
+        context: Any = mp.get_context(self.start_method)
         self._closed = False
         self._remotes: list[Connection] = []
         self._processes: list[Any] = []
@@ -415,7 +415,7 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         snapshots = state.pop("_snapshots")
-        bookkeeping = {
+        bookkeeping: dict[str, Any] = {
             key: state[key]
             for key in ("alive", "_seed", "_seeds", "_options", "_n_steps", "_want_state", "reset_infos")
             if key in state

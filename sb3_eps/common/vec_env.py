@@ -424,7 +424,7 @@ def _apply_to_world(
     if kind == "getattr":
         return getattr(env, name)  # type: ignore[arg-type]
     if kind == "setattr":
-        return setattr(env, name, args[0])  # type: ignore[arg-type,func-returns-value]
+        return setattr(env, name, args[0])  # type: ignore[arg-type]
     if kind == "method":
         return getattr(env, name)(*args, **kwargs)  # type: ignore[arg-type]
     if kind == "is_wrapped":
