@@ -8,6 +8,10 @@ from __future__ import annotations
 import os
 import pickle
 import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -195,3 +199,41 @@ def test_workers_ignore_sigterm_until_the_main_process_closes_them(closing) -> N
 def test_bad_switches_are_one_clear_error(kwargs, message) -> None:
     with pytest.raises(ValueError, match=message):
         make_vec_env("MultiRobotNav-2-v0", n_envs=2, **kwargs)
+
+
+def test_a_run_whose_worker_dies_stops_with_one_line_and_keeps_its_checkpoint(tmp_path) -> None:
+    """python -m sb3_eps.train --vec-env subproc: a killed world worker ends the run with exit status 1 and one line
+    naming the worlds; the last checkpoint stays, and --resume finishes the run."""
+    argv = [
+        sys.executable, "-m", "sb3_eps.train", "--algo", "gdq", "--env", "Corridor-2-v0", "-n", "3000",
+        "--seed", "0", "--eval-freq", "0", "--save-freq", "300", "--verbose", "0", "--vec-env", "subproc",
+        "--hyperparams", "n_envs:2", "-f", str(tmp_path),
+    ]  # fmt: skip
+    process = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while not list(tmp_path.glob("gdq/*/checkpoint.zip")):
+        assert process.poll() is None and time.time() < deadline, "training ended before a checkpoint"
+        time.sleep(0.02)
+    workers = [
+        int(path.parent.name)
+        for path in Path("/proc").glob("[0-9]*/stat")
+        if _parent_pid(path) == process.pid
+    ]
+    assert len(workers) == 2  # one per world (2 cores)
+    os.kill(workers[1], signal.SIGKILL)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 1
+    (line,) = stderr.strip().splitlines()
+    assert "error:" in line and "world 1 of Corridor-2-v0" in line and "killed by signal 9" in line
+    assert "--resume" in line and "Traceback" not in stderr
+    (run,) = tmp_path.glob("gdq/*")
+    assert (run / "checkpoint.zip").is_file()
+    resumed = subprocess.run([sys.executable, "-m", "sb3_eps.train", "--resume", str(run), "--verbose", "0"])
+    assert resumed.returncode == 0 and (run / "Corridor-2-v0.zip").is_file()
+
+
+def _parent_pid(stat: Path) -> int | None:
+    try:
+        return int(stat.read_text().rsplit(")", 1)[1].split()[1])
+    except (OSError, IndexError, ValueError):
+        return None

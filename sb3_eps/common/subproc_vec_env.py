@@ -57,6 +57,14 @@ def _close_open_vec_envs() -> None:
         venv.close()
 
 
+_DOING = {
+    "step": "stepping its worlds",
+    "reset": "resetting its worlds",
+    "get_state": "reading the global state",
+    "snapshot": "taking a snapshot of its worlds (checkpoint)",
+}
+
+
 class VecEnvWorkerError(RuntimeError):
     """A worker process of a :class:`SubprocMultiAgentVecEnv` died, or one of its worlds raised."""
 
@@ -299,7 +307,8 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         """Send ``command`` to every worker (``data[i]`` to worker ``i``), then gather the replies in order."""
         for i in range(self.n_workers):
             self._send(i, command, None if data is None else data[i])
-        return [self._receive(i, command) for i in range(self.n_workers)]
+        doing = _DOING.get(command, command)
+        return [self._receive(i, doing) for i in range(self.n_workers)]
 
     # -------------------------------------------------------------------------------- VecEnv
     def reset(self) -> np.ndarray:
@@ -391,7 +400,8 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         for i in asked:
             start = self._blocks[i].start
             results.update(
-                (start + w, value) for w, value in self._receive(i, f"{kind} {name or ''}".strip()).items()
+                (start + w, value)
+                for w, value in self._receive(i, f"running {kind} {name or ''}".strip()).items()
             )
         return results
 
