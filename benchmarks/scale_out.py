@@ -17,6 +17,9 @@ on the local backend against the same runs one after another.
   sb3_eps.grid`` on the local backend (one run per core) against the same 4 runs with ``--n-jobs 1`` (one after
   another); wall times and their ratio.
 
+- **latency**: what one parallel round costs on this machine, without any env: 2 processes burning 0.5 ms each
+  on command against 1 ms in one process, with and without a 0.3 ms gap between rounds.
+
 Targets (issue 11, 2-core machine): env >= 1.5x with 4 worlds, GDQ training >= 1.2x per tick with 4 worlds,
 grid <= 0.6x the time of its runs in sequence. Speed-ups need a quiet machine: the script prints the load
 average before and after.
@@ -178,13 +181,64 @@ def grid_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
     )
 
 
+def _burn(seconds: float) -> None:
+    start = time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        pass
+
+
+def _burn_worker(remote: Any) -> None:
+    while (seconds := remote.recv()) is not None:
+        _burn(seconds)
+        remote.send(None)
+
+
+def latency_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
+    """The machine's cost of one parallel round: 2 processes burning 0.5 ms each on command (the shape of a step of 4
+    worlds in 2 workers) against 1 ms in one process, with and without a 0.3 ms gap between rounds (the main
+    process's own work between steps, while the workers sleep)."""
+    import multiprocessing as mp
+
+    context = mp.get_context("fork")
+    remotes, processes = [], []
+    for _ in range(2):
+        remote, child = context.Pipe()
+        process = context.Process(target=_burn_worker, args=(child,), daemon=True)
+        process.start()
+        remotes.append(remote)
+        processes.append(process)
+    rounds = 1000
+    for gap in (0.0, 0.0003):
+        start = time.perf_counter()
+        for _ in range(rounds):
+            _burn(0.001)
+            _burn(gap)
+        serial = (time.perf_counter() - start) / rounds
+        start = time.perf_counter()
+        for _ in range(rounds):
+            for remote in remotes:
+                remote.send(0.0005)
+            for remote in remotes:
+                remote.recv()
+            _burn(gap)
+        parallel = (time.perf_counter() - start) / rounds
+        overhead = parallel - 0.0005 - gap
+        print(
+            f"round 2 x 0.5 ms of work, gap {gap * 1e3:.1f} ms: serial {serial * 1e6:.0f} us, 2 processes "
+            f"{parallel * 1e6:.0f} us -> {serial / parallel:.2f}x (overhead of a round {overhead * 1e6:.0f} us)",
+            flush=True,
+        )
+    for remote, process in zip(remotes, processes):
+        remote.send(None)
+        process.join()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument(
-        "--parts", nargs="+", default=["env", "train", "grid"], choices=["env", "train", "grid"]
-    )
+    parts = ["latency", "env", "train", "grid"]
+    parser.add_argument("--parts", nargs="+", default=parts, choices=parts)
     parser.add_argument("--worlds", nargs="+", type=int, default=[4, 8])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--env-steps", type=int, default=400, help="vector steps per env measurement")
@@ -197,6 +251,8 @@ def main() -> None:
     th.set_num_threads(1)
     print(f"{os.cpu_count()} cores; load average before: {load()}", flush=True)
     results: dict[str, Any] = {}
+    if "latency" in args.parts:
+        latency_part(args, results)
     if "env" in args.parts:
         env_part(args, results)
     if "train" in args.parts:
