@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 TORCH_SPEC ?= torch==2.13.0
 PYTEST_ARGS ?=
 
-.PHONY: install run test test-slow lint format type bench clean
+.PHONY: install run test test-slow test-ray lint format type bench clean
 
 install: $(VENV)/.installed
 
@@ -21,7 +21,12 @@ run: install
 	$(PY) -m sb3_eps.run_main
 
 test: install
-	$(PY) -m pytest -m "not slow" --durations=15 -p no:cacheprovider $(PYTEST_ARGS)
+	$(PY) -m pytest -m "not slow and not ray" --durations=15 -p no:cacheprovider $(PYTEST_ARGS)
+
+# The grid's Ray backend on a local Ray instance (ray is an optional extra: about 80 MB, ~1 min of tests).
+test-ray: install
+	$(PY) -m pip install --quiet -e ".[dev,ray]"
+	$(PY) -m pytest -m ray --durations=15 -p no:cacheprovider $(PYTEST_ARGS)
 
 test-slow: install
 	$(PY) -m pytest -m slow --durations=15 $(PYTEST_ARGS)

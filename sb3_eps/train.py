@@ -40,10 +40,21 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=None, help="random seed (default: drawn and recorded)")
     parser.add_argument("-f", "--log-folder", dest="folder", default="logs", help="folder of the run folders")
     parser.add_argument(
+        "--run-name",
+        default=None,
+        help="run folder name under <log folder>/<algo>/ (default: <env id>_<next free number>)",
+    )
+    parser.add_argument(
         "--eval-freq", type=int, default=25_000, help="timesteps between team evaluations (0: none)"
     )
     parser.add_argument("--eval-episodes", type=int, default=10, help="world episodes per evaluation")
     parser.add_argument("--n-eval-envs", type=int, default=2, help="evaluation worlds run side by side")
+    parser.add_argument(
+        "--vec-env",
+        choices=["dummy", "subproc"],
+        default=None,
+        help="worlds in this process (dummy) or in worker processes, one per core (subproc); default: config",
+    )
     parser.add_argument("--eval-env", default=None, help="env id of the evaluation worlds (default: --env)")
     parser.add_argument(
         "--save-freq", type=int, default=100_000, help="timesteps between checkpoints (0: on signals only)"

@@ -10,6 +10,7 @@ from stable_baselines3 import DQN
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_eps import MultiAgentVecEnv, make_vec_env
+from sb3_eps.common.subproc_vec_env import SubprocMultiAgentVecEnv
 
 TINY_DQN = {
     "policy_kwargs": {"net_arch": [16]},
@@ -73,6 +74,40 @@ class ParkingEnv(ParallelEnv):
         return np.full(len(self.possible_agents), self.tick, dtype=np.float32)
 
 
+@pytest.fixture(params=["dummy", "subproc"])
+def mode(request) -> str:
+    """Every contract test runs with the worlds in process (dummy) and in worker processes (subproc)."""
+    return request.param
+
+
+@pytest.fixture
+def make(mode):
+    """``make_vec_env`` in the test's mode; the vec envs it made are closed afterwards."""
+    made = []
+
+    def build(*args, **kwargs):
+        made.append(make_vec_env(*args, vec_env_cls=mode, **kwargs))
+        return made[-1]
+
+    yield build
+    for venv in made:
+        venv.close()
+
+
+@pytest.fixture
+def bridge(mode):
+    """``MultiAgentVecEnv(env_fns)``, or its worker-process twin, in the test's mode."""
+    made = []
+
+    def build(env_fns):
+        made.append(MultiAgentVecEnv(env_fns) if mode == "dummy" else SubprocMultiAgentVecEnv(env_fns))
+        return made[-1]
+
+    yield build
+    for venv in made:
+        venv.close()
+
+
 def run(venv: MultiAgentVecEnv, n_steps: int, seed: int = 0) -> list:
     rng = np.random.default_rng(seed)
     record = [venv.reset()]
@@ -126,8 +161,8 @@ def test_bad_seed_and_actions_on_the_vec_env() -> None:
 # --- layout and SB3 ------------------------------------------------------------------------------------------------
 
 
-def test_layout_and_attributes() -> None:
-    venv = make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=0)
+def test_layout_and_attributes(make) -> None:
+    venv = make("CooperativeNavigation-v0", n_envs=2, seed=0)
     assert (venv.n_agents, venv.n_worlds, venv.num_envs) == (3, 2, 6)
     assert venv.env_id == "CooperativeNavigation-v0"
     assert venv.possible_agents == ["agent_0", "agent_1", "agent_2"]
@@ -147,8 +182,8 @@ def test_layout_and_attributes() -> None:
     assert venv.env_is_wrapped(object) == [False] * 6
 
 
-def test_render_one_picture_per_world() -> None:
-    venv = make_vec_env("CooperativeNavigation-v0", n_envs=2, env_kwargs={"render_mode": "rgb_array"})
+def test_render_one_picture_per_world(make) -> None:
+    venv = make("CooperativeNavigation-v0", n_envs=2, env_kwargs={"render_mode": "rgb_array"})
     venv.reset()
     images = venv.get_images()
     assert len(images) == 2
@@ -157,8 +192,8 @@ def test_render_one_picture_per_world() -> None:
     venv.close()
 
 
-def test_dqn_learns_with_timeouts_and_one_episode_per_world() -> None:
-    venv = make_vec_env("CooperativeNavigation-v0", n_envs=2)
+def test_dqn_learns_with_timeouts_and_one_episode_per_world(make) -> None:
+    venv = make("CooperativeNavigation-v0", n_envs=2)
     model = DQN("MlpPolicy", venv, seed=0, **TINY_DQN)
     model.learn(2_000)
     ticks = model.num_timesteps // venv.n_agents  # summed over the worlds
@@ -177,8 +212,8 @@ def test_dqn_learns_with_timeouts_and_one_episode_per_world() -> None:
     np.testing.assert_array_equal(timeouts, dones)
 
 
-def test_single_agent_ids_give_one_agent_worlds() -> None:
-    venv = make_vec_env("CooperativeNavigationSingle-v0", n_envs=2, seed=0)
+def test_single_agent_ids_give_one_agent_worlds(make) -> None:
+    venv = make("CooperativeNavigationSingle-v0", n_envs=2, seed=0)
     assert (venv.n_agents, venv.num_envs) == (1, 2)
     obs = venv.reset()
     np.testing.assert_array_equal(venv.get_state(), obs)  # no state(): the observation stands in
@@ -192,28 +227,28 @@ def test_single_agent_ids_give_one_agent_worlds() -> None:
 # --- seeding -----------------------------------------------------------------------------------------------------
 
 
-def test_seeded_runs_are_identical() -> None:
-    first = run(make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=3), 60)
-    again = run(make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=3), 60)
-    other = run(make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=4), 60)
+def test_seeded_runs_are_identical(make) -> None:
+    first = run(make("CooperativeNavigation-v0", n_envs=2, seed=3), 60)
+    again = run(make("CooperativeNavigation-v0", n_envs=2, seed=3), 60)
+    other = run(make("CooperativeNavigation-v0", n_envs=2, seed=4), 60)
     assert_records_equal(first, again)
     with pytest.raises(AssertionError):
         assert_records_equal(first, other)
 
 
-def test_world_w_is_seeded_with_seed_plus_w() -> None:
-    two_worlds = make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=10)
+def test_world_w_is_seeded_with_seed_plus_w(make) -> None:
+    two_worlds = make("CooperativeNavigation-v0", n_envs=2, seed=10)
     assert two_worlds.seed(10) == [10, 10, 10, 11, 11, 11]
     obs = two_worlds.reset()
-    np.testing.assert_array_equal(obs[3:], make_vec_env("CooperativeNavigation-v0", seed=11).reset())
+    np.testing.assert_array_equal(obs[3:], make("CooperativeNavigation-v0", seed=11).reset())
     # A seed is used once: the next reset continues the worlds' random streams.
     assert not np.array_equal(two_worlds.reset(), obs)
 
 
-def test_sb3_seed_argument_seeds_the_worlds() -> None:
+def test_sb3_seed_argument_seeds_the_worlds(make) -> None:
     observations = []
     for _ in range(2):
-        model = DQN("MlpPolicy", make_vec_env("CooperativeNavigation-v0", n_envs=2), seed=7, **TINY_DQN)
+        model = DQN("MlpPolicy", make("CooperativeNavigation-v0", n_envs=2), seed=7, **TINY_DQN)
         model.learn(300)
         observations.append(model.replay_buffer.observations[: model.replay_buffer.pos].copy())
     np.testing.assert_array_equal(*observations)
@@ -222,8 +257,8 @@ def test_sb3_seed_argument_seeds_the_worlds() -> None:
 # --- per-agent ends, alive flags, terminal values, team episodes ----------------------------------------------------
 
 
-def test_agents_that_end_early() -> None:
-    venv = MultiAgentVecEnv([ParkingEnv] * 2)
+def test_agents_that_end_early(bridge) -> None:
+    venv = bridge([ParkingEnv] * 2)
     assert (venv.n_agents, venv.n_worlds) == (3, 2)
     venv.reset()
     assert venv.reset_infos[0] == {"reset": True}
@@ -263,8 +298,8 @@ def test_agents_that_end_early() -> None:
     assert venv.alive.all()
 
 
-def test_world_ends_when_every_agent_arrived() -> None:
-    venv = MultiAgentVecEnv([lambda: ParkingEnv(arrive_at=(1, 3), max_cycles=10)])
+def test_world_ends_when_every_agent_arrived(bridge) -> None:
+    venv = bridge([lambda: ParkingEnv(arrive_at=(1, 3), max_cycles=10)])
     venv.reset()
     steps = [venv.step(np.zeros(2, dtype=np.int64)) for _ in range(3)]
     _, _, dones, infos = steps[2]
@@ -291,8 +326,8 @@ class StepRecorder(BaseCallback):
         return True
 
 
-def test_dqn_on_four_robots() -> None:
-    venv = make_vec_env("MultiRobotNav-4-v0", n_envs=2, env_kwargs={"max_episode_steps": 40})
+def test_dqn_on_four_robots(make) -> None:
+    venv = make("MultiRobotNav-4-v0", n_envs=2, env_kwargs={"max_episode_steps": 40})
     recorder = StepRecorder()
     model = DQN("MlpPolicy", venv, seed=0, **TINY_DQN)
     model.learn(2_000, callback=recorder)
@@ -306,8 +341,8 @@ def test_dqn_on_four_robots() -> None:
     np.testing.assert_array_equal(model.replay_buffer.timeouts[: model.replay_buffer.pos], expected)
 
 
-def test_an_arrived_robot_parks_until_its_world_resets() -> None:
-    venv = make_vec_env("MultiRobotNav-4-v0", env_kwargs={"max_episode_steps": 4})
+def test_an_arrived_robot_parks_until_its_world_resets(make) -> None:
+    venv = make("MultiRobotNav-4-v0", env_kwargs={"max_episode_steps": 4})
     starts = [(-1.0, -1.0, 0.0), (1.0, -1.0, 0.0), (-1.0, 1.0, 0.0), (1.0, 1.0, 0.0)]
     # Robot 0's target lies within the 0.1 m arrival radius: it arrives on the first tick.
     targets = [(-0.95, -1.0), (1.0, 0.5), (-1.0, 0.2), (0.2, 1.0)]
@@ -338,13 +373,13 @@ def test_an_arrived_robot_parks_until_its_world_resets() -> None:
     venv.close()
 
 
-def test_worlds_without_state_get_the_concatenated_observations() -> None:
+def test_worlds_without_state_get_the_concatenated_observations(bridge) -> None:
     def no_state_env() -> ParkingEnv:
         env = ParkingEnv()
         del env.state_space
         return env
 
-    venv = MultiAgentVecEnv([no_state_env])
+    venv = bridge([no_state_env])
     assert venv.state_space.shape == (6,)
     obs = venv.reset()
     np.testing.assert_array_equal(venv.get_state(), obs.reshape(1, 6))

@@ -57,6 +57,19 @@ def logged_timesteps(progress: Path) -> list[str]:
     return [line.split(",")[column] for line in lines[1:]]
 
 
+def worker_processes(parent_pid: int) -> list[int]:
+    """Living processes started by ``parent_pid`` (Linux /proc; empty elsewhere)."""
+    found = []
+    for status in Path("/proc").glob("[0-9]*/status"):
+        try:
+            fields = dict(line.split(":\t", 1) for line in status.read_text().splitlines() if ":\t" in line)
+        except OSError:
+            continue
+        if fields.get("PPid", "").strip() == str(parent_pid) and not fields.get("State", "").startswith("Z"):
+            found.append(int(status.parent.name))
+    return found
+
+
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("uninterrupted")
@@ -64,12 +77,24 @@ def uninterrupted(tmp_path_factory) -> Path:
     return run_folder(folder)
 
 
-@pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGKILL], ids=["sigterm", "crash"])
-def test_resume_equals_the_uninterrupted_run(uninterrupted, tmp_path, stop) -> None:
+@pytest.mark.parametrize(
+    ("stop", "vec_env"),
+    [
+        (signal.SIGTERM, "dummy"),
+        (signal.SIGKILL, "dummy"),
+        (signal.SIGTERM, "subproc"),
+        (signal.SIGKILL, "subproc"),
+    ],
+    ids=["sigterm", "crash", "sigterm-workers", "crash-workers"],
+)
+def test_resume_equals_the_uninterrupted_run(uninterrupted, tmp_path, stop, vec_env) -> None:
     """SIGTERM: a checkpoint at the next rollout start, exit 0. SIGKILL (a crash): resume from the last periodic
-    checkpoint; what was logged after it is cut back and logged again."""
+    checkpoint; what was logged after it is cut back and logged again. With ``--vec-env subproc`` the worlds run
+    in worker processes (snapshotted into the checkpoint, rebuilt in new workers on resume), and the result still
+    equals the uninterrupted in-process run."""
     folder = tmp_path / "interrupted"
-    process = subprocess.Popen([sys.executable, "-m", "sb3_eps.train", *ARGV, "-f", str(folder)])
+    argv = [*ARGV, "-f", str(folder), "--vec-env", vec_env]
+    process = subprocess.Popen([sys.executable, "-m", "sb3_eps.train", *argv])
     deadline = time.time() + 120
     while not list(folder.glob("eps_gdq/*/checkpoint.zip")):  # the first periodic checkpoint: training runs
         assert process.poll() is None and time.time() < deadline, "training ended before it could be stopped"
@@ -81,12 +106,20 @@ def test_resume_equals_the_uninterrupted_run(uninterrupted, tmp_path, stop) -> N
                 "training ended before it could be stopped"
             )
             time.sleep(0.02)
+    workers = worker_processes(process.pid)
+    assert len(workers) == (
+        3 if vec_env == "subproc" else 0
+    )  # 2 training + 1 evaluation world, one per worker
     process.send_signal(stop)
     assert process.wait(timeout=120) == (0 if stop == signal.SIGTERM else -signal.SIGKILL)
     run = run_folder(folder)
     stopped_at = read_checkpoint_meta(run / "checkpoint.zip")["num_timesteps"]
     assert 0 < stopped_at < N_TIMESTEPS
     assert not (run / f"{ENV_ID}.zip").exists()
+    deadline = time.time() + 10  # the world workers exit with their run, even a killed one
+    while (alive := [pid for pid in workers if Path(f"/proc/{pid}").exists()]) and time.time() < deadline:
+        time.sleep(0.05)
+    assert not alive
 
     assert train.main(["--resume", str(run), "--verbose", "0"]) == 0
 

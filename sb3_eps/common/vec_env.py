@@ -32,6 +32,7 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 from supersuit import pettingzoo_env_to_vec_env_v1
 
@@ -205,7 +206,7 @@ class MultiAgentVecEnv(VecEnv):
         :param indices: sub-env indices (agents); None for all
         :return: one value per selected sub-env
         """
-        return [getattr(self._user_env(k // self.n_agents), attr_name) for k in self._get_indices(indices)]
+        return self._per_sub_env(indices, "getattr", attr_name)
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
         """Set an attribute of the env of each world that a selected sub-env belongs to (once per world).
@@ -214,8 +215,7 @@ class MultiAgentVecEnv(VecEnv):
         :param value: its new value
         :param indices: sub-env indices (agents); None for all
         """
-        for w in self._world_indices(indices):
-            setattr(self._user_env(w), attr_name, value)
+        self._world_call(self._world_indices(indices), "setattr", attr_name, (value,))
 
     def env_method(
         self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
@@ -228,11 +228,7 @@ class MultiAgentVecEnv(VecEnv):
         :param method_kwargs: its keyword arguments
         :return: one result per selected sub-env (agents of one world share their world's result)
         """
-        results = {
-            w: getattr(self._user_env(w), method_name)(*method_args, **method_kwargs)
-            for w in self._world_indices(indices)
-        }
-        return [results[k // self.n_agents] for k in self._get_indices(indices)]
+        return self._per_sub_env(indices, "method", method_name, method_args, method_kwargs)
 
     def env_is_wrapped(
         self, wrapper_class: type[gymnasium.Wrapper], indices: VecEnvIndices = None
@@ -243,13 +239,40 @@ class MultiAgentVecEnv(VecEnv):
         :param indices: sub-env indices (agents); None for all
         :return: one answer per selected sub-env (always False for PettingZoo worlds)
         """
-        return [
-            _is_wrapped(self._user_env(k // self.n_agents), wrapper_class) for k in self._get_indices(indices)
-        ]
+        return self._per_sub_env(indices, "is_wrapped", None, (wrapper_class,))
 
     def get_images(self) -> Sequence[np.ndarray | None]:
         """One picture per world (not per agent), for SB3's ``render``."""
-        return [world.render() for world in self._worlds]
+        pictures = self._world_call(range(self.n_worlds), "render")
+        return [pictures[w] for w in range(self.n_worlds)]
+
+    def _per_sub_env(
+        self,
+        indices: VecEnvIndices,
+        kind: str,
+        name: str | None,
+        args: tuple[Any, ...] = (),
+        kwargs: dict[str, Any] | None = None,
+    ) -> list[Any]:
+        """Apply ``kind`` once per world of the selected sub-envs; :return: the result of each sub-env's world."""
+        selected = list(self._get_indices(indices))
+        worlds = sorted({k // self.n_agents for k in selected})
+        results = self._world_call(worlds, kind, name, args, kwargs)
+        return [results[k // self.n_agents] for k in selected]
+
+    def _world_call(
+        self,
+        worlds: Iterable[int],
+        kind: str,
+        name: str | None = None,
+        args: tuple[Any, ...] = (),
+        kwargs: dict[str, Any] | None = None,
+    ) -> dict[int, Any]:
+        """:return: world -> the result of :func:`_apply_to_world` on it (the worker vec env overrides this)."""
+        return {
+            w: _apply_to_world(self._worlds[w], self._user_env(w), kind, name, args, kwargs or {})
+            for w in worlds
+        }
 
     def _user_env(self, w: int) -> Any:
         """The env world ``w`` was built from (a ParallelEnv, or the gymnasium env of a one-agent world)."""
@@ -296,11 +319,38 @@ class MultiAgentVecEnv(VecEnv):
         self._episode_start[w] = self._n_steps
 
 
+#: Names of the two modes of :func:`make_vec_env` (configs' ``vec_env``, the command line's ``--vec-env``).
+VEC_ENV_MODES = ("dummy", "subproc")
+
+
+def vec_env_mode(vec_env_cls: type[VecEnv] | str | None) -> str:
+    """:return: ``"dummy"`` or ``"subproc"`` for SB3's ``DummyVecEnv`` / ``SubprocVecEnv`` (or those names).
+
+    :raises ValueError: for anything else
+    """
+    if vec_env_cls is None:
+        return "dummy"
+    if isinstance(vec_env_cls, str):
+        mode = vec_env_cls.lower()
+        if mode in VEC_ENV_MODES:
+            return mode
+    elif isinstance(vec_env_cls, type):
+        for mode, cls in zip(VEC_ENV_MODES, (DummyVecEnv, SubprocVecEnv)):
+            if issubclass(vec_env_cls, cls):
+                return mode
+    raise ValueError(
+        f"vec_env_cls must be DummyVecEnv (worlds in this process) or SubprocVecEnv (worlds in worker "
+        f"processes), or their names 'dummy' / 'subproc'; got {vec_env_cls!r}"
+    )
+
+
 def make_vec_env(
     env_id: str,
     n_envs: int = 1,
     seed: int | None = None,
     env_kwargs: dict[str, Any] | None = None,
+    vec_env_cls: type[VecEnv] | str | None = None,
+    vec_env_kwargs: dict[str, Any] | None = None,
 ) -> MultiAgentVecEnv:
     """Build the parameter-shared SB3 vector env of a registered env id.
 
@@ -309,8 +359,14 @@ def make_vec_env(
     :param n_envs: number of worlds (the VecEnv has ``n_envs * n_agents`` sub-envs)
     :param seed: seed of the first reset (world ``w`` gets ``seed + w``); None for random
     :param env_kwargs: constructor arguments of every world
-    :return: the vector env
-    :raises ValueError: for an unknown id, ``n_envs < 1`` or a seed that is not a non-negative int
+    :param vec_env_cls: SB3's switch: ``DummyVecEnv`` (None, the default: every world in this process) or
+        ``SubprocVecEnv`` (worlds in worker processes, each with its own PyBullet clients:
+        :class:`~sb3_eps.common.subproc_vec_env.SubprocMultiAgentVecEnv`); also ``"dummy"`` / ``"subproc"``
+    :param vec_env_kwargs: for ``SubprocVecEnv``: ``n_workers`` (None: one per core, at most one per world;
+        each worker holds a block of worlds) and ``start_method`` (None: ``"fork"`` where available)
+    :return: the vector env (the same results in both modes for the same seed)
+    :raises ValueError: for an unknown id, ``n_envs < 1``, a seed that is not a non-negative int, or an unknown
+        ``vec_env_cls`` / ``vec_env_kwargs``
     """
     if not isinstance(env_id, str):
         raise ValueError(f"env_id must be a str, one of {list(envs.ENV_IDS)}; got {env_id!r}")
@@ -318,13 +374,29 @@ def make_vec_env(
     if isinstance(n_envs, bool) or not isinstance(n_envs, int | np.integer) or n_envs < 1:
         raise ValueError(f"n_envs (the number of worlds) must be an int >= 1, got {n_envs!r}")
     seed = check_seed(seed)
+    mode = vec_env_mode(vec_env_cls)
+    vec_kwargs = dict(vec_env_kwargs or {})
+    allowed = {"n_workers", "start_method"} if mode == "subproc" else set()
+    if set(vec_kwargs) - allowed:
+        raise ValueError(
+            f"vec_env_kwargs {sorted(set(vec_kwargs) - allowed)} not understood with {mode!r}; "
+            f"allowed: {sorted(allowed) or 'none'}"
+        )
     kwargs = dict(env_kwargs or {})
     make = envs.make_parallel_env if multi_agent else envs.make_single_env
 
     def env_fn() -> ParallelEnv | gymnasium.Env:
         return make(env_id, **kwargs)
 
-    venv = MultiAgentVecEnv([env_fn] * int(n_envs), env_id=env_id)
+    venv: MultiAgentVecEnv
+    if mode == "subproc":
+        from sb3_eps.common.subproc_vec_env import SubprocMultiAgentVecEnv
+
+        # Build one world here first, so a bad env_kwargs is a plain ValueError / TypeError, not a worker's.
+        env_fn().close()
+        venv = SubprocMultiAgentVecEnv([env_fn] * int(n_envs), env_id=env_id, **vec_kwargs)
+    else:
+        venv = MultiAgentVecEnv([env_fn] * int(n_envs), env_id=env_id)
     if seed is not None:
         venv.seed(seed)
     return venv
@@ -338,6 +410,28 @@ def _as_parallel_env(env: ParallelEnv | gymnasium.Env) -> ParallelEnv:
     raise ValueError(
         f"an env constructor returned {type(env).__name__}; expected a PettingZoo ParallelEnv or a gymnasium Env"
     )
+
+
+def _apply_to_world(
+    world: FixedAgentSet,
+    env: Any,
+    kind: str,
+    name: str | None,
+    args: tuple[Any, ...],
+    kwargs: dict[str, Any],
+) -> Any:
+    """One world-level request of ``get_attr`` / ``set_attr`` / ``env_method`` / ``env_is_wrapped`` / ``render``."""
+    if kind == "getattr":
+        return getattr(env, name)  # type: ignore[arg-type]
+    if kind == "setattr":
+        return setattr(env, name, args[0])  # type: ignore[arg-type]
+    if kind == "method":
+        return getattr(env, name)(*args, **kwargs)  # type: ignore[arg-type]
+    if kind == "is_wrapped":
+        return _is_wrapped(env, args[0])
+    if kind == "render":
+        return world.render()
+    raise ValueError(f"unknown world request {kind!r}")
 
 
 def _is_wrapped(env: Any, wrapper_class: type[gymnasium.Wrapper]) -> bool:

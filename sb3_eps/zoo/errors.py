@@ -7,6 +7,8 @@ from collections.abc import Callable, Iterable
 
 #: Exit status of a command line given a bad flag or configuration (argparse's convention).
 USAGE_EXIT_CODE = 2
+#: Exit status when a run failed for a reason outside the user's input (a world's worker process died).
+RUN_FAILED_EXIT_CODE = 1
 #: Exit status after a second SIGINT / SIGTERM (no checkpoint): 128 + SIGINT, as a shell reports it.
 INTERRUPTED_EXIT_CODE = 130
 
@@ -17,6 +19,11 @@ class ConfigError(ValueError):
     The command lines print it as one line (``<prog>: error: <message>``) and exit with status 2, without a
     traceback. Library callers get an ordinary ``ValueError``.
     """
+
+
+class RunFailed(RuntimeError):
+    """A run stopped by a failure that is not a mistake in its input (a worker process of its worlds died); the
+    message says what remains (the last checkpoint) and how to continue. Shown as one line, exit status 1."""
 
 
 def allowed(values: Iterable[object]) -> str:
@@ -37,6 +44,9 @@ def run_command(prog: str, main: Callable[[], int | None]) -> None:
         message = " ".join(str(error).split())  # one line, whatever the message holds
         print(f"{prog}: error: {message}", file=sys.stderr)
         sys.exit(USAGE_EXIT_CODE)
+    except RunFailed as error:
+        print(f"{prog}: error: {' '.join(str(error).split())}", file=sys.stderr)
+        sys.exit(RUN_FAILED_EXIT_CODE)
     except KeyboardInterrupt as interrupt:
         print(f"{prog}: stopped ({interrupt or 'KeyboardInterrupt'}), without a checkpoint", file=sys.stderr)
         sys.exit(INTERRUPTED_EXIT_CODE)

@@ -32,6 +32,7 @@ from stable_baselines3.common.save_util import load_from_zip_file
 
 import envs
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
+from sb3_eps.common.subproc_vec_env import VecEnvWorkerError
 from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env
 from sb3_eps.version import __version__
 from sb3_eps.zoo.callbacks import (
@@ -63,7 +64,7 @@ from sb3_eps.zoo.config import (
     merged_entry,
     resolve_config,
 )
-from sb3_eps.zoo.errors import ConfigError
+from sb3_eps.zoo.errors import ConfigError, RunFailed
 from sb3_eps.zoo.schema import algorithm_kwargs, algorithm_spec, build_callbacks, check_complete
 
 ARGS_NAME = "args.yml"
@@ -107,6 +108,8 @@ class TrainOptions:
     log_interval: int = -1
     num_threads: int = 1
     init_from: str | None = None
+    vec_env: str | None = None
+    run_name: str | None = None
 
     @classmethod
     def from_namespace(cls, namespace: argparse.Namespace) -> TrainOptions:
@@ -124,6 +127,12 @@ class TrainOptions:
         ):
             if value < low:
                 raise ConfigError(f"{flag} must be >= {low}, got {value} (use 0 to turn off a *-freq)")
+        if self.run_name is not None and (
+            not self.run_name or self.run_name in (".", "..") or "/" in self.run_name or "\\" in self.run_name
+        ):
+            raise ConfigError(f"--run-name must be a plain folder name (no slashes), got {self.run_name!r}")
+        if self.vec_env not in (None, "dummy", "subproc"):
+            raise ConfigError(f"--vec-env must be dummy or subproc, got {self.vec_env!r}")
         if self.seed is not None and self.seed < 0:
             raise ConfigError(f"--seed must be a non-negative int, got {self.seed}")
         if self.init_from is not None and not Path(self.init_from).is_file():
@@ -157,9 +166,14 @@ def env_kwargs_of(config: ResolvedConfig) -> dict[str, Any]:
 
 
 def build_env(
-    config: ResolvedConfig, seed: int | None, env_id: str | None = None, n_envs: int | None = None
+    config: ResolvedConfig,
+    seed: int | None,
+    env_id: str | None = None,
+    n_envs: int | None = None,
+    vec_env: str | None = None,
 ) -> MultiAgentVecEnv:
-    """Make the vector env of a config (``env_id`` / ``n_envs`` override the config's, for evaluation worlds).
+    """Make the vector env of a config (``env_id`` / ``n_envs`` override the config's, for evaluation worlds;
+    ``vec_env``, ``"dummy"`` or ``"subproc"``, the config's ``vec_env``).
 
     :raises ConfigError: when the env refuses the config's ``env_kwargs``
     """
@@ -170,6 +184,7 @@ def build_env(
             n_envs=n_envs or config.entry.get("n_envs", 1),
             seed=seed,
             env_kwargs=env_kwargs_of(config),
+            vec_env_cls=vec_env or config.entry.get("vec_env"),
         )
     except (TypeError, ValueError) as error:
         raise ConfigError(
@@ -278,7 +293,7 @@ def prepare_run(
         options.seed = random.SystemRandom().randrange(2**31 - 1)
     if options.num_threads > 0:
         th.set_num_threads(options.num_threads)
-    env = build_env(config, options.seed)
+    env = build_env(config, options.seed, vec_env=options.vec_env)
     model: Any = None
     eval_env = None
     try:
@@ -287,7 +302,9 @@ def prepare_run(
             if options.init_from is not None:
                 load_agent_weights(model, options.init_from)
         if options.eval_freq > 0:
-            eval_env = build_env(config, options.seed + EVAL_SEED_OFFSET, eval_env_id, options.n_eval_envs)
+            eval_env = build_env(
+                config, options.seed + EVAL_SEED_OFFSET, eval_env_id, options.n_eval_envs, options.vec_env
+            )
             if model is not None:
                 check_eval_env(model, eval_env)
         user_callbacks = build_callbacks(config.entry, config.env_id, options.verbose, config.source)
@@ -307,10 +324,23 @@ def prepare_run(
 
 
 # ---------------------------------------------------------------------------------------------- run folders
-def create_run_folder(folder: str | Path, algo: str, env_id: str) -> Path:
-    """Create ``<folder>/<algo>/<env id>_<n>`` with the next free ``n`` (safe when processes race)."""
+def create_run_folder(folder: str | Path, algo: str, env_id: str, name: str | None = None) -> Path:
+    """Create ``<folder>/<algo>/<env id>_<n>`` with the next free ``n`` (safe when processes race), or
+    ``<folder>/<algo>/<name>`` when a name is given.
+
+    :raises ConfigError: when the named folder exists already
+    """
     parent = Path(folder) / algo
     parent.mkdir(parents=True, exist_ok=True)
+    if name is not None:
+        path = parent / name
+        try:
+            path.mkdir()
+        except FileExistsError:
+            raise ConfigError(
+                f"--run-name: {path} exists already; continue it with --resume {path}, or pick another name"
+            ) from None
+        return path
     pattern = re.compile(rf"^{re.escape(env_id)}_(\d+)$")
     taken = [int(match.group(1)) for path in parent.iterdir() if (match := pattern.match(path.name))]
     number = max(taken, default=0) + 1
@@ -365,7 +395,9 @@ def train(options: TrainOptions) -> TrainResult:
     """
     prepared = prepare_run(options)
     try:
-        run_dir = create_run_folder(options.folder, options.algo, prepared.config.env_id)
+        run_dir = create_run_folder(
+            options.folder, options.algo, prepared.config.env_id, options.run_name
+        )
         options_record = {**vars(options), "version": __version__, "run_dir": str(run_dir)}
         options_record["n_timesteps"] = prepared.config.entry["n_timesteps"]
         write_text_atomic(run_dir / ARGS_NAME, yaml.safe_dump(options_record, sort_keys=False))
@@ -497,6 +529,15 @@ def _run(prepared: PreparedRun, run_dir: Path, restore: dict[str, Any] | None) -
                 log_interval=options.log_interval if options.log_interval > 0 else 4,
                 reset_num_timesteps=restore is None,
             )
+        except VecEnvWorkerError as error:
+            kept = (
+                f"its last checkpoint ({checkpoint.saved_at} timesteps) is kept: continue with "
+                f"python -m sb3_eps.train --resume {run_dir}"
+                if (run_dir / CHECKPOINT_NAME).is_file()
+                else "it had no checkpoint yet: start it again"
+            )
+            reason = str(error).split("; its worlds are lost")[0]
+            raise RunFailed(f"{run_dir}: {reason}; {kept}") from error
         except TrainingInterrupted as stop:
             callback_list.on_training_end()
             print(

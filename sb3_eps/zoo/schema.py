@@ -2,7 +2,7 @@
 
 An entry (one env id of a ``zoo_configs/<algo>.yml`` file, see ``docs/usage.md``) has three kinds of keys:
 
-- run keys: ``tuned``, ``notes``, ``n_timesteps``, ``policy``, ``n_envs``, ``env_kwargs``, ``callback``;
+- run keys: ``tuned``, ``notes``, ``n_timesteps``, ``policy``, ``n_envs``, ``vec_env``, ``env_kwargs``, ``callback``;
 - the algorithm's constructor arguments (:data:`ALGORITHM_PARAMS`), ``policy_kwargs`` among them (checked against
   the algorithm's policy, :data:`COMMON_POLICY_PARAMS` plus its own);
 - nothing else: an unknown key is an error that lists the allowed ones.
@@ -128,6 +128,8 @@ RUN_PARAMS: dict[str, Param] = {
     "n_timesteps": Param("int", low=1),
     "policy": Param("str"),
     "n_envs": Param("int", low=1),
+    # dummy: the worlds in the training process; subproc: in worker processes (make_vec_env's vec_env_cls)
+    "vec_env": Param("choice", choices=("dummy", "subproc")),
     "env_kwargs": Param("mapping"),
 }
 CALLBACK_KEY = "callback"

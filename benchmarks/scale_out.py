@@ -1,0 +1,268 @@
+"""Scale-out, measured side by side in one run: worlds in worker processes against in process, and a grid of runs
+on the local backend against the same runs one after another.
+
+- **env**: ``MultiRobotNav-4-v0``, random actions drawn in advance, ``n`` worlds (4 and 8) in process
+  (``DummyVecEnv``) and in workers (``SubprocVecEnv``, one worker per core, blocks of worlds), interleaved
+  repeats, median wall time; robot-steps per second and the ratio workers / in-process.
+- **train**: GDQ on the same worlds in both modes, after a warm-up, with the settings of
+  ``benchmarks/train_throughput.py`` (package defaults, one gradient step every 4 vector steps) and with its
+  ``zoo_configs/gdq.yml`` entry for ``MultiRobotNav-4-v0`` (one gradient step per vector step, 30-step returns,
+  recomputed global values); ticks per second and the ratio. Only the env part of a tick runs in the workers, so
+  the more learning per tick, the smaller the gain (Amdahl).
+- **projection**: from the measured cost of one world tick in process (``t_w``) and the measured per-worker cost
+  of the worker protocol (``c``: a step of ``W`` workers holding ``n / W`` worlds each costs
+  ``(n / W) t_w + W c``), the ratio expected with ``K`` cores, for env stepping and for training (the rest of a
+  training tick, measured in process, stays in the main process).
+- **grid**: 4 GDQ runs (``MultiRobotNav-2-v0``, seeds 0-3) with ``python -m
+  sb3_eps.grid`` on the local backend (one run per core) against the same 4 runs with ``--n-jobs 1`` (one after
+  another); wall times and their ratio.
+
+- **latency**: what one parallel round costs on this machine, without any env: 2 processes burning 0.5 ms each
+  on command against 1 ms in one process, with and without a 0.3 ms gap between rounds.
+
+Targets (issue 11, 2-core machine): env >= 1.5x with 4 worlds, GDQ training >= 1.2x per tick with 4 worlds,
+grid <= 0.6x the time of its runs in sequence. Speed-ups need a quiet machine: the script prints the load
+average before and after.
+
+    python benchmarks/scale_out.py [--parts env train grid] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch as th
+
+from sb3_eps import make_vec_env
+from sb3_eps.grid import Grid, run_grid
+from sb3_eps.zoo.config import resolve_config
+from sb3_eps.zoo.schema import algorithm_kwargs
+
+ENV_ID = "MultiRobotNav-4-v0"
+MODES = ("dummy", "subproc")
+
+
+def load() -> str:
+    return " ".join(f"{value:.2f}" for value in os.getloadavg())
+
+
+def env_seconds(venv: Any, actions: np.ndarray) -> float:
+    venv.reset()
+    start = time.perf_counter()
+    for action in actions:
+        venv.step(action)
+    return (time.perf_counter() - start) / len(actions)
+
+
+#: GDQ settings of the train part: ``throughput`` is benchmarks/train_throughput.py's (package defaults, a batch of
+#: 64 joint rows, one gradient step every 4 vector steps), ``zoo`` the zoo_configs/gdq.yml entry of the env (one
+#: gradient step per vector step, 30-step returns, recomputed global values: far more learning per tick).
+TRAIN_CONFIGS = ("throughput", "zoo")
+
+
+def gdq_kwargs(config: str) -> dict[str, Any]:
+    if config == "zoo":
+        return algorithm_kwargs(resolve_config("gdq", ENV_ID).entry)
+    return {"batch_size": 64, "train_freq": 4, "gradient_steps": 1, "buffer_size": 50_000}
+
+
+def train_seconds(mode: str, n_worlds: int, warmup: int, steps: int, config: str) -> float:
+    """Wall seconds per tick of GDQ after a warm-up."""
+    from sb3_eps.gdq import GDQ
+
+    kwargs = gdq_kwargs(config)
+    kwargs["learning_starts"] = warmup // 2
+    venv = make_vec_env(ENV_ID, n_envs=n_worlds, seed=0, vec_env_cls=mode)
+    model = GDQ("MlpPolicy", venv, seed=0, **kwargs)
+    model.learn(warmup)
+    start = time.perf_counter()
+    model.learn(steps, reset_num_timesteps=False)
+    elapsed = time.perf_counter() - start
+    venv.close()
+    return elapsed / (steps / venv.n_agents)
+
+
+def env_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
+    for n_worlds in args.worlds:
+        venvs = {mode: make_vec_env(ENV_ID, n_envs=n_worlds, seed=0, vec_env_cls=mode) for mode in MODES}
+        actions = np.random.default_rng(0).integers(5, size=(args.env_steps, n_worlds * 4))
+        env_seconds(venvs["subproc"], actions[:50])  # warm-up: the workers' first steps
+        samples: dict[str, list[float]] = {mode: [] for mode in MODES}
+        for _ in range(args.repeats):
+            for mode in MODES:
+                samples[mode].append(env_seconds(venvs[mode], actions))
+        step = {mode: statistics.median(values) for mode, values in samples.items()}
+        workers = venvs["subproc"].n_workers
+        t_w = step["dummy"] / n_worlds
+        c = (step["subproc"] - n_worlds / workers * t_w) / workers
+        results[f"env{n_worlds}"] = {"step": step, "t_w": t_w, "c": c, "workers": workers}
+        for venv in venvs.values():
+            venv.close()
+        robots = n_worlds * 4
+        print(
+            f"env   {n_worlds} worlds: in process {robots / step['dummy']:8.0f} robot-steps/s, "
+            f"{workers} workers {robots / step['subproc']:8.0f} -> {step['dummy'] / step['subproc']:.2f}x  "
+            f"(t_w {t_w * 1e6:.0f} us/world tick, per-worker cost c {c * 1e6:.0f} us)",
+            flush=True,
+        )
+
+
+def train_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
+    for config in args.train_configs:
+        for n_worlds in args.worlds:
+            samples: dict[str, list[float]] = {mode: [] for mode in MODES}
+            for _ in range(args.repeats):
+                for mode in MODES:
+                    samples[mode].append(train_seconds(mode, n_worlds, args.warmup, args.train_steps, config))
+            tick = {mode: statistics.median(values) for mode, values in samples.items()}
+            if config == args.train_configs[0]:
+                results[f"train{n_worlds}"] = tick
+            print(
+                f"train GDQ ({config} settings) {n_worlds} worlds: in process {1 / tick['dummy']:5.0f} ticks/s, "
+                f"workers {1 / tick['subproc']:5.0f} ticks/s -> {tick['dummy'] / tick['subproc']:.2f}x per tick",
+                flush=True,
+            )
+
+
+def projection(results: dict[str, Any]) -> None:
+    print(
+        "\nprojection (model: a step of W workers = (n/W) t_w + W c; measured t_w, c; the rest of a training"
+    )
+    print("tick stays in the main process):")
+    for n_worlds in (8, 16, 32):
+        source = results.get(f"env{n_worlds}") or results.get("env8") or results.get("env4")
+        if source is None:
+            return
+        t_w, c = source["t_w"], max(source["c"], 0.0)
+        rest = None
+        for key in ("train8", "train4"):
+            if key in results and f"env{key[5:]}" in results:
+                rest = results[key]["dummy"] - results[f"env{key[5:]}"]["step"]["dummy"] / int(key[5:])
+                break
+        cells = []
+        for cores in (2, 4, 8, 16):
+            workers = min(cores, n_worlds)
+            env_ratio = (n_worlds * t_w) / (n_worlds / workers * t_w + workers * c)
+            cell = f"{cores:>2} cores: env {env_ratio:5.2f}x"
+            if rest is not None:
+                in_process = t_w + rest
+                with_workers = (n_worlds / workers * t_w + workers * c) / n_worlds + rest
+                cell += f", GDQ {in_process / with_workers:4.2f}x"
+            cells.append(cell)
+        print(f"  {n_worlds:>2} worlds | " + " | ".join(cells))
+
+
+def grid_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
+    grid = Grid(
+        algos=["gdq"], envs=["MultiRobotNav-2-v0"], seeds=[0, 1, 2, 3], n_timesteps=args.grid_steps,
+        train_args=["--eval-freq", "0", "--verbose", "0", "--hyperparams", "n_envs:1"],
+    )  # fmt: skip
+    samples: dict[str, list[float]] = {"sequence": [], "grid": []}
+    for _ in range(args.grid_repeats):
+        for name, n_jobs in (("sequence", 1), ("grid", None)):
+            with tempfile.TemporaryDirectory() as folder:
+                start = time.perf_counter()
+                reports = run_grid(grid, Path(folder), n_jobs=n_jobs, verbose=0)
+                samples[name].append(time.perf_counter() - start)
+                assert all(report["status"] == "complete" for report in reports), reports
+    wall = {name: statistics.median(values) for name, values in samples.items()}
+    print(
+        f"grid  4 runs ({args.grid_steps} agent-steps each): one after another {wall['sequence']:.1f} s, "
+        f"local backend ({os.cpu_count()} side by side) {wall['grid']:.1f} s -> "
+        f"{wall['grid'] / wall['sequence']:.2f}x the time",
+        flush=True,
+    )
+
+
+def _burn(seconds: float) -> None:
+    start = time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        pass
+
+
+def _burn_worker(remote: Any) -> None:
+    while (seconds := remote.recv()) is not None:
+        _burn(seconds)
+        remote.send(None)
+
+
+def latency_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
+    """The machine's cost of one parallel round: 2 processes burning 0.5 ms each on command (the shape of a step of 4
+    worlds in 2 workers) against 1 ms in one process, with and without a 0.3 ms gap between rounds (the main
+    process's own work between steps, while the workers sleep)."""
+    import multiprocessing as mp
+
+    context = mp.get_context("fork")
+    remotes, processes = [], []
+    for _ in range(2):
+        remote, child = context.Pipe()
+        process = context.Process(target=_burn_worker, args=(child,), daemon=True)
+        process.start()
+        remotes.append(remote)
+        processes.append(process)
+    rounds = 1000
+    for gap in (0.0, 0.0003):
+        start = time.perf_counter()
+        for _ in range(rounds):
+            _burn(0.001)
+            _burn(gap)
+        serial = (time.perf_counter() - start) / rounds
+        start = time.perf_counter()
+        for _ in range(rounds):
+            for remote in remotes:
+                remote.send(0.0005)
+            for remote in remotes:
+                remote.recv()
+            _burn(gap)
+        parallel = (time.perf_counter() - start) / rounds
+        overhead = parallel - 0.0005 - gap
+        print(
+            f"round 2 x 0.5 ms of work, gap {gap * 1e3:.1f} ms: serial {serial * 1e6:.0f} us, 2 processes "
+            f"{parallel * 1e6:.0f} us -> {serial / parallel:.2f}x (overhead of a round {overhead * 1e6:.0f} us)",
+            flush=True,
+        )
+    for remote, process in zip(remotes, processes):
+        remote.send(None)
+        process.join()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parts = ["latency", "env", "train", "grid"]
+    parser.add_argument("--parts", nargs="+", default=parts, choices=parts)
+    parser.add_argument("--worlds", nargs="+", type=int, default=[4, 8])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--env-steps", type=int, default=400, help="vector steps per env measurement")
+    parser.add_argument("--warmup", type=int, default=2_000, help="agent-steps before timing training")
+    parser.add_argument("--train-steps", type=int, default=8_000, help="timed agent-steps of training")
+    parser.add_argument("--train-configs", nargs="+", default=list(TRAIN_CONFIGS), choices=TRAIN_CONFIGS)
+    parser.add_argument("--grid-steps", type=int, default=4_000, help="agent-steps of each grid run")
+    parser.add_argument("--grid-repeats", type=int, default=1)
+    args = parser.parse_args()
+    th.set_num_threads(1)
+    print(f"{os.cpu_count()} cores; load average before: {load()}", flush=True)
+    results: dict[str, Any] = {}
+    if "latency" in args.parts:
+        latency_part(args, results)
+    if "env" in args.parts:
+        env_part(args, results)
+    if "train" in args.parts:
+        train_part(args, results)
+    if "env" in args.parts:
+        projection(results)
+    if "grid" in args.parts:
+        grid_part(args, results)
+    print(f"load average after: {load()}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,436 @@
+"""The bridge with its worlds in worker processes: :class:`SubprocMultiAgentVecEnv`.
+
+``make_vec_env(env_id, n_envs, vec_env_cls=SubprocVecEnv)`` (or ``"subproc"``) builds it. The worlds are split
+into contiguous blocks, one per worker process (``n_workers``, by default one per core, at most one per world);
+each worker runs an ordinary in-process :class:`~sb3_eps.common.vec_env.MultiAgentVecEnv` over its block, with
+its own PyBullet clients, and the main process concatenates the blocks. So every promise of the bridge holds
+unchanged (the worker's own bridge keeps them) and a seeded run gives the same numbers as in-process: world
+``w`` is still reset with ``seed + w``, and no state is shared between worlds.
+
+The main process keeps what SB3 reads between steps (``alive``, ``reset_infos``, the tick counter, seeds and
+reset options) and the global state of the last step: once :meth:`get_state` has been called, every step brings
+the state back with the observations, so algorithms that read it every tick pay no extra round trip.
+
+Pickling (the checkpoint of ``python -m sb3_eps.train``) asks every worker for a snapshot of its worlds,
+mid-episode; unpickling starts new workers from those snapshots, so a resumed run continues exactly.
+
+A worker that dies (killed, out of memory, a crash in PyBullet) raises :class:`VecEnvWorkerError` naming its
+worlds; an exception inside a world is raised again in the main process as :class:`VecEnvWorkerError` with the
+worker's traceback. Workers ignore SIGINT and SIGTERM: the main process decides when they stop (after writing
+its checkpoint), and a worker whose main process is gone exits on its own.
+"""
+
+from __future__ import annotations
+
+import atexit
+import multiprocessing as mp
+import os
+import pickle
+import signal
+import time
+import traceback
+import weakref
+from collections.abc import Callable, Iterable, Sequence
+from multiprocessing.connection import Connection
+from typing import Any
+
+import gymnasium
+import numpy as np
+from pettingzoo import ParallelEnv
+from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper, VecEnv, VecEnvStepReturn
+
+from sb3_eps.common.vec_env import MultiAgentVecEnv
+
+#: Seconds a worker gets to start (import, build its worlds) or to close before it is terminated.
+START_TIMEOUT = 120.0
+CLOSE_TIMEOUT = 10.0
+
+
+# Vec envs with running workers. Their workers ignore SIGTERM, so multiprocessing's own exit handler (terminate,
+# then join) would wait for them forever: this handler, registered later and so run first, closes them.
+_OPEN: weakref.WeakSet[SubprocMultiAgentVecEnv] = weakref.WeakSet()
+
+
+@atexit.register
+def _close_open_vec_envs() -> None:
+    for venv in list(_OPEN):
+        venv.close()
+
+
+_DOING = {
+    "step": "stepping its worlds",
+    "reset": "resetting its worlds",
+    "get_state": "reading the global state",
+    "snapshot": "taking a snapshot of its worlds (checkpoint)",
+}
+
+
+class VecEnvWorkerError(RuntimeError):
+    """A worker process of a :class:`SubprocMultiAgentVecEnv` died, or one of its worlds raised."""
+
+
+def default_start_method() -> str:
+    """``"fork"`` where available (workers start in milliseconds with everything imported), else ``"spawn"``."""
+    return "fork" if "fork" in mp.get_all_start_methods() else "spawn"
+
+
+def default_n_workers(n_worlds: int) -> int:
+    """One worker per core this process may use, at most one per world."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(n_worlds, cores))
+
+
+def split_worlds(n_worlds: int, n_workers: int) -> list[range]:
+    """:return: the contiguous block of worlds of each worker, sizes differing by at most one."""
+    base, extra = divmod(n_worlds, n_workers)
+    blocks, start = [], 0
+    for i in range(n_workers):
+        size = base + (1 if i < extra else 0)
+        blocks.append(range(start, start + size))
+        start += size
+    return blocks
+
+
+# ---------------------------------------------------------------------------------------------- worker side
+def _build_worker_env(payload: tuple[str, Any], t_start: float) -> MultiAgentVecEnv:
+    kind, value = payload
+    if kind == "snapshot":
+        venv = pickle.loads(value)  # written by this class's __getstate__ in a process of this run
+    else:
+        env_fns, env_id = value.var
+        venv = MultiAgentVecEnv(env_fns, env_id=env_id)
+        venv._t_start = t_start  # episode "t" counts from the main process's vec env
+    return venv
+
+
+def _snapshot(venv: MultiAgentVecEnv) -> bytes:
+    from sb3_eps.zoo.checkpoint import snapshot_dumps  # the checkpoint's pickler: envs continue mid-episode
+
+    return snapshot_dumps(venv)
+
+
+def _handle(venv: MultiAgentVecEnv, command: str, data: Any) -> Any:
+    """Run one command of the main process on the worker's vec env; :return: the reply."""
+    if command == "step":
+        actions, want_state = data
+        obs, rewards, dones, infos = venv.step(actions)
+        reset_infos = venv.reset_infos if dones.any() else None
+        return obs, rewards, dones, infos, venv.alive, venv.get_state() if want_state else None, reset_infos
+    if command == "reset":
+        seed, options, want_state = data
+        if seed is not None:
+            venv.seed(seed)
+        venv.set_options(options)
+        obs = venv.reset()
+        return obs, venv.reset_infos, venv.get_state() if want_state else None
+    if command == "get_state":
+        return venv.get_state()
+    if command == "call":
+        worlds, kind, name, args, kwargs = data
+        return venv._world_call(worlds, kind, name, args, kwargs)
+    if command == "snapshot":
+        return _snapshot(venv)
+    raise ValueError(f"unknown command {command!r}")
+
+
+def _worker_main(
+    remote: Connection, parent_remote: Connection, payload: tuple[str, Any], t_start: float
+) -> None:
+    # The main process decides when workers stop: a Ctrl-C or SIGTERM sent to the whole process group must not
+    # kill the worlds before the main process has written its checkpoint (which asks them for a snapshot).
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    parent_remote.close()
+    venv: MultiAgentVecEnv | None = None
+    try:
+        venv = _build_worker_env(payload, t_start)
+        remote.send(
+            ("ok", (venv.possible_agents, venv.observation_space, venv.action_space, venv.state_space))
+        )
+        while True:
+            try:
+                command, data = remote.recv()
+            except (EOFError, OSError):  # the main process is gone
+                break
+            if command == "close":
+                remote.send(("ok", None))
+                break
+            try:
+                reply = ("ok", _handle(venv, command, data))
+            except Exception as error:  # anything a world raises goes back to the main process
+                reply = ("error", f"{type(error).__name__}: {error}\n{traceback.format_exc()}")
+            remote.send(reply)
+    except Exception as error:  # building the worlds failed
+        try:
+            remote.send(("error", f"{type(error).__name__}: {error}\n{traceback.format_exc()}"))
+        except OSError:
+            pass
+    finally:
+        if venv is not None:
+            venv.close()
+        remote.close()
+
+
+# ---------------------------------------------------------------------------------------------- main side
+class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
+    """A :class:`~sb3_eps.common.vec_env.MultiAgentVecEnv` whose worlds run in worker processes.
+
+    Same attributes, step semantics and sub-env order as in-process (``docs/architecture.md``); world ``w`` lives
+    in the worker whose block holds it.
+
+    :param env_fns: one constructor per world (PettingZoo ParallelEnv or gymnasium env); they are sent to the
+        workers with cloudpickle, so lambdas and closures work
+    :param env_id: the registered id the worlds were built from, for the record and error messages
+    :param n_workers: worker processes (None: one per core, at most one per world); each holds a contiguous
+        block of worlds
+    :param start_method: multiprocessing start method (None: ``"fork"`` where available, else ``"spawn"``)
+    """
+
+    def __init__(
+        self,
+        env_fns: Sequence[Callable[[], ParallelEnv | gymnasium.Env]],
+        env_id: str | None = None,
+        n_workers: int | None = None,
+        start_method: str | None = None,
+    ):
+        n_worlds = len(env_fns)
+        if n_worlds < 1:
+            raise ValueError("SubprocMultiAgentVecEnv needs at least one env constructor")
+        if n_workers is None:
+            n_workers = default_n_workers(n_worlds)
+        if isinstance(n_workers, bool) or not isinstance(n_workers, int | np.integer) or n_workers < 1:
+            raise ValueError(f"n_workers must be an int >= 1 (or None: one per core), got {n_workers!r}")
+        if start_method is not None and start_method not in mp.get_all_start_methods():
+            raise ValueError(
+                f"start_method {start_method!r} is not available here; use one of {mp.get_all_start_methods()}"
+            )
+        self.env_id = env_id
+        self.n_worlds = n_worlds
+        self.start_method = start_method or default_start_method()
+        self._blocks = split_worlds(n_worlds, min(int(n_workers), n_worlds))
+        self._t_start = time.time()
+        payloads = [
+            ("fns", CloudpickleWrapper(([env_fns[w] for w in block], env_id))) for block in self._blocks
+        ]
+        self._start_workers(payloads)
+
+    # -------------------------------------------------------------------------------- workers
+    @property
+    def n_workers(self) -> int:
+        """Number of worker processes."""
+        return len(self._blocks)
+
+    @property
+    def worker_pids(self) -> list[int | None]:
+        """Process id of each worker (world block ``i`` lives in ``worker_pids[i]``)."""
+        return [process.pid for process in self._processes]
+
+    def _start_workers(self, payloads: list[tuple[str, Any]]) -> None:
+        context: Any = mp.get_context(self.start_method)
+        self._closed = False
+        self._remotes: list[Connection] = []
+        self._processes: list[Any] = []
+        try:
+            for payload in payloads:
+                remote, child = context.Pipe()
+                process = context.Process(
+                    target=_worker_main, args=(child, remote, payload, self._t_start), daemon=True
+                )
+                process.start()
+                child.close()
+                self._remotes.append(remote)
+                self._processes.append(process)
+            infos = [self._receive(i, "building its worlds", START_TIMEOUT) for i in range(len(payloads))]
+        except BaseException:
+            self._terminate()
+            raise
+        _OPEN.add(self)
+        possible_agents, observation_space, action_space, state_space = infos[0]
+        for info in infos[1:]:
+            if info[0] != possible_agents:
+                self._terminate()
+                raise ValueError("all worlds must have the same possible_agents")
+        self.possible_agents = list(possible_agents)
+        self.n_agents = len(self.possible_agents)
+        self.state_space = state_space
+        self._slices = [
+            slice(block.start * self.n_agents, block.stop * self.n_agents) for block in self._blocks
+        ]
+        VecEnv.__init__(self, self.n_worlds * self.n_agents, observation_space, action_space)
+        self.alive = np.ones(self.num_envs, dtype=bool)
+        self._actions = np.zeros(self.num_envs, dtype=np.int64)
+        self._seed: int | None = None
+        self._n_steps = 0
+        self._state: np.ndarray | None = None
+        self._want_state = False
+
+    def _describe(self, i: int) -> str:
+        block = self._blocks[i]
+        worlds = f"world {block.start}" if len(block) == 1 else f"worlds {block.start}-{block.stop - 1}"
+        name = f" of {self.env_id}" if self.env_id else ""
+        return f"{worlds}{name} (worker {i}, pid {self._processes[i].pid})"
+
+    def _died(self, i: int, doing: str) -> VecEnvWorkerError:
+        process = self._processes[i]
+        process.join(timeout=1.0)
+        code = process.exitcode
+        how = f"was killed by signal {-code}" if code is not None and code < 0 else f"exited ({code})"
+        return VecEnvWorkerError(
+            f"the worker process of {self._describe(i)} {how} while {doing}; its worlds are lost. A training "
+            "run keeps its last checkpoint: continue it with python -m sb3_eps.train --resume <run folder>"
+        )
+
+    def _send(self, i: int, command: str, data: Any = None) -> None:
+        try:
+            self._remotes[i].send((command, data))
+        except (BrokenPipeError, ConnectionResetError, EOFError, OSError):
+            raise self._died(i, command) from None
+
+    def _receive(self, i: int, doing: str, timeout: float | None = None) -> Any:
+        remote = self._remotes[i]
+        try:
+            if timeout is not None and not remote.poll(timeout):
+                raise VecEnvWorkerError(
+                    f"{self._describe(i)} did not answer within {timeout:.0f} s while {doing}"
+                )
+            status, value = remote.recv()
+        except (EOFError, ConnectionResetError, BrokenPipeError, OSError):
+            raise self._died(i, doing) from None
+        if status == "error":
+            raise VecEnvWorkerError(f"{self._describe(i)} failed while {doing}: {value}")
+        return value
+
+    def _ask_all(self, command: str, data: Sequence[Any] | None = None) -> list[Any]:
+        """Send ``command`` to every worker (``data[i]`` to worker ``i``), then gather the replies in order."""
+        for i in range(self.n_workers):
+            self._send(i, command, None if data is None else data[i])
+        doing = _DOING.get(command, command)
+        return [self._receive(i, doing) for i in range(self.n_workers)]
+
+    # -------------------------------------------------------------------------------- VecEnv
+    def reset(self) -> np.ndarray:
+        """Reset every world (world ``w`` with ``seed + w`` after :meth:`seed`) and return all observations."""
+        data = [
+            (
+                None if self._seed is None else self._seed + block.start,
+                self._options[part],
+                self._want_state,
+            )
+            for block, part in zip(self._blocks, self._slices)
+        ]
+        replies = self._ask_all("reset", data)
+        obs = self._join([reply[0] for reply in replies])
+        self.reset_infos = [info for reply in replies for info in reply[1]]
+        self._state = self._join_states([reply[2] for reply in replies])
+        self._seed = None
+        self._reset_seeds()
+        self._reset_options()
+        self.alive = np.ones(self.num_envs, dtype=bool)
+        return obs
+
+    def step_wait(self) -> VecEnvStepReturn:
+        """Step every world once (each worker its block, side by side) and return all agents' results."""
+        actions = self._actions
+        replies = self._ask_all("step", [(actions[part], self._want_state) for part in self._slices])
+        obs, rewards, dones, alive = (self._join([reply[i] for reply in replies]) for i in (0, 1, 2, 4))
+        infos = [info for reply in replies for info in reply[3]]
+        self.alive = alive
+        self._state = self._join_states([reply[5] for reply in replies])
+        for part, reply in zip(self._slices, replies):
+            if reply[6] is not None:
+                self.reset_infos[part] = reply[6]
+        self._n_steps += 1
+        return obs, rewards, dones, infos
+
+    def get_state(self) -> np.ndarray:
+        """The current global state of each world, ``(n_worlds, state_dim)`` float32 (see the in-process bridge).
+
+        After the first call, every step brings the state back with the observations.
+        """
+        if self._state is None:
+            self._want_state = True
+            self._state = self._join_states(self._ask_all("get_state"))
+        assert self._state is not None
+        return self._state
+
+    def close(self) -> None:
+        """Close every world and stop the workers (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        for remote in self._remotes:
+            try:
+                remote.send(("close", None))
+                if remote.poll(CLOSE_TIMEOUT):
+                    remote.recv()
+            except (EOFError, OSError):
+                pass
+        self._terminate()
+
+    def _terminate(self) -> None:
+        self._closed = True
+        _OPEN.discard(self)
+        for process in self._processes:
+            process.join(timeout=CLOSE_TIMEOUT)
+            if process.is_alive():
+                process.kill()  # it ignores SIGTERM
+                process.join(timeout=1.0)
+        for remote in self._remotes:
+            remote.close()
+
+    def _world_call(
+        self,
+        worlds: Iterable[int],
+        kind: str,
+        name: str | None = None,
+        args: tuple[Any, ...] = (),
+        kwargs: dict[str, Any] | None = None,
+    ) -> dict[int, Any]:
+        wanted = set(worlds)
+        asked = []
+        for i, block in enumerate(self._blocks):
+            local = [w - block.start for w in block if w in wanted]
+            if local:
+                self._send(i, "call", (local, kind, name, args, kwargs))
+                asked.append(i)
+        results: dict[int, Any] = {}
+        for i in asked:
+            start = self._blocks[i].start
+            results.update(
+                (start + w, value)
+                for w, value in self._receive(i, f"running {kind} {name or ''}".strip()).items()
+            )
+        return results
+
+    def _join(self, parts: list[np.ndarray]) -> np.ndarray:
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+    def _join_states(self, parts: list[np.ndarray | None]) -> np.ndarray | None:
+        return None if any(part is None for part in parts) else self._join(parts)  # type: ignore[arg-type]
+
+    # -------------------------------------------------------------------------------- pickling
+    def __getstate__(self) -> dict[str, Any]:
+        """The main process's bookkeeping plus a snapshot of every worker's worlds (mid-episode)."""
+        snapshots = self._ask_all("snapshot")
+        state = {
+            key: value
+            for key, value in self.__dict__.items()
+            if key not in ("_remotes", "_processes", "_closed", "_slices")
+        }
+        state["_snapshots"] = snapshots
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        snapshots = state.pop("_snapshots")
+        bookkeeping: dict[str, Any] = {
+            key: state[key]
+            for key in ("alive", "_seed", "_seeds", "_options", "_n_steps", "_want_state", "reset_infos")
+            if key in state
+        }
+        self.__dict__.update(state)
+        self._start_workers([("snapshot", snapshot) for snapshot in snapshots])
+        self.__dict__.update(bookkeeping)
+        self._state = None

@@ -1,0 +1,239 @@
+"""Worlds in worker processes (make_vec_env(..., vec_env_cls=SubprocVecEnv)): the same results as in process,
+blocks of worlds per worker, snapshots mid-episode, training and EPS on top, and clear errors when a worker dies.
+
+The bridge's contract tests (tests/test_vec_env.py) run in both modes as well."""
+
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+from sb3_eps import EvolutionCallback, make_vec_env
+from sb3_eps.common.subproc_vec_env import VecEnvWorkerError, split_worlds
+from sb3_eps.gdq import GDQ
+from sb3_eps.zoo.checkpoint import snapshot_dumps
+
+ROBOTS = "MultiRobotNav-4-v0"
+# Short episodes, so worlds end (time limits, arrivals, collisions) and reset inside the compared stretch.
+SHORT = {"max_episode_steps": 12}
+
+
+def rollout(venv, n_steps: int, seed: int = 0) -> list:
+    """Everything a step gives: observations, rewards, dones, alive flags, global states and the infos."""
+    rng = np.random.default_rng(seed)
+    record: list = [venv.reset(), [dict(info) for info in venv.reset_infos]]
+    for _ in range(n_steps):
+        obs, rewards, dones, infos = venv.step(rng.integers(venv.action_space.n, size=venv.num_envs))
+        record.extend([obs, rewards, dones, venv.alive.copy(), venv.get_state().copy()])
+        for info in infos:
+            info = dict(info)
+            if "episode" in info:
+                info["episode"] = {k: v for k, v in info["episode"].items() if k != "t"}  # wall time
+            record.append(info)
+    return record
+
+
+def assert_same(a: list, b: list) -> None:
+    assert len(a) == len(b)
+    for x, y in zip(a, b):
+        if isinstance(x, dict):
+            assert x.keys() == y.keys()
+            for key in x:
+                if isinstance(x[key], np.ndarray):
+                    np.testing.assert_array_equal(x[key], y[key], err_msg=key)
+                else:
+                    assert x[key] == y[key], key
+        else:
+            np.testing.assert_array_equal(x, y)
+
+
+@pytest.fixture
+def closing():
+    made = []
+    yield made.append
+    for venv in made:
+        venv.close()
+
+
+def subproc(closing, *args, **kwargs):
+    venv = make_vec_env(*args, vec_env_cls=SubprocVecEnv, **kwargs)
+    closing(venv)
+    return venv
+
+
+def test_worlds_are_split_into_contiguous_blocks() -> None:
+    assert split_worlds(5, 2) == [range(0, 3), range(3, 5)]
+    assert split_worlds(4, 4) == [range(i, i + 1) for i in range(4)]
+
+
+@pytest.mark.parametrize("n_workers", [1, 2, 3])
+def test_same_seed_same_results_as_in_process(closing, n_workers) -> None:
+    """3 worlds of 4 robots, one worker (all worlds), blocks of 2 + 1, or one world per worker."""
+    in_process = make_vec_env(ROBOTS, n_envs=3, seed=5, env_kwargs=SHORT, vec_env_cls=DummyVecEnv)
+    closing(in_process)
+    workers = subproc(
+        closing, ROBOTS, n_envs=3, seed=5, env_kwargs=SHORT, vec_env_kwargs={"n_workers": n_workers}
+    )
+    assert workers.n_workers == n_workers and len(set(workers.worker_pids)) == n_workers
+    assert os.getpid() not in workers.worker_pids
+    expected = rollout(in_process, 40)
+    assert any("episode" in item for item in expected if isinstance(item, dict))  # episodes ended and reset
+    assert_same(rollout(workers, 40), expected)
+    assert workers.total_ticks == in_process.total_ticks == 120
+
+
+def test_a_snapshot_continues_mid_episode_in_new_workers(closing) -> None:
+    venv = subproc(closing, ROBOTS, n_envs=2, seed=1, env_kwargs={"max_episode_steps": 30})
+    rollout(venv, 7)  # mid-episode
+    copy = pickle.loads(snapshot_dumps(venv))  # what a checkpoint does
+    closing(copy)
+    assert set(copy.worker_pids).isdisjoint(venv.worker_pids)
+    assert copy.total_ticks == venv.total_ticks and copy.reset_infos == venv.reset_infos
+    rng = np.random.default_rng(2)
+    for _ in range(30):  # across the end of the episode
+        actions = rng.integers(5, size=venv.num_envs)
+        expected, got = venv.step(actions), copy.step(actions)
+        for x, y in zip(expected[:3], got[:3]):
+            np.testing.assert_array_equal(x, y)
+        np.testing.assert_array_equal(copy.get_state(), venv.get_state())
+
+
+def test_gdq_trains_the_same_with_workers() -> None:
+    """A seeded GDQ run (PER, n-step returns, the global state every tick) gives the same network in both modes."""
+    weights = []
+    for vec_env_cls in (DummyVecEnv, SubprocVecEnv):
+        venv = make_vec_env(
+            "MultiRobotNav-2-v0", n_envs=2, env_kwargs={"max_episode_steps": 30}, vec_env_cls=vec_env_cls
+        )
+        model = GDQ(
+            "MlpPolicy", venv, seed=3, learning_starts=100, batch_size=16, buffer_size=2_000, train_freq=2,
+            policy_kwargs={"net_arch": [16], "stream_arch": [16], "global_net_arch": [16]},
+        )  # fmt: skip
+        model.learn(800)
+        weights.append({k: v.clone() for k, v in model.policy.state_dict().items()})
+        assert len(model.ep_info_buffer) > 0
+        venv.close()
+    for key, value in weights[0].items():
+        assert th.equal(weights[1][key], value), key
+
+
+def test_eps_evaluation_workers_next_to_the_world_workers() -> None:
+    """EPS forks its evaluation workers while the training worlds live in their own workers."""
+    results = []
+    for vec_env_cls in (DummyVecEnv, SubprocVecEnv):
+        venv = make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=0, vec_env_cls=vec_env_cls)
+        model = GDQ(
+            "MlpPolicy", venv, seed=0, learning_starts=60, batch_size=16, buffer_size=2_000, train_freq=2,
+            policy_kwargs={"net_arch": [16], "stream_arch": [16], "global_net_arch": [16]},
+        )  # fmt: skip
+        callback = EvolutionCallback(
+            eval_env_id="CooperativeNavigationSingle-v0", population_size=3, period=2, n_eval_episodes=2,
+            n_workers=2, seed=0,
+        )  # fmt: skip
+        model.learn(600, callback=callback)
+        assert callback.history and len(callback.worker_pids) == 0  # closed at the end of training
+        assert not any(entry["skipped"] for entry in callback.history)
+        results.append([entry["fitness"] for entry in callback.history])
+        venv.close()
+    assert results[0] == results[1]
+
+
+# --- errors ---------------------------------------------------------------------------------------------------------
+
+
+def test_a_killed_worker_raises_a_clear_error_naming_its_worlds(closing) -> None:
+    venv = subproc(closing, "Corridor-2-v0", n_envs=4, seed=0, vec_env_kwargs={"n_workers": 2})
+    venv.reset()
+    victim = venv.worker_pids[1]
+    os.kill(victim, signal.SIGKILL)
+    with pytest.raises(VecEnvWorkerError) as caught:
+        venv.step(np.zeros(venv.num_envs, dtype=np.int64))
+    message = str(caught.value)
+    assert "worlds 2-3 of Corridor-2-v0" in message and str(victim) in message
+    assert "killed by signal 9" in message and "--resume" in message
+    venv.close()  # closing after a death neither hangs nor raises
+
+
+def test_an_error_inside_a_world_comes_back_with_its_traceback(closing) -> None:
+    venv = subproc(closing, "Corridor-2-v0", n_envs=2, seed=0)
+    venv.reset()
+    with pytest.raises(VecEnvWorkerError, match=r"world 1 of Corridor-2-v0 .* no_such_method"):
+        venv.env_method("no_such_method", indices=[2])
+    venv.step(np.zeros(venv.num_envs, dtype=np.int64))  # the worker lives on
+
+
+def test_workers_ignore_sigterm_until_the_main_process_closes_them(closing) -> None:
+    venv = subproc(closing, "Corridor-2-v0", n_envs=2, seed=0)
+    venv.reset()
+    for pid in venv.worker_pids:
+        os.kill(pid, signal.SIGTERM)  # as a process-group signal would: the run's checkpoint needs its worlds
+    venv.step(np.zeros(venv.num_envs, dtype=np.int64))
+    assert len(snapshot_dumps(venv)) > 0
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"vec_env_cls": "threads"}, "vec_env_cls must be DummyVecEnv"),
+        ({"vec_env_cls": dict}, "vec_env_cls must be DummyVecEnv"),
+        ({"vec_env_cls": "subproc", "vec_env_kwargs": {"n_workers": 0}}, "n_workers must be an int >= 1"),
+        (
+            {"vec_env_cls": "subproc", "vec_env_kwargs": {"start_method": "teleport"}},
+            "start_method 'teleport'",
+        ),
+        ({"vec_env_cls": "subproc", "vec_env_kwargs": {"workers": 2}}, r"vec_env_kwargs \['workers'\]"),
+        ({"vec_env_cls": "dummy", "vec_env_kwargs": {"n_workers": 2}}, "not understood with 'dummy'"),
+        ({"vec_env_cls": "subproc", "env_kwargs": {"max_episode_steps": -1}}, "max_episode_steps"),
+    ],
+)
+def test_bad_switches_are_one_clear_error(kwargs, message) -> None:
+    with pytest.raises(ValueError, match=message):
+        make_vec_env("MultiRobotNav-2-v0", n_envs=2, **kwargs)
+
+
+def test_a_run_whose_worker_dies_stops_with_one_line_and_keeps_its_checkpoint(tmp_path) -> None:
+    """python -m sb3_eps.train --vec-env subproc: a killed world worker ends the run with exit status 1 and one line
+    naming the worlds; the last checkpoint stays, and --resume finishes the run."""
+    argv = [
+        sys.executable, "-m", "sb3_eps.train", "--algo", "gdq", "--env", "Corridor-2-v0", "-n", "3000",
+        "--seed", "0", "--eval-freq", "0", "--save-freq", "300", "--verbose", "0", "--vec-env", "subproc",
+        "--hyperparams", "n_envs:2", "-f", str(tmp_path),
+    ]  # fmt: skip
+    process = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while not list(tmp_path.glob("gdq/*/checkpoint.zip")):
+        assert process.poll() is None and time.time() < deadline, "training ended before a checkpoint"
+        time.sleep(0.02)
+    workers = [
+        int(path.parent.name)
+        for path in Path("/proc").glob("[0-9]*/stat")
+        if _parent_pid(path) == process.pid
+    ]
+    assert len(workers) == 2  # one per world (2 cores)
+    os.kill(workers[1], signal.SIGKILL)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 1
+    (line,) = stderr.strip().splitlines()
+    assert "error:" in line and "world 1 of Corridor-2-v0" in line and "killed by signal 9" in line
+    assert "--resume" in line and "Traceback" not in stderr
+    (run,) = tmp_path.glob("gdq/*")
+    assert (run / "checkpoint.zip").is_file()
+    resumed = subprocess.run([sys.executable, "-m", "sb3_eps.train", "--resume", str(run), "--verbose", "0"])
+    assert resumed.returncode == 0 and (run / "Corridor-2-v0.zip").is_file()
+
+
+def _parent_pid(stat: Path) -> int | None:
+    try:
+        return int(stat.read_text().rsplit(")", 1)[1].split()[1])
+    except (OSError, IndexError, ValueError):
+        return None
