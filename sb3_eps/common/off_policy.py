@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import io
 import pathlib
+import warnings
 from collections import defaultdict
 from typing import Any, ClassVar, NamedTuple, TypeVar
 
@@ -197,6 +198,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self.team_reward_mode = team_reward_mode
         self._collector: NStepJointCollector | None = None
         self._last_state: np.ndarray | None = None
+        self.n_refused_updates = 0  # gradient steps refused for a non-finite loss or gradient
         if _init_setup_model:
             self._setup_model()
 
@@ -423,6 +425,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         new_state = self._global_state()
         last_obs = np.asarray(self._last_obs, dtype=np.float32).reshape(n_worlds, n_agents, -1)
         shape = (n_worlds, n_agents)
+        rewards = np.asarray(rewards)
         values = next_values = None
         if self.replay_buffer is not None and self.replay_buffer.store_values:
             # v and v' as the agent network sees them now (the paper's "stored at collection time").
@@ -434,7 +437,12 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                     )
                 )
             values, next_values = both.cpu().numpy().reshape(2, n_worlds, n_agents)
+        refused = _non_finite_worlds(last_obs, next_obs.reshape((*shape, -1)), rewards.reshape(shape))
         for world in range(n_worlds):
+            if world in refused:  # never stored; windows across the bad tick are dropped too
+                self._collector.pending[world].clear()
+                warnings.warn(f"{refused[world]}: the tick is not stored", RuntimeWarning, stacklevel=3)
+                continue
             next_state = new_state[world]
             world_terminated = False
             if world_ended[world]:
@@ -537,7 +545,10 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             loss, td_errors, info = self._compute_loss(batch)
             self.policy.optimizer.zero_grad()
             loss.backward()
-            th.nn.utils.clip_grad_norm_(parameters, self.max_grad_norm)
+            grad_norm = th.nn.utils.clip_grad_norm_(parameters, self.max_grad_norm)
+            if not (th.isfinite(loss) and th.isfinite(grad_norm) and np.isfinite(td_errors).all()):
+                self._refuse_update(batch)  # nothing of this step reaches the weights, moments or priorities
+                continue
             self.policy.optimizer.step()
             self.replay_buffer.update_priorities(batch.indices, td_errors)
             self._n_updates += 1
@@ -547,10 +558,36 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             for key, value in info.items():
                 logs[key].append(value)
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        if getattr(self, "n_refused_updates", 0):
+            self.logger.record("train/n_refused_updates", self.n_refused_updates)
         if self.prioritized_replay:
             self.logger.record("train/per_beta", beta)
         for key, values in logs.items():
             self.logger.record(f"train/{key}", float(np.mean(values)))
+
+    def _refuse_update(self, batch: JointReplayBufferSamples) -> None:
+        """Count and report a gradient step whose loss, gradient or TD errors were not finite, naming the source."""
+        self.n_refused_updates = getattr(self, "n_refused_updates", 0) + 1
+        inputs = {
+            "observations": batch.observations,
+            "next observations": batch.next_observations,
+            "rewards": batch.rewards,
+        }
+        sources = [f"replay batch {name}" for name, tensor in inputs.items() if not th.isfinite(tensor).all()]
+        broken = {
+            name.split(".")[0]
+            for name, param in self.policy.named_parameters()
+            if not th.isfinite(param).all()
+        }
+        sources += [
+            f"{'target network' if name.endswith('_target') else 'network'} {name}" for name in sorted(broken)
+        ]
+        source = ", ".join(sources) or "the loss itself (TD target or prediction overflowed)"
+        warnings.warn(
+            f"gradient step refused: non-finite loss or gradient from {source} (count: train/n_refused_updates)",
+            RuntimeWarning,
+            stacklevel=3,
+        )
 
     def _update_targets(self) -> None:
         """Polyak step of every target network. The tensor lists are gathered once per policy object; parameters
@@ -602,3 +639,19 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         if policy_name not in self.policy_aliases:
             raise ValueError(f"unknown policy {policy_name!r}; use one of {sorted(self.policy_aliases)}")
         return self.policy_aliases[policy_name]
+
+
+def _non_finite_worlds(
+    observations: np.ndarray, next_observations: np.ndarray, rewards: np.ndarray
+) -> dict[int, str]:
+    """:return: world -> what was not finite in its tick (``(worlds, agents, ...)`` arrays; empty when all are)."""
+    parts = {"observation": observations, "next observation": next_observations, "reward": rewards}
+    found: dict[int, str] = {}
+    if all(np.isfinite(array).all() for array in parts.values()):  # the hot path: one check per array
+        return found
+    for name, array in parts.items():
+        bad = ~np.isfinite(array.reshape(array.shape[0], array.shape[1], -1)).all(axis=2)
+        for world in np.flatnonzero(bad.any(axis=1)):
+            agents = np.flatnonzero(bad[world]).tolist()
+            found.setdefault(int(world), f"non-finite {name} from the env (world {world}, agents {agents})")
+    return found

@@ -27,6 +27,7 @@ from sb3_eps.eps.evaluation import (
 )
 from sb3_eps.eps.mutations import (
     Parameters,
+    finite_individuals,
     individual,
     mutate_population,
     network_parameters,
@@ -232,7 +233,9 @@ class EvolutionCallback(BaseCallback):
         except EvaluationFailed as error:
             self._skip_round(error, time.perf_counter() - start)
             return
-        winner = select_best(result.fitness)  # line 11, Eq. 4
+        if not result.valid.all():
+            _warn_disqualified(population, result.valid)
+        winner = select_best(result.fitness)  # line 11, Eq. 4 (never a disqualified individual)
         mean_change = 0.0
         if winner != 0:  # line 13, Eq. 5 (copy 0 winning would leave theta as it is)
             best = individual(population, winner)
@@ -443,6 +446,20 @@ class EvolutionCallback(BaseCallback):
                     )
         finally:
             env.close()
+
+
+def _warn_disqualified(population: Parameters, valid: np.ndarray) -> None:
+    """Warn about individuals whose weights (after mutation) or Q-values were not finite; they cannot win."""
+    weights_ok = finite_individuals({name: stacked.detach().cpu() for name, stacked in population.items()})
+    bad_weights = np.flatnonzero(~weights_ok).tolist()
+    bad_outputs = np.flatnonzero(weights_ok & ~np.asarray(valid, dtype=bool)).tolist()
+    parts = [f"individuals {bad_weights} have non-finite weights"] if bad_weights else []
+    parts += [f"individuals {bad_outputs} gave non-finite Q-values"] if bad_outputs else []
+    warnings.warn(
+        f"EPS round: {' and '.join(parts)}; they are disqualified and never written into the network",
+        RuntimeWarning,
+        stacklevel=3,
+    )
 
 
 def _check_arguments(**values: Any) -> None:

@@ -16,10 +16,12 @@ the same total; the result equals an uninterrupted run with the same seed (see :
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import random
 import re
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,8 +49,10 @@ from sb3_eps.zoo.callbacks import (
 )
 from sb3_eps.zoo.checkpoint import (
     CHECKPOINT_NAME,
+    CorruptCheckpoint,
+    latest_good_checkpoint,
     load_checkpoint,
-    read_checkpoint_meta,
+    remove_checkpoints,
     restore_model,
     save_model_atomic,
     write_text_atomic,
@@ -127,6 +131,25 @@ class TrainOptions:
         if self.init_from is not None and not Path(self.init_from).is_file():
             raise ConfigError(
                 f"--init-from: {self.init_from} is not a file; pass a model .zip (e.g. a run's best_model.zip)"
+            )
+        check_optional_features(progress=self.progress, tensorboard=self.tensorboard_log is not None)
+
+
+def check_optional_features(progress: bool = False, tensorboard: bool = False) -> None:
+    """Check, before anything is written, that the packages behind the asked-for features import.
+
+    :raises ConfigError: naming the flag and what to install
+    """
+    wanted = {
+        "--progress": ("tqdm", "rich") if progress else (),
+        "--tensorboard-log": ("tensorboard",) if tensorboard else (),
+    }
+    for flag, modules in wanted.items():
+        missing = [name for name in modules if importlib.util.find_spec(name) is None]
+        if missing:
+            raise ConfigError(
+                f"{flag} needs {' and '.join(missing)}, which this environment lacks (they are part of the base "
+                f"install): pip install 'sb3-eps' or pip install {' '.join(missing)}; or drop {flag}"
             )
 
 
@@ -356,9 +379,11 @@ class TrainResult:
     num_timesteps: int
 
 
-def train(options: TrainOptions) -> TrainResult:
+def train(options: TrainOptions, extra_callbacks: Sequence[BaseCallback] = ()) -> TrainResult:
     """Build, create the run folder, train (``python -m sb3_eps.train``).
 
+    :param options: the run's options
+    :param extra_callbacks: more callbacks to run (not checkpointed; e.g. a probe of ``benchmarks/soak.py``)
     :raises ConfigError: for any mistake, before anything is written
     """
     prepared = prepare_run(options)
@@ -371,7 +396,7 @@ def train(options: TrainOptions) -> TrainResult:
         write_text_atomic(
             run_dir / CONFIG_NAME, entry_yaml(prepared.config.env_id, prepared.config.entry, header)
         )
-        return _run(prepared, run_dir, restore=None)
+        return _run(prepared, run_dir, restore=None, extra_callbacks=extra_callbacks)
     finally:
         prepared.close()
 
@@ -399,16 +424,25 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
         options.progress = progress
     if verbose is not None:
         options.verbose = verbose
-    checkpoint_path = run_dir / CHECKPOINT_NAME
     final_model = run_dir / final_model_name(options.env)
-    if not checkpoint_path.is_file():
+    try:
+        checkpoint_path, meta, skipped = latest_good_checkpoint(run_dir / CHECKPOINT_NAME)
+    except FileNotFoundError:
         if final_model.is_file():
             print(f"{run_dir} has finished already: its final model is {final_model}")
             return TrainResult(run_dir, "already complete", int(options.n_timesteps or 0))
         raise ConfigError(
             f"--resume: {run_dir} has no {CHECKPOINT_NAME} (it stopped before its first checkpoint); start a new run"
+        ) from None
+    except CorruptCheckpoint as error:
+        raise ConfigError(f"--resume: no usable checkpoint in {run_dir}: {error}; start a new run") from None
+    for problem in skipped:
+        print(
+            f"warning: {problem}; resuming from {checkpoint_path.name} at {meta['num_timesteps']} timesteps",
+            file=sys.stderr,
+            flush=True,
         )
-    if read_checkpoint_meta(checkpoint_path).get("complete"):
+    if meta.get("complete"):
         print(f"{run_dir} has finished already: its final model is {final_model}")
         return TrainResult(run_dir, "already complete", int(options.n_timesteps or 0))
     spec = algorithm_spec(options.algo)
@@ -419,10 +453,19 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
         options.algo, options.env, entry, f"{run_dir / CONFIG_NAME}: entry {options.env!r}"
     )
     check_complete(entry, spec, config.source)
+    saved_algorithm = meta.get("algorithm", spec.algorithm_class.__name__)
+    if saved_algorithm != spec.algorithm_class.__name__:
+        raise ConfigError(
+            f"--resume: {checkpoint_path} holds a {saved_algorithm} model, but {run_dir / ARGS_NAME} says "
+            f"--algo {options.algo} ({spec.algorithm_class.__name__}): the run folder was mixed with another one"
+        )
     prepared = prepare_run(options, config, build_model_now=False)
     try:
         prepared.env.close()  # the training worlds come back from the checkpoint, mid-episode
-        checkpoint = load_checkpoint(checkpoint_path)
+        try:
+            checkpoint = load_checkpoint(checkpoint_path)
+        except CorruptCheckpoint as error:
+            raise ConfigError(f"--resume: {error}") from None
         prepared.env = checkpoint.training["env"]
         prepared.model = restore_model(checkpoint, spec.algorithm_class, options.device)
         prepared.model.verbose = options.verbose
@@ -442,7 +485,12 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
         prepared.close()
 
 
-def _run(prepared: PreparedRun, run_dir: Path, restore: dict[str, Any] | None) -> TrainResult:
+def _run(
+    prepared: PreparedRun,
+    run_dir: Path,
+    restore: dict[str, Any] | None,
+    extra_callbacks: Sequence[BaseCallback] = (),
+) -> TrainResult:
     """Train a prepared run in its folder; write the final model. ``restore`` continues a checkpoint."""
     options, config, model = prepared.options, prepared.config, prepared.model
     total = int(config.entry["n_timesteps"])
@@ -478,6 +526,7 @@ def _run(prepared: PreparedRun, run_dir: Path, restore: dict[str, Any] | None) -
     )
     if options.progress:
         callbacks.append(ProgressBarCallback())
+    callbacks.extend(extra_callbacks)
     callbacks.append(checkpoint)  # last: it restores states after every other callback is initialised
     callback_list = CallbackList(callbacks)
     start = time.time()
@@ -497,9 +546,14 @@ def _run(prepared: PreparedRun, run_dir: Path, restore: dict[str, Any] | None) -
             )
         except TrainingInterrupted as stop:
             callback_list.on_training_end()
+            saved = (
+                ""
+                if checkpoint.saved_at == model.num_timesteps
+                else ", without a new checkpoint (the last good one is kept)"
+            )
             print(
-                f"Stopped by {stop} at {checkpoint.saved_at} of {total} timesteps; checkpoint {run_dir / CHECKPOINT_NAME}. "
-                f"Continue with: python -m sb3_eps.train --resume {run_dir}",
+                f"Stopped by {stop} at {model.num_timesteps} of {total} timesteps{saved}; checkpoint "
+                f"{run_dir / CHECKPOINT_NAME}. Continue with: python -m sb3_eps.train --resume {run_dir}",
                 flush=True,
             )
             return TrainResult(run_dir, "interrupted", int(model.num_timesteps))
@@ -509,7 +563,7 @@ def _run(prepared: PreparedRun, run_dir: Path, restore: dict[str, Any] | None) -
         if options.keep_checkpoint:
             checkpoint.save(complete=True)
         else:
-            (run_dir / CHECKPOINT_NAME).unlink(missing_ok=True)
+            remove_checkpoints(run_dir / CHECKPOINT_NAME)
     if options.verbose >= 1:
         minutes = (time.time() - start) / 60
         print(
