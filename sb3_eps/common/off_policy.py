@@ -24,7 +24,7 @@ from gymnasium import spaces
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
-from stable_baselines3.common.save_util import load_from_pkl
+from stable_baselines3.common.save_util import load_from_pkl, load_from_zip_file
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, RolloutReturn, Schedule, TrainFreq
 from stable_baselines3.common.utils import LinearSchedule, safe_mean, should_collect_more_steps
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
@@ -37,7 +37,7 @@ from sb3_eps.common.buffers import (
     _Tick,
 )
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import epsilon_greedy, polyak_update_tensors_
+from sb3_eps.common.utils import describe_space, epsilon_greedy, polyak_update_tensors_
 
 SelfMultiAgentOffPolicyAlgorithm = TypeVar(
     "SelfMultiAgentOffPolicyAlgorithm", bound="MultiAgentOffPolicyAlgorithm"
@@ -156,6 +156,9 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self._check_hyperparameters(
             tau=tau, gamma=gamma, n_steps=n_steps, target_update_interval=target_update_interval,
             team_reward_mode=team_reward_mode, prioritized_replay_alpha=prioritized_replay_alpha,
+            buffer_size=buffer_size, batch_size=batch_size, exploration_fraction=exploration_fraction,
+            exploration_initial_eps=exploration_initial_eps, exploration_final_eps=exploration_final_eps,
+            learning_rate=learning_rate,
         )  # fmt: skip
         self.n_agents = 0
         self.n_worlds = 0
@@ -219,6 +222,21 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             raise ValueError(
                 f"prioritized_replay_alpha must be >= 0, got {values['prioritized_replay_alpha']}"
             )
+        for name in ("buffer_size", "batch_size"):
+            if (
+                not isinstance(values[name], int | np.integer)
+                or isinstance(values[name], bool)
+                or values[name] < 1
+            ):
+                raise ValueError(f"{name} must be an int >= 1 (joint rows), got {values[name]!r}")
+        for name in ("exploration_fraction", "exploration_initial_eps", "exploration_final_eps"):
+            if not isinstance(values[name], float | int) or not 0.0 <= values[name] <= 1.0:
+                raise ValueError(f"{name} must be a number in [0, 1], got {values[name]!r}")
+        rate = values["learning_rate"]
+        if not callable(rate) and (
+            not isinstance(rate, float | int) or isinstance(rate, bool) or not rate > 0
+        ):
+            raise ValueError(f"learning_rate must be a number > 0 or a schedule (callable), got {rate!r}")
 
     def _read_env_layout(self, env: VecEnv) -> None:
         """Read the agents-per-world layout from the bridge; check it against a loaded model's."""
@@ -298,6 +316,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         tb_log_name: str = "run",
         progress_bar: bool = False,
     ) -> tuple[int, BaseCallback]:
+        if not isinstance(total_timesteps, int | np.integer) or total_timesteps < 0:
+            raise ValueError(f"total_timesteps must be an int >= 0 (agent-steps), got {total_timesteps!r}")
         env_is_reset = reset_num_timesteps or self._last_obs is None
         total_timesteps, callback = super()._setup_learn(
             total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
@@ -635,6 +655,24 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self.replay_buffer = buffer
         self._collector = None
 
+    @classmethod
+    def load(  # type: ignore[override]
+        cls: type[SelfMultiAgentOffPolicyAlgorithm],
+        path: str | pathlib.Path | io.BufferedIOBase,
+        env: GymEnv | None = None,
+        device: th.device | str = "auto",
+        **kwargs: Any,
+    ) -> SelfMultiAgentOffPolicyAlgorithm:
+        """SB3's ``load``; a file of another algorithm, or an env whose spaces differ from the model's, is one
+        ``ValueError`` line that says so (instead of a state-dict dump)."""
+        try:
+            return super().load(path, env=env, device=device, **kwargs)  # type: ignore[return-value]
+        except (RuntimeError, ValueError) as error:
+            reason = _load_mismatch(cls, path, env)
+            if reason is None:
+                raise
+            raise ValueError(reason) from error
+
     def _get_policy_from_name(self, policy_name: str) -> type[MultiAgentQPolicy]:  # type: ignore[override]
         if policy_name not in self.policy_aliases:
             raise ValueError(f"unknown policy {policy_name!r}; use one of {sorted(self.policy_aliases)}")
@@ -655,3 +693,29 @@ def _non_finite_worlds(
             agents = np.flatnonzero(bad[world]).tolist()
             found.setdefault(int(world), f"non-finite {name} from the env (world {world}, agents {agents})")
     return found
+
+
+def _load_mismatch(cls: type[MultiAgentOffPolicyAlgorithm], path: Any, env: GymEnv | None) -> str | None:
+    """:return: why the model file at ``path`` does not load into ``cls`` on ``env``, or None if not known."""
+    if hasattr(path, "seek"):
+        path.seek(0)
+    try:
+        data, _, _ = load_from_zip_file(path, device="cpu")
+    except Exception:  # unreadable: SB3's own error says more
+        return None
+    name = getattr(path, "name", path)
+    saved_policy = data.get("policy_class") if data else None
+    expected = cls.policy_aliases["MlpPolicy"]
+    if isinstance(saved_policy, type) and not issubclass(saved_policy, expected):
+        return (
+            f"{name} holds a model of another algorithm (policy {saved_policy.__name__}); {cls.__name__} uses "
+            f"{expected.__name__}: load it with the class that saved it"
+        )
+    for kind in ("observation_space", "action_space"):
+        ours = getattr(env, kind, None)
+        if env is not None and data and data.get(kind) != ours:
+            return (
+                f"{name} was trained with {kind} {describe_space(data.get(kind))}, the env has "
+                f"{describe_space(ours)}: use an env of the same kind (robots with robots, MPE with MPE)"
+            )
+    return None

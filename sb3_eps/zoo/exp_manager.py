@@ -34,6 +34,7 @@ from stable_baselines3.common.save_util import load_from_zip_file
 
 import envs
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
+from sb3_eps.common.utils import describe_space
 from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env
 from sb3_eps.version import __version__
 from sb3_eps.zoo.callbacks import (
@@ -111,6 +112,23 @@ class TrainOptions:
     init_from: str | None = None
 
     @classmethod
+    def from_record(cls, record: Any, source: str | Path) -> TrainOptions:
+        """:return: the options recorded in a run's ``args.yml`` (unknown keys ignored).
+
+        :raises ConfigError: when the record is not a mapping of options of the right types
+        """
+        if not isinstance(record, dict):
+            raise ConfigError(f"{source} is not a mapping of options: not a run folder of sb3_eps.train")
+        options = cls(**{key: value for key, value in record.items() if key in cls.__dataclass_fields__})
+        for key, default in vars(cls()).items():
+            value, kinds = getattr(options, key), _OPTION_TYPES.get(key, (type(default),))
+            if not ((value is None and default is None) or isinstance(value, kinds)):
+                raise ConfigError(
+                    f"{source}: {key} is {value!r}, not a {kinds[0].__name__}: not a run of sb3_eps.train"
+                )
+        return options
+
+    @classmethod
     def from_namespace(cls, namespace: argparse.Namespace) -> TrainOptions:
         """:return: the options of a parsed command line (unknown attributes ignored)."""
         names = cls.__dataclass_fields__
@@ -128,6 +146,14 @@ class TrainOptions:
                 raise ConfigError(f"{flag} must be >= {low}, got {value} (use 0 to turn off a *-freq)")
         if self.seed is not None and self.seed < 0:
             raise ConfigError(f"--seed must be a non-negative int, got {self.seed}")
+        if self.num_threads < 0:
+            raise ConfigError(f"--num-threads must be >= 0 (0: torch's default), got {self.num_threads}")
+        try:
+            th.device("cpu" if self.device == "auto" else self.device)
+        except (RuntimeError, TypeError) as error:
+            raise ConfigError(
+                f"--device {self.device!r} is not a torch device (auto, cpu, cuda, cuda:0...): {error}"
+            ) from None
         if self.init_from is not None and not Path(self.init_from).is_file():
             raise ConfigError(
                 f"--init-from: {self.init_from} is not a file; pass a model .zip (e.g. a run's best_model.zip)"
@@ -151,6 +177,13 @@ def check_optional_features(progress: bool = False, tensorboard: bool = False) -
                 f"{flag} needs {' and '.join(missing)}, which this environment lacks (they are part of the base "
                 f"install): pip install 'sb3-eps' or pip install {' '.join(missing)}; or drop {flag}"
             )
+
+
+#: Types of the options whose default is None (the others must have the type of their default).
+_OPTION_TYPES: dict[str, tuple[type, ...]] = {
+    "conf_file": (str,), "eval_env": (str,), "tensorboard_log": (str,), "init_from": (str,),
+    "n_timesteps": (int,), "seed": (int,),
+}  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------- building
@@ -219,13 +252,6 @@ def build_model(
         raise ConfigError(f"{config.source}: building {cls.__name__}: {error}") from None
 
 
-def describe_space(space: Any) -> str:
-    """:return: a short description of a gymnasium space (``Box(30,)``, ``Discrete(20)``)."""
-    if hasattr(space, "n"):
-        return f"{type(space).__name__}({int(space.n)})"
-    return f"{type(space).__name__}{tuple(getattr(space, 'shape', ()) or ())}"
-
-
 def check_eval_env(
     model: MultiAgentOffPolicyAlgorithm, eval_env: MultiAgentVecEnv, flag: str = "--eval-env"
 ) -> None:
@@ -236,6 +262,35 @@ def check_eval_env(
                 f"{flag}: {eval_env.env_id} has {kind} {describe_space(getattr(eval_env, kind))}, the model "
                 f"{describe_space(getattr(model, kind))}; pick a world of the same kind (robots with robots, MPE with MPE)"
             )
+
+
+def check_callback_worlds(
+    callbacks: list[tuple[str, BaseCallback]], env: MultiAgentVecEnv, source: str
+) -> None:
+    """Check that every callback's own evaluation world (EPS's ``eval_env_id``) shares the training world's
+    observation and action spaces, before anything is written (the callback itself checks only when training
+    starts).
+
+    :raises ConfigError: naming the callback, both worlds and their spaces
+    """
+    from sb3_eps.eps.evaluation import make_eval_env
+
+    for name, callback in callbacks:
+        eval_env_id = getattr(callback, "eval_env_id", None)
+        if eval_env_id is None:
+            continue
+        eval_env = make_eval_env(eval_env_id, getattr(callback, "eval_env_kwargs", None))
+        try:
+            for kind in ("observation_space", "action_space"):
+                theirs, ours = getattr(eval_env, kind), getattr(env, kind)
+                if theirs != ours:
+                    raise ConfigError(
+                        f"{source}: callback {name}: eval_env_id {eval_env_id} has {kind} {describe_space(theirs)}, "
+                        f"the training world {env.env_id} {describe_space(ours)}; use eval_env_id "
+                        f"{envs.eps_env_id_for(env.env_id)} (or leave it out: it defaults to the matching world)"
+                    )
+        finally:
+            eval_env.close()
 
 
 def load_agent_weights(model: MultiAgentOffPolicyAlgorithm, path: str | Path) -> None:
@@ -312,6 +367,7 @@ def prepare_run(
             if model is not None:
                 check_eval_env(model, eval_env)
         user_callbacks = build_callbacks(config.entry, config.env_id, options.verbose, config.source)
+        check_callback_worlds(user_callbacks, env, config.source)
         for name, callback in user_callbacks:
             try:
                 callback_state(callback)
@@ -413,12 +469,9 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
     for name in (ARGS_NAME, CONFIG_NAME):
         if not (run_dir / name).is_file():
             raise ConfigError(f"--resume: {run_dir} is not a run folder of sb3_eps.train (no {name})")
-    saved = load_yaml(run_dir / ARGS_NAME)
-    if not isinstance(saved, dict):
-        raise ConfigError(f"--resume: {run_dir / ARGS_NAME} is not a mapping of options")
-    options = TrainOptions(
-        **{key: value for key, value in saved.items() if key in TrainOptions.__dataclass_fields__}
-    )
+    options = TrainOptions.from_record(load_yaml(run_dir / ARGS_NAME), f"--resume: {run_dir / ARGS_NAME}")
+    spec = algorithm_spec(options.algo)
+    check_env_id(options.env, f"--resume: {run_dir / ARGS_NAME}: env")
     options.init_from = None  # the warm-start weights are in the checkpoint already
     if progress is not None:
         options.progress = progress
@@ -445,7 +498,6 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
     if meta.get("complete"):
         print(f"{run_dir} has finished already: its final model is {final_model}")
         return TrainResult(run_dir, "already complete", int(options.n_timesteps or 0))
-    spec = algorithm_spec(options.algo)
     entry = merged_entry(
         load_config_entries(run_dir / CONFIG_NAME, options.algo), options.env, run_dir / CONFIG_NAME
     )
