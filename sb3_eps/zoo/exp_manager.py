@@ -148,17 +148,22 @@ class TrainOptions:
             raise ConfigError(f"--seed must be a non-negative int, got {self.seed}")
         if self.num_threads < 0:
             raise ConfigError(f"--num-threads must be >= 0 (0: torch's default), got {self.num_threads}")
-        try:
-            th.device("cpu" if self.device == "auto" else self.device)
-        except (RuntimeError, TypeError) as error:
-            raise ConfigError(
-                f"--device {self.device!r} is not a torch device (auto, cpu, cuda, cuda:0...): {error}"
-            ) from None
+        check_device(self.device)
         if self.init_from is not None and not Path(self.init_from).is_file():
             raise ConfigError(
                 f"--init-from: {self.init_from} is not a file; pass a model .zip (e.g. a run's best_model.zip)"
             )
         check_optional_features(progress=self.progress, tensorboard=self.tensorboard_log is not None)
+
+
+def check_device(device: str) -> None:
+    """:raises ConfigError: when ``device`` is neither ``auto`` nor a torch device string."""
+    try:
+        th.device("cpu" if device == "auto" else device)
+    except (RuntimeError, TypeError) as error:
+        raise ConfigError(
+            f"--device {device!r} is not a torch device (auto, cpu, cuda, cuda:0...): {error}"
+        ) from None
 
 
 def check_optional_features(progress: bool = False, tensorboard: bool = False) -> None:
