@@ -292,7 +292,7 @@ def check_callback_worlds(
                     raise ConfigError(
                         f"{source}: callback {name}: eval_env_id {eval_env_id} has {kind} {describe_space(theirs)}, "
                         f"the training world {env.env_id} {describe_space(ours)}; use eval_env_id "
-                        f"{envs.eps_env_id_for(env.env_id)} (or leave it out: it defaults to the matching world)"
+                        f"{envs.eps_env_id_for(str(env.env_id))} (or leave it out: it defaults to the matching world)"
                     )
         finally:
             eval_env.close()
