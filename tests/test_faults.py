@@ -707,7 +707,7 @@ def test_the_readme_says_model_zips_and_checkpoints_are_pickles() -> None:
 DETERMINISM_ARGV = [
     "--env", "MultiRobotNav-2-v0", "-n", "20000", "--seed", "7", "--verbose", "0", "--device", "cpu",
     "--eval-freq", "10000", "--eval-episodes", "2", "--n-eval-envs", "1", "--save-freq", "0",
-    "--hyperparams", "policy_kwargs:dict(net_arch=[32], stream_arch=[16], global_net_arch=[16])", "n_envs:2",
+    "--hyperparams", "policy_kwargs:dict(net_arch=[32], stream_arch=[16], global_net_arch=[16])", "n_envs:4",
     "learning_starts:1000", "batch_size:32", "buffer_size:5000", "train_freq:4", "learning_rate:lin_3e-4",
 ]  # fmt: skip
 
