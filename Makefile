@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 TORCH_SPEC ?= torch==2.13.0
 PYTEST_ARGS ?=
 
-.PHONY: install run test test-slow test-ray lint format type bench clean
+.PHONY: install run test test-slow test-ray lint format type bench soak clean
 
 install: $(VENV)/.installed
 
@@ -43,6 +43,10 @@ type: install
 
 bench: install
 	$(PY) benchmarks/env_throughput.py
+
+# Long-run check (about 15 minutes on 2 cores): memory, PyBullet clients and processes over 1M agent-steps of EPS-GDQ.
+soak: install
+	$(PY) benchmarks/soak.py --out logs/soak/soak.json
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build dist *.egg-info

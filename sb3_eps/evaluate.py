@@ -12,6 +12,7 @@ and saves them with every episode as JSON (default ``<run>/eval_<env id>[_best].
 from __future__ import annotations
 
 import argparse
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -65,11 +66,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         record_gif,
         save_summary,
     )
+    from sb3_eps.zoo.exp_manager import check_device
 
     if args.run is None:
         if args.algo is None or args.env is None:
             raise ConfigError("name the run: --run RUN_DIR, or --algo, --env (and -f, --exp-id)")
         args.run = find_run(args.folder, args.algo, args.env, args.exp_id)
+    check_device(args.device)
+    for flag, path in (("--gif", args.gif), ("--output", args.output)):
+        if path is not None and not _can_create(Path(path)):
+            raise ConfigError(f"{flag}: cannot write {path}: its folder is not writable")
     env_kwargs = {path[0]: value for path, value in parse_hyperparams(args.env_kwargs)}
     run = load_run(args.run, "best" if args.load_best else "final", args.device)
     summary = evaluate_run(
@@ -80,9 +86,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     output = Path(args.output) if args.output else run.run_dir / f"eval_{summary['env_id']}{suffix}.json"
     print(f"Results: {save_summary(summary, output)}")
     if args.gif is not None:
-        path = record_gif(run, args.gif, args.eval_env, args.gif_episodes, args.seed, env_kwargs or None)
+        try:
+            path = record_gif(run, args.gif, args.eval_env, args.gif_episodes, args.seed, env_kwargs or None)
+        except OSError as error:
+            raise ConfigError(f"--gif: cannot write {args.gif}: {error.strerror or error}") from None
         print(f"GIF: {path}")
     return 0
+
+
+def _can_create(path: Path) -> bool:
+    """:return: whether ``path`` can be written (its missing folders are created): the nearest existing folder
+    above it is a writable directory."""
+    folder = path.resolve().parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    return folder.is_dir() and os.access(folder, os.W_OK)
 
 
 def cli() -> None:

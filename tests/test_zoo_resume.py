@@ -70,6 +70,19 @@ def worker_processes(parent_pid: int) -> list[int]:
     return found
 
 
+def assert_equal_runs(run: Path, expected: Path) -> None:
+    """Two runs are equal: final weights, episodes (without wall time), logged rows, evaluations."""
+    _, expected_params, _ = load_from_zip_file(expected / f"{ENV_ID}.zip")
+    _, params, _ = load_from_zip_file(run / f"{ENV_ID}.zip")
+    for key, value in expected_params["policy"].items():
+        assert th.equal(params["policy"][key], value), key
+    assert without_wall_time(run / "monitor.csv") == without_wall_time(expected / "monitor.csv")
+    assert logged_timesteps(run / "progress.csv") == logged_timesteps(expected / "progress.csv")
+    with np.load(expected / "evaluations.npz") as want, np.load(run / "evaluations.npz") as got:
+        for key in want:
+            np.testing.assert_array_equal(got[key], want[key], err_msg=key)
+
+
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("uninterrupted")
@@ -123,19 +136,8 @@ def test_resume_equals_the_uninterrupted_run(uninterrupted, tmp_path, stop, vec_
 
     assert train.main(["--resume", str(run), "--verbose", "0"]) == 0
 
-    _, expected, _ = load_from_zip_file(uninterrupted / f"{ENV_ID}.zip")
-    _, actual, _ = load_from_zip_file(run / f"{ENV_ID}.zip")
-    for key, value in expected["policy"].items():
-        assert th.equal(actual["policy"][key], value), key
-    assert without_wall_time(run / "monitor.csv") == without_wall_time(uninterrupted / "monitor.csv")
-    assert logged_timesteps(run / "progress.csv") == logged_timesteps(uninterrupted / "progress.csv")
-    expected_evaluations, evaluations = (
-        np.load(uninterrupted / "evaluations.npz"),
-        np.load(run / "evaluations.npz"),
-    )
-    for key in expected_evaluations:
-        np.testing.assert_array_equal(evaluations[key], expected_evaluations[key], err_msg=key)
-    assert evaluations["eps_ticks"][-1] > 0  # EPS rounds ran, before and after the interruption
+    assert_equal_runs(run, uninterrupted)
+    assert np.load(run / "evaluations.npz")["eps_ticks"][-1] > 0  # EPS rounds ran, before and after the stop
     # The EPS round log holds each round once, as the uninterrupted run's (wall times aside).
     rounds, expected_rounds = (read_round_log(folder / "eps_rounds.jsonl") for folder in (run, uninterrupted))
     assert len(rounds) == len(expected_rounds) >= 2

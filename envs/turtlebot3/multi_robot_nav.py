@@ -115,7 +115,11 @@ class MultiRobotNavEnv(ParallelEnv):
             raise ValueError(
                 f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}."
             )
-        if not np.isfinite(lidar_noise_std) or lidar_noise_std < 0:
+        if (
+            not isinstance(lidar_noise_std, (int, float, np.integer, np.floating))
+            or not np.isfinite(lidar_noise_std)
+            or lidar_noise_std < 0
+        ):
             raise ValueError(
                 f"lidar_noise_std must be a finite number >= 0 (metres), got {lidar_noise_std!r}."
             )

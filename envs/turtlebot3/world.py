@@ -21,9 +21,9 @@ from __future__ import annotations
 import operator
 import os
 import sys
+from typing import Any
 
 import numpy as np
-import pybullet as p
 
 from envs.turtlebot3.layouts import WALL_HEIGHT, Layout
 from envs.turtlebot3.robot import (
@@ -41,6 +41,29 @@ from envs.turtlebot3.robot import (
     WHEEL_SEPARATION,
     integrate_unicycle,
 )
+
+
+def _import_pybullet_quietly() -> Any:
+    """Import pybullet without the ``pybullet build time: ...`` line its C module writes on stderr at import: it
+    would be a second line under the command lines' one-line error messages."""
+    try:
+        saved = os.dup(2)
+    except OSError:  # no file descriptor 2: nothing to silence
+        import pybullet
+
+        return pybullet
+    try:
+        with open(os.devnull, "w") as devnull:
+            sys.stderr.flush()
+            os.dup2(devnull.fileno(), 2)
+            import pybullet
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+    return pybullet
+
+
+p = _import_pybullet_quietly()
 
 # Robot colours (RGB 0-255), shared with the rasteriser so the GUI and the pictures agree.
 # Robot colours (RGB 0-255), 16 distinct hues shared by the GUI and the pictures; none is the map's blue.

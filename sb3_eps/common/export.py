@@ -6,6 +6,7 @@ observations ``obs (batch, obs_dim)`` to Q-values ``q_values (batch, n_actions)`
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import pathlib
@@ -32,6 +33,8 @@ def export_policy(model: Any, path: str | os.PathLike[str], opset_version: int =
     q_net = getattr(getattr(model, "policy", None), "q_net", None)
     if q_net is None:
         raise ValueError(f"{type(model).__name__} has no agent Q-network (policy.q_net) to export")
+    if importlib.util.find_spec("onnx") is None:  # torch's exporter needs it; checked before any file is made
+        raise ImportError("export_policy needs the onnx package: pip install 'sb3-eps[export]'")
     base = pathlib.Path(path)
     if base.suffix == ".onnx":
         base = base.with_suffix("")

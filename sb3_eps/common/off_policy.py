@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import io
 import pathlib
+import warnings
 from collections import defaultdict
 from typing import Any, ClassVar, NamedTuple, TypeVar
 
@@ -23,7 +24,7 @@ from gymnasium import spaces
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
-from stable_baselines3.common.save_util import load_from_pkl
+from stable_baselines3.common.save_util import load_from_pkl, load_from_zip_file
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, RolloutReturn, Schedule, TrainFreq
 from stable_baselines3.common.utils import LinearSchedule, safe_mean, should_collect_more_steps
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
@@ -36,7 +37,7 @@ from sb3_eps.common.buffers import (
     _Tick,
 )
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import epsilon_greedy, polyak_update_tensors_
+from sb3_eps.common.utils import describe_space, epsilon_greedy, polyak_update_tensors_
 
 SelfMultiAgentOffPolicyAlgorithm = TypeVar(
     "SelfMultiAgentOffPolicyAlgorithm", bound="MultiAgentOffPolicyAlgorithm"
@@ -155,6 +156,9 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self._check_hyperparameters(
             tau=tau, gamma=gamma, n_steps=n_steps, target_update_interval=target_update_interval,
             team_reward_mode=team_reward_mode, prioritized_replay_alpha=prioritized_replay_alpha,
+            buffer_size=buffer_size, batch_size=batch_size, exploration_fraction=exploration_fraction,
+            exploration_initial_eps=exploration_initial_eps, exploration_final_eps=exploration_final_eps,
+            learning_rate=learning_rate,
         )  # fmt: skip
         self.n_agents = 0
         self.n_worlds = 0
@@ -197,6 +201,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self.team_reward_mode = team_reward_mode
         self._collector: NStepJointCollector | None = None
         self._last_state: np.ndarray | None = None
+        self.n_refused_updates = 0  # gradient steps refused for a non-finite loss or gradient
         if _init_setup_model:
             self._setup_model()
 
@@ -217,6 +222,21 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             raise ValueError(
                 f"prioritized_replay_alpha must be >= 0, got {values['prioritized_replay_alpha']}"
             )
+        for name in ("buffer_size", "batch_size"):
+            if (
+                not isinstance(values[name], int | np.integer)
+                or isinstance(values[name], bool)
+                or values[name] < 1
+            ):
+                raise ValueError(f"{name} must be an int >= 1 (joint rows), got {values[name]!r}")
+        for name in ("exploration_fraction", "exploration_initial_eps", "exploration_final_eps"):
+            if not isinstance(values[name], float | int) or not 0.0 <= values[name] <= 1.0:
+                raise ValueError(f"{name} must be a number in [0, 1], got {values[name]!r}")
+        rate = values["learning_rate"]
+        if not callable(rate) and (
+            not isinstance(rate, float | int) or isinstance(rate, bool) or not rate > 0
+        ):
+            raise ValueError(f"learning_rate must be a number > 0 or a schedule (callable), got {rate!r}")
 
     def _read_env_layout(self, env: VecEnv) -> None:
         """Read the agents-per-world layout from the bridge; check it against a loaded model's."""
@@ -296,6 +316,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         tb_log_name: str = "run",
         progress_bar: bool = False,
     ) -> tuple[int, BaseCallback]:
+        if not isinstance(total_timesteps, int | np.integer) or total_timesteps < 0:
+            raise ValueError(f"total_timesteps must be an int >= 0 (agent-steps), got {total_timesteps!r}")
         env_is_reset = reset_num_timesteps or self._last_obs is None
         total_timesteps, callback = super()._setup_learn(
             total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
@@ -423,6 +445,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         new_state = self._global_state()
         last_obs = np.asarray(self._last_obs, dtype=np.float32).reshape(n_worlds, n_agents, -1)
         shape = (n_worlds, n_agents)
+        rewards = np.asarray(rewards)
         values = next_values = None
         if self.replay_buffer is not None and self.replay_buffer.store_values:
             # v and v' as the agent network sees them now (the paper's "stored at collection time").
@@ -434,7 +457,12 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                     )
                 )
             values, next_values = both.cpu().numpy().reshape(2, n_worlds, n_agents)
+        refused = _non_finite_worlds(last_obs, next_obs.reshape((*shape, -1)), rewards.reshape(shape))
         for world in range(n_worlds):
+            if world in refused:  # never stored; windows across the bad tick are dropped too
+                self._collector.pending[world].clear()
+                warnings.warn(f"{refused[world]}: the tick is not stored", RuntimeWarning, stacklevel=3)
+                continue
             next_state = new_state[world]
             world_terminated = False
             if world_ended[world]:
@@ -539,7 +567,10 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             loss, td_errors, info = self._compute_loss(batch)
             self.policy.optimizer.zero_grad()
             loss.backward()
-            th.nn.utils.clip_grad_norm_(parameters, self.max_grad_norm)
+            grad_norm = th.nn.utils.clip_grad_norm_(parameters, self.max_grad_norm)
+            if not (th.isfinite(loss) and th.isfinite(grad_norm) and np.isfinite(td_errors).all()):
+                self._refuse_update(batch)  # nothing of this step reaches the weights, moments or priorities
+                continue
             self.policy.optimizer.step()
             self.replay_buffer.update_priorities(batch.indices, td_errors)
             self._n_updates += 1
@@ -549,10 +580,36 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             for key, value in info.items():
                 logs[key].append(value)
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        if getattr(self, "n_refused_updates", 0):
+            self.logger.record("train/n_refused_updates", self.n_refused_updates)
         if self.prioritized_replay:
             self.logger.record("train/per_beta", beta)
         for key, values in logs.items():
             self.logger.record(f"train/{key}", float(np.mean(values)))
+
+    def _refuse_update(self, batch: JointReplayBufferSamples) -> None:
+        """Count and report a gradient step whose loss, gradient or TD errors were not finite, naming the source."""
+        self.n_refused_updates = getattr(self, "n_refused_updates", 0) + 1
+        inputs = {
+            "observations": batch.observations,
+            "next observations": batch.next_observations,
+            "rewards": batch.rewards,
+        }
+        sources = [f"replay batch {name}" for name, tensor in inputs.items() if not th.isfinite(tensor).all()]
+        broken = {
+            name.split(".")[0]
+            for name, param in self.policy.named_parameters()
+            if not th.isfinite(param).all()
+        }
+        sources += [
+            f"{'target network' if name.endswith('_target') else 'network'} {name}" for name in sorted(broken)
+        ]
+        source = ", ".join(sources) or "the loss itself (TD target or prediction overflowed)"
+        warnings.warn(
+            f"gradient step refused: non-finite loss or gradient from {source} (count: train/n_refused_updates)",
+            RuntimeWarning,
+            stacklevel=3,
+        )
 
     def _update_targets(self) -> None:
         """Polyak step of every target network. The tensor lists are gathered once per policy object; parameters
@@ -600,7 +657,67 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self.replay_buffer = buffer
         self._collector = None
 
+    @classmethod
+    def load(  # type: ignore[override]
+        cls: type[SelfMultiAgentOffPolicyAlgorithm],
+        path: str | pathlib.Path | io.BufferedIOBase,
+        env: GymEnv | None = None,
+        device: th.device | str = "auto",
+        **kwargs: Any,
+    ) -> SelfMultiAgentOffPolicyAlgorithm:
+        """SB3's ``load``; a file of another algorithm, or an env whose spaces differ from the model's, is one
+        ``ValueError`` line that says so (instead of a state-dict dump)."""
+        try:
+            return super().load(path, env=env, device=device, **kwargs)
+        except (RuntimeError, ValueError) as error:
+            reason = _load_mismatch(cls, path, env)
+            if reason is None:
+                raise
+            raise ValueError(reason) from error
+
     def _get_policy_from_name(self, policy_name: str) -> type[MultiAgentQPolicy]:  # type: ignore[override]
         if policy_name not in self.policy_aliases:
             raise ValueError(f"unknown policy {policy_name!r}; use one of {sorted(self.policy_aliases)}")
         return self.policy_aliases[policy_name]
+
+
+def _non_finite_worlds(
+    observations: np.ndarray, next_observations: np.ndarray, rewards: np.ndarray
+) -> dict[int, str]:
+    """:return: world -> what was not finite in its tick (``(worlds, agents, ...)`` arrays; empty when all are)."""
+    parts = {"observation": observations, "next observation": next_observations, "reward": rewards}
+    found: dict[int, str] = {}
+    if all(np.isfinite(array).all() for array in parts.values()):  # the hot path: one check per array
+        return found
+    for name, array in parts.items():
+        bad = ~np.isfinite(array.reshape(array.shape[0], array.shape[1], -1)).all(axis=2)
+        for world in np.flatnonzero(bad.any(axis=1)):
+            agents = np.flatnonzero(bad[world]).tolist()
+            found.setdefault(int(world), f"non-finite {name} from the env (world {world}, agents {agents})")
+    return found
+
+
+def _load_mismatch(cls: type[MultiAgentOffPolicyAlgorithm], path: Any, env: GymEnv | None) -> str | None:
+    """:return: why the model file at ``path`` does not load into ``cls`` on ``env``, or None if not known."""
+    if hasattr(path, "seek"):
+        path.seek(0)
+    try:
+        data, _, _ = load_from_zip_file(path, device="cpu")
+    except Exception:  # unreadable: SB3's own error says more
+        return None
+    name = getattr(path, "name", path)
+    saved_policy = data.get("policy_class") if data else None
+    expected = cls.policy_aliases["MlpPolicy"]
+    if isinstance(saved_policy, type) and not issubclass(saved_policy, expected):
+        return (
+            f"{name} holds a model of another algorithm (policy {saved_policy.__name__}); {cls.__name__} uses "
+            f"{expected.__name__}: load it with the class that saved it"
+        )
+    for kind in ("observation_space", "action_space"):
+        ours = getattr(env, kind, None)
+        if env is not None and data and data.get(kind) != ours:
+            return (
+                f"{name} was trained with {kind} {describe_space(data.get(kind))}, the env has "
+                f"{describe_space(ours)}: use an env of the same kind (robots with robots, MPE with MPE)"
+            )
+    return None

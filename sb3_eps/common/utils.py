@@ -2,8 +2,17 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import torch as th
+
+
+def describe_space(space: Any) -> str:
+    """:return: a short one-line description of a gymnasium space (``Box(30,)``, ``Discrete(20)``)."""
+    if hasattr(space, "n"):
+        return f"{type(space).__name__}({int(space.n)})"
+    return f"{type(space).__name__}{tuple(getattr(space, 'shape', ()) or ())}"
 
 
 def dueling_aggregation(values: th.Tensor, advantages: th.Tensor) -> th.Tensor:

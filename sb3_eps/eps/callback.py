@@ -32,6 +32,7 @@ from sb3_eps.eps.mutations import (
     Parameters,
     calibrate_scale,
     evolved_parameter_names,
+    finite_individuals,
     individual,
     mutation_directions,
     network_parameters,
@@ -376,7 +377,9 @@ class EvolutionCallback(BaseCallback):
         }
         try:
             result = self._evaluate(population, record)  # line 10
-            winner = select_best(result.fitness)  # line 11, Eq. 4
+            if not result.valid.all():
+                _warn_disqualified(population, result.valid)
+            winner = select_best(result.fitness)  # line 11, Eq. 4 (never a disqualified individual)
             accepted = self._accept(population, result, winner, record)
         except EvaluationFailed as error:
             self._skip_round(error, time.perf_counter() - start, record)
@@ -777,6 +780,20 @@ class EvolutionCallback(BaseCallback):
                     )
         finally:
             env.close()
+
+
+def _warn_disqualified(population: Parameters, valid: np.ndarray) -> None:
+    """Warn about individuals whose weights (after mutation) or Q-values were not finite; they cannot win."""
+    weights_ok = finite_individuals({name: stacked.detach().cpu() for name, stacked in population.items()})
+    bad_weights = np.flatnonzero(~weights_ok).tolist()
+    bad_outputs = np.flatnonzero(weights_ok & ~np.asarray(valid, dtype=bool)).tolist()
+    parts = [f"individuals {bad_weights} have non-finite weights"] if bad_weights else []
+    parts += [f"individuals {bad_outputs} gave non-finite Q-values"] if bad_outputs else []
+    warnings.warn(
+        f"EPS round: {' and '.join(parts)}; they are disqualified and never written into the network",
+        RuntimeWarning,
+        stacklevel=3,
+    )
 
 
 def _check_arguments(**values: Any) -> None:

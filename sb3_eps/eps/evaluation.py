@@ -277,7 +277,11 @@ class InProcessEnvPool(EnvPool):
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        return self._block.evaluate(population, seeds, valid)
+        try:
+            return self._block.evaluate(population, seeds, valid)
+        except Exception as error:  # an env that fails (e.g. its PyBullet client is gone): skip the round
+            reason = " ".join(str(error).split()) or type(error).__name__
+            raise EvaluationFailed(f"an evaluation env raised {type(error).__name__}: {reason}") from error
 
     def close(self) -> None:
         self._block.close()

@@ -6,7 +6,6 @@ from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
-
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
 from sb3_eps.common.buffers import JointReplayBufferSamples

@@ -16,6 +16,7 @@ import csv
 import json
 import signal
 import time
+import warnings
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -367,8 +368,23 @@ class CheckpointCallback(BaseCallback):
         if self.stop_requested:
             raise TrainingInterrupted(self.stop_requested)
 
-    def save(self, complete: bool = False) -> None:
-        """Write the checkpoint now (only valid between two iterations of ``learn``, or after it)."""
+    def save(self, complete: bool = False) -> bool:
+        """Write the checkpoint now (only valid between two iterations of ``learn``, or after it).
+
+        A checkpoint is refused (with a warning; the previous one stays) when the model's weights are not finite,
+        and when the file cannot be written (a full disk): training goes on, the next one is tried as usual.
+
+        :return: whether a checkpoint was written
+        """
+        broken = non_finite_parameters(self.model)
+        if broken:
+            warnings.warn(
+                f"checkpoint at {self.model.num_timesteps} timesteps refused: non-finite values in {', '.join(broken)}; "
+                f"the previous checkpoint is kept",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+            return False
         states = {name: callback_state(callback) for name, callback in self.stateful_callbacks.items()}
         meta = {
             "num_timesteps": int(self.model.num_timesteps),
@@ -376,12 +392,29 @@ class CheckpointCallback(BaseCallback):
             "total_timesteps": self.total_timesteps,
             "next_save": self.next_save,
             "complete": complete,
+            "algorithm": type(self.model).__name__,
             "time": time.strftime("%Y-%m-%d %H:%M:%S"),
         }
-        save_checkpoint(self.path, self.model, states, meta)  # type: ignore[arg-type]
+        try:
+            save_checkpoint(self.path, self.model, states, meta)  # type: ignore[arg-type]
+        except OSError as error:
+            warnings.warn(
+                f"checkpoint at {self.model.num_timesteps} timesteps not written ({error}); the previous checkpoint "
+                "is kept",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+            return False
         self.saved_at = int(self.model.num_timesteps)
         if self.verbose >= 1:
             print(f"Checkpoint at {self.saved_at} timesteps: {self.path}", flush=True)
+        return True
+
+
+def non_finite_parameters(model: Any) -> list[str]:
+    """:return: the names of the policy's parameters and buffers that hold NaN or inf (empty when all finite)."""
+    tensors = [*model.policy.named_parameters(), *model.policy.named_buffers()]
+    return [name for name, tensor in tensors if tensor.is_floating_point() and not th.isfinite(tensor).all()]
 
 
 @contextmanager

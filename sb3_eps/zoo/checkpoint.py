@@ -12,7 +12,12 @@ point. It holds:
   :class:`SnapshotPickler`);
 - ``rng.pkl``: the states of Python's, NumPy's and torch's global generators;
 - ``callbacks.pkl``: the state of the callbacks (team evaluation, EPS: counters, generators, history);
-- ``meta.json``: timesteps, ticks, total, whether training had finished.
+- ``meta.json``: timesteps, ticks, total, whether training had finished, algorithm and env id.
+
+A new checkpoint is written to a temporary file, flushed to disk and verified (every member's CRC, its
+``meta.json``) before it replaces ``checkpoint.zip``; the checkpoint it replaces is kept as
+``checkpoint.prev.zip``. A truncated or corrupt file (a full disk, a copy cut short) is therefore never the only
+one: :func:`latest_good_checkpoint` names what is wrong with it and returns the previous one.
 
 Checkpoints are pickles: load only the ones you wrote.
 """
@@ -26,6 +31,7 @@ import pickle
 import random
 import tempfile
 import zipfile
+import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -39,6 +45,12 @@ from gymnasium.utils import EzPickle
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 
 CHECKPOINT_NAME = "checkpoint.zip"
+#: The checkpoint before the newest one, kept until a newer one is written and verified.
+PREVIOUS_CHECKPOINT_NAME = "checkpoint.prev.zip"
+
+
+class CorruptCheckpoint(ValueError):
+    """A checkpoint file that cannot be read back: truncated, corrupt, or not written by ``sb3_eps.train``."""
 
 
 def _file_mode() -> int:
@@ -66,6 +78,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     os.close(handle)
     try:
         yield Path(temporary)
+        with open(temporary, "rb+") as file:  # on disk before the rename: a crash never leaves an empty file
+            os.fsync(file.fileno())
         os.chmod(temporary, _FILE_MODE)
         os.replace(temporary, path)
     finally:
@@ -207,9 +221,78 @@ def save_checkpoint(
         "callbacks.pkl": snapshot_dumps(callback_states),
         "meta.json": json.dumps(meta, indent=2).encode(),
     }
-    with atomic_path(path) as temporary, zipfile.ZipFile(temporary, "w", zipfile.ZIP_STORED) as archive:
-        for name, data in members.items():
-            archive.writestr(name, data)
+    path = Path(path)
+    with atomic_path(path) as temporary:
+        with zipfile.ZipFile(temporary, "w", zipfile.ZIP_STORED) as archive:
+            for name, data in members.items():
+                archive.writestr(name, data)
+        verify_checkpoint(temporary)
+        if path.is_file():  # the new one is good: the current one becomes the previous one
+            os.replace(path, previous_checkpoint_path(path))
+
+
+def previous_checkpoint_path(path: str | Path) -> Path:
+    """:return: where the checkpoint before ``path`` is kept (``checkpoint.prev.zip`` beside it)."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}.prev{path.suffix}")
+
+
+def checkpoint_paths(path: str | Path) -> list[Path]:
+    """:return: ``path`` and its previous checkpoint, those that exist, newest first."""
+    return [candidate for candidate in (Path(path), previous_checkpoint_path(path)) if candidate.is_file()]
+
+
+def remove_checkpoints(path: str | Path) -> None:
+    """Delete a checkpoint, its previous one and temporary files a killed writer left beside it."""
+    path = Path(path)
+    for candidate in (path, previous_checkpoint_path(path), *path.parent.glob(f".{path.name}.*.tmp")):
+        candidate.unlink(missing_ok=True)
+
+
+def verify_checkpoint(path: str | Path) -> dict[str, Any]:
+    """Check that a checkpoint file is complete: a zip archive holding every member with a correct CRC and a
+    readable ``meta.json``.
+
+    :return: its ``meta.json``
+    :raises CorruptCheckpoint: naming what is wrong, in one line
+    """
+    path = Path(path)
+    try:
+        with zipfile.ZipFile(path) as archive:
+            missing = [name for name in _MEMBERS if name not in archive.namelist()]
+            if missing:
+                raise CorruptCheckpoint(f"{path.name} lacks {', '.join(missing)}")
+            damaged = archive.testzip()  # reads every member and checks its CRC-32
+            if damaged is not None:
+                raise CorruptCheckpoint(f"{path.name}: member {damaged} fails its CRC check")
+            meta = json.loads(archive.read("meta.json"))
+    except CorruptCheckpoint:
+        raise
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, EOFError, ValueError, zlib.error) as error:
+        reason = " ".join(str(error).split()) or type(error).__name__
+        raise CorruptCheckpoint(f"{path.name} is truncated or corrupt ({reason})") from None
+    if not isinstance(meta, dict) or "num_timesteps" not in meta:
+        raise CorruptCheckpoint(f"{path.name} has no valid meta.json")
+    return meta
+
+
+def latest_good_checkpoint(path: str | Path) -> tuple[Path, dict[str, Any], list[str]]:
+    """Find the newest checkpoint that verifies: ``path``, else the previous one.
+
+    :param path: the run's checkpoint file (``<run>/checkpoint.zip``)
+    :return: ``(file, its meta, one line per newer file that was skipped and why)``
+    :raises FileNotFoundError: when neither file exists
+    :raises CorruptCheckpoint: when every existing one is damaged (the message lists why)
+    """
+    problems: list[str] = []
+    for candidate in checkpoint_paths(path):
+        try:
+            return candidate, verify_checkpoint(candidate), problems
+        except CorruptCheckpoint as error:
+            problems.append(str(error))
+    if not problems:
+        raise FileNotFoundError(path)
+    raise CorruptCheckpoint("; ".join(problems))
 
 
 def read_checkpoint_meta(path: str | Path) -> dict[str, Any]:
@@ -221,20 +304,24 @@ def read_checkpoint_meta(path: str | Path) -> dict[str, Any]:
 def load_checkpoint(path: str | Path) -> Checkpoint:
     """Read a checkpoint written by :func:`save_checkpoint` (a pickle: only load your own).
 
-    :raises ValueError: when the file is not such a checkpoint
+    :raises CorruptCheckpoint: when the file is damaged or not such a checkpoint
     """
+    verify_checkpoint(path)
+    with zipfile.ZipFile(path) as archive:
+        data = {name: archive.read(name) for name in _MEMBERS}
     try:
-        with zipfile.ZipFile(path) as archive:
-            data = {name: archive.read(name) for name in _MEMBERS}
-    except (zipfile.BadZipFile, KeyError) as error:
-        raise ValueError(f"{path} is not a checkpoint written by sb3_eps.train ({error})") from None
-    return Checkpoint(
-        model_bytes=data["model.zip"],
-        training=pickle.loads(data["training.pkl"]),  # our own checkpoint
-        rng=pickle.loads(data["rng.pkl"]),
-        callbacks=pickle.loads(data["callbacks.pkl"]),
-        meta=json.loads(data["meta.json"]),
-    )
+        return Checkpoint(
+            model_bytes=data["model.zip"],
+            training=pickle.loads(data["training.pkl"]),  # our own checkpoint
+            rng=pickle.loads(data["rng.pkl"]),
+            callbacks=pickle.loads(data["callbacks.pkl"]),
+            meta=json.loads(data["meta.json"]),
+        )
+    except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, TypeError, ValueError) as error:
+        reason = " ".join(str(error).split()) or type(error).__name__
+        raise CorruptCheckpoint(
+            f"{Path(path).name} is not a checkpoint this version of sb3_eps can read ({reason})"
+        ) from None
 
 
 def restore_model(

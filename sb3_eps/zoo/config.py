@@ -100,6 +100,8 @@ def load_yaml(path: str | Path) -> Any:
         text = path.read_text()
     except OSError as error:
         raise ConfigError(f"cannot read {path}: {error.strerror}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path} is not a text file (binary content); pass a YAML config") from None
     try:
         return yaml.load(text, Loader=_SafeUniqueKeyLoader)  # a SafeLoader subclass
     except ConfigError as error:

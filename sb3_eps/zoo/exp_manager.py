@@ -16,10 +16,12 @@ the same total; the result equals an uninterrupted run with the same seed (see :
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import random
 import re
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,6 +35,7 @@ from stable_baselines3.common.save_util import load_from_zip_file
 import envs
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.subproc_vec_env import VecEnvWorkerError
+from sb3_eps.common.utils import describe_space
 from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env
 from sb3_eps.version import __version__
 from sb3_eps.zoo.callbacks import (
@@ -49,8 +52,10 @@ from sb3_eps.zoo.callbacks import (
 )
 from sb3_eps.zoo.checkpoint import (
     CHECKPOINT_NAME,
+    CorruptCheckpoint,
+    latest_good_checkpoint,
     load_checkpoint,
-    read_checkpoint_meta,
+    remove_checkpoints,
     restore_model,
     save_model_atomic,
     write_text_atomic,
@@ -112,6 +117,23 @@ class TrainOptions:
     run_name: str | None = None
 
     @classmethod
+    def from_record(cls, record: Any, source: str | Path) -> TrainOptions:
+        """:return: the options recorded in a run's ``args.yml`` (unknown keys ignored).
+
+        :raises ConfigError: when the record is not a mapping of options of the right types
+        """
+        if not isinstance(record, dict):
+            raise ConfigError(f"{source} is not a mapping of options: not a run folder of sb3_eps.train")
+        options = cls(**{key: value for key, value in record.items() if key in cls.__dataclass_fields__})
+        for key, default in vars(cls()).items():
+            value, kinds = getattr(options, key), _OPTION_TYPES.get(key, (type(default),))
+            if not ((value is None and default is None) or isinstance(value, kinds)):
+                raise ConfigError(
+                    f"{source}: {key} is {value!r}, not a {kinds[0].__name__}: not a run of sb3_eps.train"
+                )
+        return options
+
+    @classmethod
     def from_namespace(cls, namespace: argparse.Namespace) -> TrainOptions:
         """:return: the options of a parsed command line (unknown attributes ignored)."""
         names = cls.__dataclass_fields__
@@ -135,10 +157,49 @@ class TrainOptions:
             raise ConfigError(f"--vec-env must be dummy or subproc, got {self.vec_env!r}")
         if self.seed is not None and self.seed < 0:
             raise ConfigError(f"--seed must be a non-negative int, got {self.seed}")
+        if self.num_threads < 0:
+            raise ConfigError(f"--num-threads must be >= 0 (0: torch's default), got {self.num_threads}")
+        check_device(self.device)
         if self.init_from is not None and not Path(self.init_from).is_file():
             raise ConfigError(
                 f"--init-from: {self.init_from} is not a file; pass a model .zip (e.g. a run's best_model.zip)"
             )
+        check_optional_features(progress=self.progress, tensorboard=self.tensorboard_log is not None)
+
+
+def check_device(device: str) -> None:
+    """:raises ConfigError: when ``device`` is neither ``auto`` nor a torch device string."""
+    try:
+        th.device("cpu" if device == "auto" else device)
+    except (RuntimeError, TypeError) as error:
+        raise ConfigError(
+            f"--device {device!r} is not a torch device (auto, cpu, cuda, cuda:0...): {error}"
+        ) from None
+
+
+def check_optional_features(progress: bool = False, tensorboard: bool = False) -> None:
+    """Check, before anything is written, that the packages behind the asked-for features import.
+
+    :raises ConfigError: naming the flag and what to install
+    """
+    wanted = {
+        "--progress": ("tqdm", "rich") if progress else (),
+        "--tensorboard-log": ("tensorboard",) if tensorboard else (),
+    }
+    for flag, modules in wanted.items():
+        missing = [name for name in modules if importlib.util.find_spec(name) is None]
+        if missing:
+            raise ConfigError(
+                f"{flag} needs {' and '.join(missing)}, which this environment lacks (they are part of the base "
+                f"install): pip install 'sb3-eps' or pip install {' '.join(missing)}; or drop {flag}"
+            )
+
+
+#: Types of the options whose default is None (the others must have the type of their default).
+_OPTION_TYPES: dict[str, tuple[type, ...]] = {
+    "conf_file": (str,), "eval_env": (str,), "tensorboard_log": (str,), "init_from": (str,),
+    "n_timesteps": (int,), "seed": (int,), "vec_env": (str,), "run_name": (str,),
+}  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------- building
@@ -213,13 +274,6 @@ def build_model(
         raise ConfigError(f"{config.source}: building {cls.__name__}: {error}") from None
 
 
-def describe_space(space: Any) -> str:
-    """:return: a short description of a gymnasium space (``Box(30,)``, ``Discrete(20)``)."""
-    if hasattr(space, "n"):
-        return f"{type(space).__name__}({int(space.n)})"
-    return f"{type(space).__name__}{tuple(getattr(space, 'shape', ()) or ())}"
-
-
 def check_eval_env(
     model: MultiAgentOffPolicyAlgorithm, eval_env: MultiAgentVecEnv, flag: str = "--eval-env"
 ) -> None:
@@ -230,6 +284,35 @@ def check_eval_env(
                 f"{flag}: {eval_env.env_id} has {kind} {describe_space(getattr(eval_env, kind))}, the model "
                 f"{describe_space(getattr(model, kind))}; pick a world of the same kind (robots with robots, MPE with MPE)"
             )
+
+
+def check_callback_worlds(
+    callbacks: list[tuple[str, BaseCallback]], env: MultiAgentVecEnv, source: str
+) -> None:
+    """Check that every callback's own evaluation world (EPS's ``eval_env_id``) shares the training world's
+    observation and action spaces, before anything is written (the callback itself checks only when training
+    starts).
+
+    :raises ConfigError: naming the callback, both worlds and their spaces
+    """
+    from sb3_eps.eps.evaluation import make_eval_env
+
+    for name, callback in callbacks:
+        eval_env_id = getattr(callback, "eval_env_id", None)
+        if eval_env_id is None:
+            continue
+        eval_env = make_eval_env(eval_env_id, getattr(callback, "eval_env_kwargs", None))
+        try:
+            for kind in ("observation_space", "action_space"):
+                theirs, ours = getattr(eval_env, kind), getattr(env, kind)
+                if theirs != ours:
+                    raise ConfigError(
+                        f"{source}: callback {name}: eval_env_id {eval_env_id} has {kind} {describe_space(theirs)}, "
+                        f"the training world {env.env_id} {describe_space(ours)}; use eval_env_id "
+                        f"{envs.eps_env_id_for(str(env.env_id))} (or leave it out: it defaults to the matching world)"
+                    )
+        finally:
+            eval_env.close()
 
 
 def load_agent_weights(model: MultiAgentOffPolicyAlgorithm, path: str | Path) -> None:
@@ -308,6 +391,7 @@ def prepare_run(
             if model is not None:
                 check_eval_env(model, eval_env)
         user_callbacks = build_callbacks(config.entry, config.env_id, options.verbose, config.source)
+        check_callback_worlds(user_callbacks, env, config.source)
         for name, callback in user_callbacks:
             try:
                 callback_state(callback)
@@ -388,9 +472,11 @@ class TrainResult:
     num_timesteps: int
 
 
-def train(options: TrainOptions) -> TrainResult:
+def train(options: TrainOptions, extra_callbacks: Sequence[BaseCallback] = ()) -> TrainResult:
     """Build, create the run folder, train (``python -m sb3_eps.train``).
 
+    :param options: the run's options
+    :param extra_callbacks: more callbacks to run (not checkpointed; e.g. a probe of ``benchmarks/soak.py``)
     :raises ConfigError: for any mistake, before anything is written
     """
     prepared = prepare_run(options)
@@ -405,7 +491,7 @@ def train(options: TrainOptions) -> TrainResult:
         write_text_atomic(
             run_dir / CONFIG_NAME, entry_yaml(prepared.config.env_id, prepared.config.entry, header)
         )
-        return _run(prepared, run_dir, restore=None)
+        return _run(prepared, run_dir, restore=None, extra_callbacks=extra_callbacks)
     finally:
         prepared.close()
 
@@ -422,30 +508,35 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
     for name in (ARGS_NAME, CONFIG_NAME):
         if not (run_dir / name).is_file():
             raise ConfigError(f"--resume: {run_dir} is not a run folder of sb3_eps.train (no {name})")
-    saved = load_yaml(run_dir / ARGS_NAME)
-    if not isinstance(saved, dict):
-        raise ConfigError(f"--resume: {run_dir / ARGS_NAME} is not a mapping of options")
-    options = TrainOptions(
-        **{key: value for key, value in saved.items() if key in TrainOptions.__dataclass_fields__}
-    )
+    options = TrainOptions.from_record(load_yaml(run_dir / ARGS_NAME), f"--resume: {run_dir / ARGS_NAME}")
+    spec = algorithm_spec(options.algo)
+    check_env_id(options.env, f"--resume: {run_dir / ARGS_NAME}: env")
     options.init_from = None  # the warm-start weights are in the checkpoint already
     if progress is not None:
         options.progress = progress
     if verbose is not None:
         options.verbose = verbose
-    checkpoint_path = run_dir / CHECKPOINT_NAME
     final_model = run_dir / final_model_name(options.env)
-    if not checkpoint_path.is_file():
+    try:
+        checkpoint_path, meta, skipped = latest_good_checkpoint(run_dir / CHECKPOINT_NAME)
+    except FileNotFoundError:
         if final_model.is_file():
             print(f"{run_dir} has finished already: its final model is {final_model}")
             return TrainResult(run_dir, "already complete", int(options.n_timesteps or 0))
         raise ConfigError(
             f"--resume: {run_dir} has no {CHECKPOINT_NAME} (it stopped before its first checkpoint); start a new run"
+        ) from None
+    except CorruptCheckpoint as error:
+        raise ConfigError(f"--resume: no usable checkpoint in {run_dir}: {error}; start a new run") from None
+    for problem in skipped:
+        print(
+            f"warning: {problem}; resuming from {checkpoint_path.name} at {meta['num_timesteps']} timesteps",
+            file=sys.stderr,
+            flush=True,
         )
-    if read_checkpoint_meta(checkpoint_path).get("complete"):
+    if meta.get("complete"):
         print(f"{run_dir} has finished already: its final model is {final_model}")
         return TrainResult(run_dir, "already complete", int(options.n_timesteps or 0))
-    spec = algorithm_spec(options.algo)
     entry = merged_entry(
         load_config_entries(run_dir / CONFIG_NAME, options.algo), options.env, run_dir / CONFIG_NAME
     )
@@ -453,10 +544,19 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
         options.algo, options.env, entry, f"{run_dir / CONFIG_NAME}: entry {options.env!r}"
     )
     check_complete(entry, spec, config.source)
+    saved_algorithm = meta.get("algorithm", spec.algorithm_class.__name__)
+    if saved_algorithm != spec.algorithm_class.__name__:
+        raise ConfigError(
+            f"--resume: {checkpoint_path} holds a {saved_algorithm} model, but {run_dir / ARGS_NAME} says "
+            f"--algo {options.algo} ({spec.algorithm_class.__name__}): the run folder was mixed with another one"
+        )
     prepared = prepare_run(options, config, build_model_now=False)
     try:
         prepared.env.close()  # the training worlds come back from the checkpoint, mid-episode
-        checkpoint = load_checkpoint(checkpoint_path)
+        try:
+            checkpoint = load_checkpoint(checkpoint_path)
+        except CorruptCheckpoint as error:
+            raise ConfigError(f"--resume: {error}") from None
         prepared.env = checkpoint.training["env"]
         prepared.model = restore_model(checkpoint, spec.algorithm_class, options.device)
         prepared.model.verbose = options.verbose
@@ -476,7 +576,12 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
         prepared.close()
 
 
-def _run(prepared: PreparedRun, run_dir: Path, restore: dict[str, Any] | None) -> TrainResult:
+def _run(
+    prepared: PreparedRun,
+    run_dir: Path,
+    restore: dict[str, Any] | None,
+    extra_callbacks: Sequence[BaseCallback] = (),
+) -> TrainResult:
     """Train a prepared run in its folder; write the final model. ``restore`` continues a checkpoint."""
     options, config, model = prepared.options, prepared.config, prepared.model
     total = int(config.entry["n_timesteps"])
@@ -512,6 +617,7 @@ def _run(prepared: PreparedRun, run_dir: Path, restore: dict[str, Any] | None) -
     )
     if options.progress:
         callbacks.append(ProgressBarCallback())
+    callbacks.extend(extra_callbacks)
     callbacks.append(checkpoint)  # last: it restores states after every other callback is initialised
     callback_list = CallbackList(callbacks)
     start = time.time()
@@ -540,9 +646,14 @@ def _run(prepared: PreparedRun, run_dir: Path, restore: dict[str, Any] | None) -
             raise RunFailed(f"{run_dir}: {reason}; {kept}") from error
         except TrainingInterrupted as stop:
             callback_list.on_training_end()
+            saved = (
+                ""
+                if checkpoint.saved_at == model.num_timesteps
+                else ", without a new checkpoint (the last good one is kept)"
+            )
             print(
-                f"Stopped by {stop} at {checkpoint.saved_at} of {total} timesteps; checkpoint {run_dir / CHECKPOINT_NAME}. "
-                f"Continue with: python -m sb3_eps.train --resume {run_dir}",
+                f"Stopped by {stop} at {model.num_timesteps} of {total} timesteps{saved}; checkpoint "
+                f"{run_dir / CHECKPOINT_NAME}. Continue with: python -m sb3_eps.train --resume {run_dir}",
                 flush=True,
             )
             return TrainResult(run_dir, "interrupted", int(model.num_timesteps))
@@ -552,7 +663,7 @@ def _run(prepared: PreparedRun, run_dir: Path, restore: dict[str, Any] | None) -
         if options.keep_checkpoint:
             checkpoint.save(complete=True)
         else:
-            (run_dir / CHECKPOINT_NAME).unlink(missing_ok=True)
+            remove_checkpoints(run_dir / CHECKPOINT_NAME)
     report = None if eval_callback is None else final_against_best(eval_callback.records, run_dir)
     if report is not None:
         (run_dir / FINAL_REPORT_NAME).write_text(report + "\n")
