@@ -214,6 +214,7 @@ def robot_callback(**kwargs: Any) -> EvolutionCallback:
         "population_size": 2,
         "period": 60,
         "period_unit": "ticks",
+        "max_eps_share": None,  # a round at every period: the tests need rounds, not the default's budget
     }
     return EvolutionCallback(**{**defaults, "n_eval_episodes": 1, "seed": 0, **kwargs})
 
@@ -243,9 +244,9 @@ def test_a_disconnected_pybullet_client_skips_the_round_and_the_workers_restart(
     first_pids: list[list[int]] = []
     original_skip = callback._skip_round
 
-    def remember_pids(error, wall_time):
+    def remember_pids(error, wall_time, *record):
         first_pids.append(callback.worker_pids)
-        original_skip(error, wall_time)
+        original_skip(error, wall_time, *record)
 
     monkeypatch.setattr(callback, "_skip_round", remember_pids)
     with pytest.warns(RuntimeWarning, match="EPS round skipped"):
@@ -390,17 +391,18 @@ def test_a_checkpoint_of_non_finite_weights_is_refused(tmp_path) -> None:
 
 
 def test_a_non_finite_mutant_is_disqualified_with_a_warning(monkeypatch) -> None:
-    original = callback_module.mutate_population
+    original = callback_module.population_from_directions  # the callback builds its population with it
 
     def with_nan_mutant(*args, **kwargs):
         population = original(*args, **kwargs)
         next(iter(population.values()))[2].fill_(np.nan)
         return population
 
-    monkeypatch.setattr(callback_module, "mutate_population", with_nan_mutant)
+    monkeypatch.setattr(callback_module, "population_from_directions", with_nan_mutant)
     model = mpe_model(GDQ)
     callback = EvolutionCallback(
-        eval_env_id="CooperativeNavigationSingle-v0", population_size=3, period=2, n_workers=0, seed=0
+        eval_env_id="CooperativeNavigationSingle-v0", population_size=3, period=2, n_workers=0, seed=0,
+        period_unit="episodes", max_eps_share=None, target_flip_share=None,
     )
     with pytest.warns(
         RuntimeWarning, match=r"individuals \[2\] have non-finite weights; they are disqualified"
@@ -730,7 +732,7 @@ def curves(run: Path) -> tuple[list[list[str]], list[list[str]]]:
 def test_two_runs_with_the_same_seed_give_identical_learning_curves(algo, tmp_path) -> None:
     extra = [
         "callback.n_workers:1", "callback.period_unit:ticks", "callback.period:2500", "callback.population_size:3",
-        "callback.n_eval_episodes:1",
+        "callback.n_eval_episodes:1", "callback.max_eps_share:1.0",
     ] if algo == "eps_gdq" else []  # fmt: skip
     runs = []
     for name in ("first", "second"):

@@ -289,6 +289,11 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             self._read_env_layout(self.env)
         if self.n_agents < 1:
             raise ValueError("the model needs an env from sb3_eps.make_vec_env to know its agents")
+        expected = self.policy_aliases["MlpPolicy"]
+        if not (isinstance(self.policy_class, type) and issubclass(self.policy_class, expected)):
+            raise ValueError(
+                f"{type(self).__name__} needs a policy derived from {expected.__name__}, got {self.policy_class!r}"
+            )
         buffer_class = PrioritizedJointReplayBuffer if self.prioritized_replay else JointReplayBuffer
         buffer_kwargs = {"alpha": self.prioritized_replay_alpha} if self.prioritized_replay else {}
         self.replay_buffer = buffer_class(
