@@ -138,7 +138,7 @@ def test_eps_evaluation_workers_next_to_the_world_workers() -> None:
         )  # fmt: skip
         callback = EvolutionCallback(
             eval_env_id="CooperativeNavigationSingle-v0", population_size=3, period=2, n_eval_episodes=2,
-            n_workers=2, seed=0,
+            n_workers=2, seed=0, period_unit="episodes", max_eps_share=None,
         )  # fmt: skip
         model.learn(600, callback=callback)
         assert callback.history and len(callback.worker_pids) == 0  # closed at the end of training

@@ -7,6 +7,7 @@ from typing import Any, ClassVar
 import numpy as np
 import torch as th
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
+from stable_baselines3.common.utils import LinearSchedule
 
 from sb3_eps.common.buffers import JointReplayBufferSamples
 from sb3_eps.common.losses import masked_huber, row_priority, weighted_huber
@@ -48,6 +49,10 @@ def gdq_agent_targets(
     return td_target(rewards, discounts, dones, value + next_advantage_term)
 
 
+#: GDQ's default learning rate: 3e-4 decaying linearly to 0 over the budget (RL Zoo's ``lin_3e-4``).
+DEFAULT_LEARNING_RATE = LinearSchedule(3e-4, 0.0, 1.0)
+
+
 class GDQ(MultiAgentOffPolicyAlgorithm):
     """Global Dueling Q-learning on a parameter-shared dueling network.
 
@@ -61,7 +66,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
 
     Options the papers leave open (package defaults in brackets, measured in ``docs/results/baselines.md``):
     ``n_steps`` [30: own rewards reach the target directly, where ``V_G'`` passes them on with weight
-    ``g_i ~ 1/n``]; ``team_reward_mode`` sum or mean [mean]; ``policy_kwargs=dict(agent_target=...)`` an agent
+    ``g_i ~ 1/n``]; ``learning_rate`` [3e-4 decaying linearly to 0 over the budget]; ``team_reward_mode`` sum or mean [mean]; ``policy_kwargs=dict(agent_target=...)`` an agent
     target network [True; the paper had none]; ``global_values`` where ``v'`` comes from: the agent target
     network, recomputed online, or stored at collection time [target]; ``global_init`` of ``V_G`` [mean];
     ``global_net_arch`` [64, 64]; and our GDQ-lambda variant ``global_bootstrap`` [1, the paper's target]
@@ -80,7 +85,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         self,
         policy: str | type[MultiAgentQPolicy],
         env: GymEnv | None,
-        learning_rate: float | Schedule = 3e-4,
+        learning_rate: float | Schedule = DEFAULT_LEARNING_RATE,
         buffer_size: int = 50_000,
         learning_starts: int = 2_000,
         batch_size: int = 64,
@@ -108,8 +113,10 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         _init_setup_model: bool = True,
     ) -> None:
         # GDQ's own defaults differ from the base's in n_steps (30: an agent's own rewards reach its target
-        # directly for 1.5 s, where V_G' passes them on with weight g_i ~ 1/n) and team_reward_mode ("mean":
-        # V_G on the scale of one agent's value, a common-mode gain of about gamma^n); docs/results/baselines.md.
+        # directly for 1.5 s, where V_G' passes them on with weight g_i ~ 1/n), team_reward_mode ("mean":
+        # V_G on the scale of one agent's value, a common-mode gain of about gamma^n) and learning_rate (3e-4
+        # decaying linearly to 0 over the call's budget, RL Zoo's lin_3e-4: the greedy policy stops churning
+        # as the budget ends); docs/results/baselines.md.
         arguments = dict(locals())
         for name in ("self", "__class__", "policy", "env"):
             arguments.pop(name, None)

@@ -128,7 +128,9 @@ class GDQPolicy(MultiAgentQPolicy):
         super().__init__(*args, **kwargs)
 
     def _build_joint_modules(self) -> None:
-        args = (self.n_agents, self.global_net_arch, self.activation_fn, self.global_init)
+        # Dense ReLU layers as the paper's V_G, whatever the agent network's activation (the sum/mean
+        # initialisations are exact only with ReLU).
+        args = (self.n_agents, self.global_net_arch, nn.ReLU, self.global_init)
         self.global_value_net = GlobalValueNetwork(*args)
         self.global_value_net_target = GlobalValueNetwork(*args)
         self.global_value_net_target.load_state_dict(self.global_value_net.state_dict())

@@ -98,6 +98,17 @@ def package_policy_kwargs(algo: str) -> dict[str, Any]:
     return result
 
 
+def _config_value(value: Any) -> Any:
+    """A constructor default as a config value: SB3's ``LinearSchedule(x, 0, 1)`` is RL Zoo's ``lin_<x>``."""
+    from stable_baselines3.common.utils import LinearSchedule
+
+    if isinstance(value, LinearSchedule):
+        if value.end != 0.0 or value.end_fraction != 1.0:
+            raise ValueError(f"a default {value!r} has no config form: only lin_<x> (x -> 0 over training) has")
+        return f"lin_{value.start}"
+    return value
+
+
 def package_default_entry(algo: str) -> dict[str, Any]:
     """:return: the canonical ``default:`` entry of ``zoo_configs/<algo>.yml`` made from the package defaults."""
     from sb3_eps.common.vec_env import make_vec_env
@@ -109,7 +120,7 @@ def package_default_entry(algo: str) -> dict[str, Any]:
         "policy": "MlpPolicy",
         "n_envs": _signature_defaults(make_vec_env)["n_envs"],
     }
-    entry.update((name, algorithm_defaults[name]) for name in ALGORITHM_PARAMS)
+    entry.update((name, _config_value(algorithm_defaults[name])) for name in ALGORITHM_PARAMS)
     entry[POLICY_KWARGS_KEY] = package_policy_kwargs(algo)
     if spec.eps:
         parameters = callback_parameters(callback_class(EVOLUTION_CALLBACK))
