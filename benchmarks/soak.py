@@ -193,7 +193,10 @@ def main() -> int:
     options = TrainOptions(
         algo="eps_gdq", env=ENV_ID, n_timesteps=args.n_timesteps, seed=args.seed, folder=folder,
         eval_freq=250_000, eval_episodes=4, n_eval_envs=2, save_freq=100_000, device="cpu", verbose=0,
-        hyperparams=["callback.period_unit:ticks", f"callback.period:{args.eps_period // N_AGENTS}"],
+        # Every round runs (no EPS tick budget): the soak is about leaks over many rounds.
+        hyperparams=[
+            "callback.period_unit:ticks", f"callback.period:{args.eps_period // N_AGENTS}", "callback.max_eps_share:null"
+        ],
     )  # fmt: skip
     probe = SoakProbe(args.sample_freq)
     start = time.perf_counter()
