@@ -20,7 +20,7 @@ from sb3_eps.zoo.config import (
     merged_entry,
     resolve_config,
 )
-from sb3_eps.zoo.defaults import differences, rewrite_default
+from sb3_eps.zoo.defaults import config_value, differences, rewrite_default
 from sb3_eps.zoo.errors import ConfigError
 from sb3_eps.zoo.exp_manager import build_env, build_model
 from sb3_eps.zoo.literal import parse_literal
@@ -82,7 +82,8 @@ def test_default_entry_equals_the_package_defaults(algo) -> None:
     assert differences(algo) == []
     default = load_config_entries(config_file(algo), algo)[DEFAULT_KEY]
     signature = inspect.signature(ALGORITHMS[algo].algorithm_class.__init__).parameters
-    assert all(default[name] == signature[name].default for name in ALGORITHM_PARAMS)
+    # A LinearSchedule(x, 0, 1) default is written lin_<x> (RL Zoo's form).
+    assert all(default[name] == config_value(signature[name].default) for name in ALGORITHM_PARAMS)
     assert default["policy_kwargs"]["net_arch"] == DEFAULT_NET_ARCH
     assert default["policy_kwargs"]["stream_arch"] == DEFAULT_STREAM_ARCH
     assert default["n_envs"] == inspect.signature(make_vec_env).parameters["n_envs"].default

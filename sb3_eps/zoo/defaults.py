@@ -98,7 +98,7 @@ def package_policy_kwargs(algo: str) -> dict[str, Any]:
     return result
 
 
-def _config_value(value: Any) -> Any:
+def config_value(value: Any) -> Any:
     """A constructor default as a config value: SB3's ``LinearSchedule(x, 0, 1)`` is RL Zoo's ``lin_<x>``."""
     from stable_baselines3.common.utils import LinearSchedule
 
@@ -120,7 +120,7 @@ def package_default_entry(algo: str) -> dict[str, Any]:
         "policy": "MlpPolicy",
         "n_envs": _signature_defaults(make_vec_env)["n_envs"],
     }
-    entry.update((name, _config_value(algorithm_defaults[name])) for name in ALGORITHM_PARAMS)
+    entry.update((name, config_value(algorithm_defaults[name])) for name in ALGORITHM_PARAMS)
     entry[POLICY_KWARGS_KEY] = package_policy_kwargs(algo)
     if spec.eps:
         parameters = callback_parameters(callback_class(EVOLUTION_CALLBACK))
