@@ -1,7 +1,7 @@
 """The README's main job (``make run``): train EPS-GDQ on ``MultiRobotNav-4-v0`` and plot its learning curve.
 
-It trains with the shipped default config (``zoo_configs/eps_gdq.yml``, entry ``MultiRobotNav-4-v0``: GDQ's
-searched setting, 30-step returns, a decaying learning rate, the mean team reward) for 800,000 timesteps =
+It trains with the shipped default config (``zoo_configs/eps_gdq.yml``, entry ``MultiRobotNav-4-v0``: the package
+defaults of GDQ and of the EvolutionCallback, ``docs/results/baselines.md``) for 800,000 timesteps =
 200,000 ticks of the 4-robot worlds (the paper's GDQ reaches about 88 % success after 175k steps), with team
 evaluations every 100,000 timesteps; then writes the learning curve and prints where the run, the picture and
 the TensorBoard logs are. The README gives its measured duration. SIGINT / SIGTERM stop it with
