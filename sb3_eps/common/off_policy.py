@@ -117,6 +117,9 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     default_agent_target: ClassVar[bool] = True
     # Only state-conditioned mixers (QMIX) read the global state; the others neither query nor store it.
     uses_global_state: ClassVar[bool] = False
+    # Gradient steps between two diagnostic records in the train/ logs (GDQ's g_i and action margins, QMIX's
+    # mixer gain): a few extra passes every so often, never on every step.
+    diagnostics_interval: ClassVar[int] = 250
 
     def __init__(
         self,

@@ -11,10 +11,10 @@ from stable_baselines3.common.utils import LinearSchedule
 
 from sb3_eps.common.buffers import JointReplayBufferSamples
 from sb3_eps.common.losses import masked_huber, row_priority, weighted_huber
-from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
+from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm, TDTerms
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import td_target
-from sb3_eps.gdq.policies import GLOBAL_VALUES, GDQPolicy, MlpPolicy
+from sb3_eps.common.utils import input_gain, td_target
+from sb3_eps.gdq.policies import DEFAULT_GLOBAL_VALUES, GLOBAL_VALUES, GDQPolicy, MlpPolicy
 
 
 def gdq_agent_targets(
@@ -122,15 +122,10 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             arguments.pop(name, None)
         super().__init__(policy, env, **arguments)
 
-    # Gradient steps between two diagnostic records (g_i, action gap, value spread) in the train/ logs.
-    diagnostics_interval: ClassVar[int] = 250
-
-    def _diagnostics(self, inputs: th.Tensor, terms, batch: JointReplayBufferSamples) -> dict[str, float]:
+    def _diagnostics(self, inputs: th.Tensor, terms: TDTerms, batch: JointReplayBufferSamples) -> dict[str, float]:
         """What explains GDQ's learning (docs/results/baselines.md): the gain ``g_i = dV_G/dv_i`` of the
         global head, the greedy action's margin ``A(s, a*) - A(s, a_2nd)``, and the spread of the agents' values."""
-        probe = inputs.detach().clone().requires_grad_(True)
-        with th.enable_grad():
-            gain = th.autograd.grad(self.policy.global_value_net(probe).sum(), probe)[0]
+        gain = input_gain(self.policy.global_value_net, inputs)
         alive = batch.alive.bool()
         with th.no_grad():
             obs = batch.observations.reshape(-1, batch.observations.shape[-1])
@@ -147,7 +142,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         }
 
     def _stores_agent_values(self) -> bool:
-        mode = (self.policy_kwargs or {}).get("global_values", "recomputed")
+        mode = (self.policy_kwargs or {}).get("global_values", DEFAULT_GLOBAL_VALUES)
         if mode not in GLOBAL_VALUES:
             raise ValueError(f"global_values must be one of {GLOBAL_VALUES}, got {mode!r}")
         return mode == "stored"

@@ -13,6 +13,7 @@ from sb3_eps.common.policies import MultiAgentQPolicy
 DEFAULT_GLOBAL_NET_ARCH = [64, 64]
 GLOBAL_INITS = ("random", "sum", "mean")
 GLOBAL_VALUES = ("recomputed", "stored", "target")
+DEFAULT_GLOBAL_VALUES = "target"
 
 
 @th.no_grad()
@@ -109,7 +110,7 @@ class GDQPolicy(MultiAgentQPolicy):
         global_net_arch: list[int] | None = None,
         global_init: str = "mean",
         global_bootstrap: float = 1.0,
-        global_values: str = "target",
+        global_values: str = DEFAULT_GLOBAL_VALUES,
         **kwargs: Any,
     ) -> None:
         if global_values not in GLOBAL_VALUES:

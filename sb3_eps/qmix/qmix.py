@@ -11,7 +11,7 @@ from sb3_eps.common.buffers import JointReplayBufferSamples
 from sb3_eps.common.losses import weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import td_target
+from sb3_eps.common.utils import input_gain, td_target
 from sb3_eps.qmix.policies import QMIXPolicy, VDNPolicy
 
 
@@ -39,10 +39,8 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
         loss = weighted_huber(q_total, targets, batch.weights)
         priorities = (q_total - targets).detach().abs()
         logs = {"q_total_mean": float(q_total.detach().mean()), "target_mean": float(targets.mean())}
-        if self._n_updates % 250 == 0:
-            probe = (terms.q_taken * batch.alive).detach().clone().requires_grad_(True)
-            with th.enable_grad():
-                gain = th.autograd.grad(self.policy.mixer(probe, batch.states).sum(), probe)[0]
+        if self._n_updates % self.diagnostics_interval == 0:
+            gain = input_gain(self.policy.mixer, terms.q_taken * batch.alive, batch.states)
             logs.update(
                 mixer_gain_sum=float(gain.sum(dim=1).mean()),
                 agent_q_mean=float(terms.q_taken.detach().mean()),
