@@ -5,6 +5,12 @@ holds the final evaluation, so an interrupted run resumes where it stopped (per 
 acceptance check)::
 
     python benchmarks/learning_check.py --algo gdq --env MultiRobotNav-2-v0 --ticks 100000 --seeds 0 1 2
+
+With ``--eps`` (a JSON dict of ``EvolutionCallback`` arguments, ``{}`` for its defaults) the run is EPS-<algo>: the
+ticks of the budget, of the evaluation points and of every record count the EPS evaluation ticks too (``ticks`` =
+training ticks + ``eps_ticks``), as the paper's curves do, and training stops when that total reaches ``--ticks``.
+A round's EPS ticks can carry the total past an evaluation point: the evaluation then comes at the next step, with
+the total it has reached. The files are named ``eps_<algo>_<env>_seed<k>.jsonl``.
 """
 
 from __future__ import annotations
@@ -16,11 +22,11 @@ import time
 from typing import Any
 
 import torch as th
-from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.utils import LinearSchedule
 
 import envs  # noqa: F401
-from sb3_eps import GDQ, IQL, QMIX, VDN, make_vec_env
+from sb3_eps import GDQ, IQL, QMIX, VDN, EvolutionCallback, make_vec_env
 from sb3_eps.common.evaluation import evaluate_team
 
 ALGORITHMS = {"iql": IQL, "gdq": GDQ, "qmix": QMIX, "vdn": VDN}
@@ -29,8 +35,18 @@ ALGORITHMS = {"iql": IQL, "gdq": GDQ, "qmix": QMIX, "vdn": VDN}
 class PeriodicTeamEval(BaseCallback):
     """Greedy team evaluation every ``eval_every`` training ticks; results appended to a JSON-lines file."""
 
-    def __init__(self, env_id: str, eval_every: int, n_episodes: int, path: pathlib.Path, seed: int) -> None:
+    def __init__(
+        self,
+        env_id: str,
+        eval_every: int,
+        n_episodes: int,
+        path: pathlib.Path,
+        seed: int,
+        eps: EvolutionCallback | None = None,
+        budget: int | None = None,
+    ) -> None:
         super().__init__()
+        self.eps, self.budget = eps, budget
         self.env_id, self.eval_every, self.n_episodes, self.path, self.seed = (
             env_id,
             eval_every,
@@ -41,17 +57,31 @@ class PeriodicTeamEval(BaseCallback):
         self.next_eval = eval_every
         self.start = time.time()
 
+    def total_ticks(self) -> int:
+        """Training ticks, plus the EPS evaluation ticks when EPS runs."""
+        eps_ticks = self.eps.eps_ticks if self.eps is not None else 0
+        return int(self.model.ticks) + eps_ticks  # type: ignore[attr-defined]
+
     def _on_step(self) -> bool:
-        ticks = self.model.ticks  # type: ignore[attr-defined]
+        ticks = self.total_ticks()
         if ticks >= self.next_eval:
-            self.next_eval += self.eval_every
+            while self.next_eval <= ticks:  # an EPS round can jump over several evaluation points
+                self.next_eval += self.eval_every
             self.evaluate(ticks)
-        return True
+        return self.budget is None or ticks < self.budget
 
     def evaluate(self, ticks: int) -> dict[str, Any]:
         summary = evaluate_team(self.model, self.env_id, self.n_episodes, n_envs=4, seed=10_000 + self.seed)
         summary.pop("episodes")
         record = {"ticks": ticks, "wall_s": round(time.time() - self.start, 1), **summary}
+        if self.eps is not None:
+            rounds = [r for r in self.eps.history if not r.get("skipped")]
+            record.update(
+                training_ticks=int(self.model.ticks),  # type: ignore[attr-defined]
+                eps_ticks=self.eps.eps_ticks,
+                eps_rounds=len(rounds),
+                eps_crossovers=sum(bool(r.get("accepted")) for r in rounds),
+            )
         with self.path.open("a") as file:
             file.write(json.dumps(record) + "\n")
         print(
@@ -72,19 +102,28 @@ def main() -> None:
     parser.add_argument("--eval-episodes", type=int, default=100)
     parser.add_argument("--out", default="docs/results/learning_check")
     parser.add_argument("--log-interval", type=int, default=20, help="episodes between two log rows")
-    parser.add_argument("--log-dir", default=None, help="write the train/ and rollout/ logs (progress.csv) here")
+    parser.add_argument(
+        "--log-dir", default=None, help="write the train/ and rollout/ logs (progress.csv) here"
+    )
     parser.add_argument(
         "--hyperparams",
         type=json.loads,
         default={},
         help='JSON dict of algorithm arguments; "learning_rate": "lin_<x>" is a linear decay from x to 0',
     )
+    parser.add_argument(
+        "--eps",
+        type=json.loads,
+        default=None,
+        help="JSON dict of EvolutionCallback arguments ({} = its defaults): train EPS-<algo>, EPS ticks counted",
+    )
     args = parser.parse_args()
     th.set_num_threads(1)
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     for seed in args.seeds:
-        path = out / f"{args.algo}_{args.env}_seed{seed}.jsonl"
+        prefix = "eps_" if args.eps is not None else ""
+        path = out / f"{prefix}{args.algo}_{args.env}_seed{seed}.jsonl"
         if path.exists() and any(
             json.loads(line)["ticks"] >= args.ticks for line in path.read_text().splitlines()
         ):
@@ -101,11 +140,24 @@ def main() -> None:
         if args.log_dir:
             from stable_baselines3.common.logger import configure
 
-            model.set_logger(configure(f"{args.log_dir}/{args.algo}_{args.env}_seed{seed}", ["csv"]))
-        callback = PeriodicTeamEval(args.env, args.eval_every, args.eval_episodes, path, seed)
-        model.learn(args.ticks * venv.n_agents, callback=callback, log_interval=args.log_interval)
+            model.set_logger(configure(f"{args.log_dir}/{prefix}{args.algo}_{args.env}_seed{seed}", ["csv"]))
+        eps = None
+        if args.eps is not None:
+            eps_kwargs = dict(args.eps)
+            if args.log_dir:
+                eps_kwargs.setdefault(
+                    "diagnostics_path",
+                    f"{args.log_dir}/{prefix}{args.algo}_{args.env}_seed{seed}/eps_rounds.jsonl",
+                )
+            eps_kwargs.setdefault("verbose", 1)
+            eps = EvolutionCallback(**eps_kwargs)
+        callback = PeriodicTeamEval(
+            args.env, args.eval_every, args.eval_episodes, path, seed, eps, args.ticks
+        )
+        callbacks = CallbackList([eps, callback]) if eps is not None else callback
+        model.learn(args.ticks * venv.n_agents, callback=callbacks, log_interval=args.log_interval)
         if callback.next_eval - callback.eval_every < args.ticks:
-            callback.evaluate(model.ticks)
+            callback.evaluate(callback.total_ticks())
         venv.close()
 
 
