@@ -3,8 +3,9 @@
 It trains with the shipped default config (``zoo_configs/eps_gdq.yml``, entry ``MultiRobotNav-4-v0``: the package
 defaults of GDQ and of the EvolutionCallback, ``docs/results/baselines.md``) for 800,000 timesteps =
 200,000 ticks of the 4-robot worlds (the paper's GDQ reaches about 88 % success after 175k steps), with team
-evaluations every 100,000 timesteps; then writes the learning curve and prints where the run, the picture and
-the TensorBoard logs are. The README gives its measured duration. SIGINT / SIGTERM stop it with
+evaluations every 100,000 timesteps; then writes the learning curve, and the greedy evaluations beside the committed
+5-seed curves of GDQ and EPS-GDQ (:data:`REFERENCES`), and prints where the run, the pictures and the TensorBoard
+logs are. The README gives its measured duration. SIGINT / SIGTERM stop it with
 a checkpoint; ``python -m sb3_eps.train --resume <run folder>`` continues it. Without EPS installed it trains GDQ.
 """
 
@@ -12,9 +13,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from sb3_eps.zoo.cli import OneLineArgumentParser, positive_int
 from sb3_eps.zoo.errors import ConfigError, run_command
+
+if TYPE_CHECKING:
+    from sb3_eps.zoo.plotting import RunCurve
 
 PROG = "python -m sb3_eps.run_main"
 ENV_ID = "MultiRobotNav-4-v0"
@@ -22,6 +27,28 @@ BUDGET = 800_000
 EVAL_FREQ = 100_000
 EVAL_EPISODES = 20
 SAVE_FREQ = 100_000
+# Committed greedy evaluations of the package defaults on the same world (100 episodes every 10k ticks, seeds 0-4,
+# benchmarks/learning_check.py; docs/results/eps.md), drawn beside the run so that a newcomer sees what EPS did.
+REFERENCES = {
+    "GDQ, seeds 0-4": "docs/results/baselines/gdq4_final",
+    "EPS-GDQ, seeds 0-4": "docs/results/eps/eps_gdq4",
+}
+
+
+def reference_curves(root: Path | None = None) -> list[RunCurve]:
+    """The committed reference curves of :data:`REFERENCES` found under ``root`` (default: the repository).
+
+    :return: one curve per seed, grouped by the reference's label; none when the records are not there (an
+        installed package without the repository's ``docs/``)
+    """
+    from sb3_eps.zoo.plotting import record_curves
+
+    root = Path(__file__).resolve().parents[1] if root is None else root
+    curves: list[RunCurve] = []
+    for label, folder in REFERENCES.items():
+        if (root / folder).is_dir():
+            curves.extend(curve for curve in record_curves([root / folder], label) if curve.env_id == ENV_ID)
+    return curves
 
 
 def main_algorithm() -> str:
@@ -63,8 +90,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     run_dir = result.run_dir
     curve = plot_learning_curves([load_curve(run_dir)], run_dir / "learning_curve.png", window=100)
     evaluations = evaluation_curves([run_dir])
+    references = reference_curves()
     eval_curve = (
-        plot_learning_curves(evaluations, run_dir / "eval_curve.png", window=1) if evaluations else None
+        plot_learning_curves(
+            evaluations + references, run_dir / "eval_curve.png", window=1, title="greedy evaluations"
+        )
+        if evaluations
+        else None
     )
     print()
     if result.status == "interrupted":
@@ -74,7 +106,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"Run folder:      {run_dir}")
     print(f"Learning curve:  {curve}")
     if eval_curve is not None:
-        print(f"Evaluations:     {eval_curve}")
+        print(
+            f"Evaluations:     {eval_curve}" + (" (beside the committed 5-seed curves)" if references else "")
+        )
     print(f"TensorBoard:     tensorboard --logdir {Path(args.tensorboard_log)}")
     print(
         f"Evaluate it:     python -m sb3_eps.evaluate --run {run_dir} --eval-env MultiRobotNavUnseen-4-v0 -n 100"

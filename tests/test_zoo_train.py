@@ -147,3 +147,29 @@ def test_a_run_reports_its_last_evaluation_against_its_best(run_dir, tmp_path) -
     records["successes"][-1] = [1.0, 1.0]
     assert "WARNING" not in final_against_best(records, tmp_path)
     assert final_against_best({"timesteps": []}, tmp_path) is None
+
+
+def test_record_curves_read_the_committed_evaluation_records(tmp_path) -> None:
+    from sb3_eps.run_main import ENV_ID as MAIN_ENV
+    from sb3_eps.run_main import reference_curves
+    from sb3_eps.zoo.plotting import plot_learning_curves, record_curves
+
+    rows = [{"ticks": 10_000 * k, "success_rate": 0.1 * k, "team_return_mean": float(k)} for k in (1, 2, 3)]
+    path = tmp_path / "eps_gdq_MultiRobotNav-4-v0_seed7.jsonl"
+    path.write_text("\n".join(json.dumps(row) for row in rows) + "\n")
+    (curve,) = record_curves([tmp_path])
+    assert (curve.algo, curve.env_id) == ("eps_gdq", "MultiRobotNav-4-v0")
+    assert list(curve.x) == [10_000, 20_000, 30_000] and np.allclose(curve.values["success"], [0.1, 0.2, 0.3])
+    bad = tmp_path / "bad" / "gdq_MultiRobotNav-4-v0_seed0.jsonl"
+    bad.parent.mkdir()
+    bad.write_text('{"ticks": 1}\n')
+    with pytest.raises(ConfigError, match="not an evaluation record"):
+        record_curves([bad])
+    with pytest.raises(ConfigError, match="does not exist"):
+        record_curves([tmp_path / "missing"])
+    # make run draws its evaluations beside the committed 5-seed GDQ curves of the same world.
+    references = reference_curves()
+    gdq = [c for c in references if c.algo.startswith("GDQ")]
+    assert len(gdq) == 5 and all(c.env_id == MAIN_ENV and c.x[-1] >= 150_000 for c in gdq)
+    output = plot_learning_curves([curve, *references], tmp_path / "refs.png", window=1)
+    assert output.stat().st_size > 10_000

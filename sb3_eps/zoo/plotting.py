@@ -289,3 +289,40 @@ def evaluation_curves(run_dirs: list[Path]) -> list[RunCurve]:
             RunCurve(run_dir, str(args["algo"]), str(args["env"]), data["ticks"] + data["eps_ticks"], values)
         )
     return curves
+
+
+def record_curves(paths: list[str | Path], label: str | None = None) -> list[RunCurve]:
+    """Greedy-evaluation records of ``benchmarks/learning_check.py`` (JSON lines) as curves, one per file.
+
+    A record file ``[eps_]<algo>_<env id>_seed<k>.jsonl`` holds one line per evaluation with ``ticks`` (training
+    plus EPS ticks), ``success_rate`` and ``team_return_mean``; these are the files committed under
+    ``docs/results/``. ``paths`` are files or folders (searched for ``*.jsonl`` directly inside).
+
+    :param label: the group name of every curve (default: the algorithm of the file name, e.g. ``eps_gdq``)
+    :raises ConfigError: when a path does not exist or a file is not such a record
+    """
+    import json
+    import re
+
+    pattern = re.compile(r"^(?P<algo>(?:eps_)?[a-z]+)_(?P<env>.+)_seed(?P<seed>-?\d+)\.jsonl$")
+    files: list[Path] = []
+    for path in map(Path, paths):
+        if not path.exists():
+            raise ConfigError(f"{path} does not exist")
+        files.extend(sorted(path.glob("*.jsonl")) if path.is_dir() else [path])
+    curves = []
+    for file in files:
+        match = pattern.match(file.name)
+        if match is None:
+            raise ConfigError(f"{file}: not an evaluation record (<algo>_<env id>_seed<k>.jsonl)")
+        try:
+            rows = [json.loads(line) for line in file.read_text().splitlines() if line.strip()]
+            x = np.array([row["ticks"] for row in rows], dtype=float)
+            values = {
+                "r": np.array([row["team_return_mean"] for row in rows], dtype=float),
+                "success": np.array([row["success_rate"] for row in rows], dtype=float),
+            }
+        except (ValueError, KeyError, TypeError) as error:
+            raise ConfigError(f"{file}: not an evaluation record ({error!r})") from error
+        curves.append(RunCurve(file, label or match["algo"], match["env"], x, values))
+    return curves
