@@ -7,7 +7,9 @@ Examples::
 
 Curves: team return and success rate of the training episodes, smoothed over 100 episodes, mean +/- std over the
 runs (seeds) of each algorithm, against ticks including the ticks of EPS evaluation. ``--eval`` draws the periodic
-greedy evaluations instead. ``--aggregate`` prints mean, median and IQM of the runs' final scores with bootstrap
+greedy evaluations instead; ``--records`` adds the greedy-evaluation records of ``benchmarks/learning_check.py``
+(the JSON-lines files committed under ``docs/results/``) beside them, e.g. to draw a run against the published
+seeds. ``--aggregate`` prints mean, median and IQM of the runs' final scores with bootstrap
 95 % confidence intervals (and writes them beside the picture).
 """
 
@@ -42,6 +44,13 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument("--window", type=positive_int, default=100, help="episodes of the smoothing window")
     parser.add_argument("--eval", action="store_true", help="plot the periodic greedy evaluations instead")
     parser.add_argument("--aggregate", action="store_true", help="aggregate metrics with bootstrap CIs")
+    parser.add_argument(
+        "--records",
+        nargs="+",
+        default=None,
+        help="also draw these greedy-evaluation records (JSON-lines files or folders of them, docs/results/...);"
+        " implies --eval",
+    )
     parser.add_argument("--title", default=None)
     return parser
 
@@ -57,10 +66,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         format_aggregates,
         load_curve,
         plot_learning_curves,
+        record_curves,
     )
 
-    run_dirs = find_run_dirs(args.paths or [args.folder])
+    if args.records:
+        args.eval = True
+    run_dirs = find_run_dirs(args.paths or [args.folder]) if args.paths or not args.records else []
     curves = evaluation_curves(run_dirs) if args.eval else [load_curve(run_dir) for run_dir in run_dirs]
+    curves += record_curves(args.records) if args.records else []
     curves = [
         curve
         for curve in curves

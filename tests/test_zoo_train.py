@@ -91,6 +91,15 @@ def test_plot_writes_curves_and_aggregates(run_dir, tmp_path, capsys) -> None:
     assert "IQM" in capsys.readouterr().out
     assert plot.main([str(run_dir), "-o", str(tmp_path / "evals.png"), "--eval"]) == 0
     assert (tmp_path / "evals.png").is_file()
+    # A run beside committed greedy-evaluation records (docs/results), and the records alone.
+    records = tmp_path / "records"
+    records.mkdir()
+    (records / f"gdq_{ENV_ID}_seed0.jsonl").write_text(
+        '{"ticks": 250, "success_rate": 0.5, "team_return_mean": 1}\n'
+    )
+    assert plot.main([str(run_dir), "-o", str(tmp_path / "both.png"), "--records", str(records)]) == 0
+    assert "2 runs" in capsys.readouterr().out
+    assert plot.main(["-o", str(tmp_path / "records.png"), "--records", str(records)]) == 0
 
 
 def test_benchmark_writes_a_table(run_dir, tmp_path) -> None:

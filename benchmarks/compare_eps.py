@@ -1,0 +1,170 @@
+"""Compare EPS-<algo> with <algo> at equal total ticks, from ``benchmarks/learning_check.py`` records (issue 10).
+
+Each folder holds one record file per seed (``[eps_]<algo>_<env>_seed<k>.jsonl``); an EPS record's ``ticks`` count
+its training ticks plus its EPS evaluation ticks, as the paper's curves do. Per seed and over the seeds common to
+both folders this prints:
+
+- ticks to 80 % and to 90 % (the first evaluation at or above; "-" if never),
+- the mean of the last 3 evaluations at or before ``--budget`` total ticks (the floor of issue 10 compares these),
+- the area under the success curve from 0 to ``--budget``, as a share of the best possible (success 1 throughout;
+  the curve starts at 0 success and 0 ticks, and holds its last value to the budget),
+- the floor (EPS mean of the last 3 at most 3 points below the base's) and the paper's target (EPS mean >= 90 %
+  within ``--target-ticks``, reached in at least 1.5x fewer ticks than the base needs for 90 %).
+
+Example::
+
+    python benchmarks/compare_eps.py docs/results/baselines/gdq4_final docs/results/eps/eps_gdq4 --budget 150000 \\
+        --plot docs/results/eps/eps_gdq4.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import re
+
+import numpy as np
+
+SEED = re.compile(r"_seed(-?\d+)\.jsonl$")
+
+
+def read_runs(folder: pathlib.Path) -> dict[int, list[dict]]:
+    """:return: seed -> the evaluations of that seed, by ticks."""
+    runs = {}
+    for path in sorted(folder.glob("*.jsonl")):
+        match = SEED.search(path.name)
+        if match is None:
+            continue
+        records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+        runs[int(match[1])] = sorted(records, key=lambda record: record["ticks"])
+    if not runs:
+        raise SystemExit(f"{folder}: no <name>_seed<k>.jsonl record files")
+    return runs
+
+
+def ticks_to(curve: list[dict], level: float) -> int | None:
+    """:return: the ticks of the first evaluation at or above ``level``, or None."""
+    return next((record["ticks"] for record in curve if record["success_rate"] >= level), None)
+
+
+def last_mean(curve: list[dict], budget: int, n: int = 3) -> float:
+    """:return: the mean success of the last ``n`` evaluations at or before ``budget`` ticks."""
+    within = [record["success_rate"] for record in curve if record["ticks"] <= budget]
+    return float(np.mean(within[-n:])) if within else float("nan")
+
+
+def area(curve: list[dict], budget: int) -> float:
+    """:return: the area under success(ticks) on [0, budget] over ``budget`` (0 at 0 ticks; the last value held)."""
+    x = [0.0] + [float(r["ticks"]) for r in curve if r["ticks"] <= budget]
+    y = [0.0] + [float(r["success_rate"]) for r in curve if r["ticks"] <= budget]
+    x.append(float(budget))
+    y.append(y[-1])
+    return float(np.sum((np.diff(x)) * (np.array(y[1:]) + np.array(y[:-1])) / 2) / budget)
+
+
+def summary(runs: dict[int, list[dict]], seeds: list[int], budget: int) -> dict[str, list]:
+    """:return: per-seed figures, in the order of ``seeds``."""
+    return {
+        "to80": [ticks_to(runs[s], 0.8) for s in seeds],
+        "to90": [ticks_to(runs[s], 0.9) for s in seeds],
+        "last3": [last_mean(runs[s], budget) for s in seeds],
+        "auc": [area(runs[s], budget) for s in seeds],
+        "end": [max(r["ticks"] for r in runs[s]) for s in seeds],
+        "eps_ticks": [runs[s][-1].get("eps_ticks", 0) for s in seeds],
+        "crossovers": [runs[s][-1].get("eps_crossovers", 0) for s in seeds],
+        "rounds": [runs[s][-1].get("eps_rounds", 0) for s in seeds],
+    }
+
+
+def mean_curve(runs: dict[int, list[dict]], seeds: list[int], at: list[int]) -> list[float]:
+    """:return: the mean over seeds of success interpolated at ``at`` ticks."""
+    return [
+        float(
+            np.mean(
+                [
+                    np.interp(t, [r["ticks"] for r in runs[s]], [r["success_rate"] for r in runs[s]])
+                    for s in seeds
+                ]
+            )
+        )
+        for t in at
+    ]
+
+
+def report(base_dir: pathlib.Path, eps_dir: pathlib.Path, budget: int, target_ticks: int) -> str:
+    base, eps = read_runs(base_dir), read_runs(eps_dir)
+    seeds = sorted(set(base) & set(eps))
+    if not seeds:
+        raise SystemExit(f"no seed in common between {base_dir} and {eps_dir}")
+    figures = {"base": summary(base, seeds, budget), "eps": summary(eps, seeds, budget)}
+    names = {"base": base_dir.name, "eps": eps_dir.name}
+
+    def ticks_text(value: int | None) -> str:
+        return "-" if value is None else f"{value / 1000:.0f}k"
+
+    lines = [
+        f"Budget {budget // 1000}k total ticks (training + EPS); seeds {seeds}.",
+        "",
+        "| run | seed | ticks to 80 % | ticks to 90 % | mean of last 3 | area under curve | EPS ticks | "
+        "EPS rounds (crossovers) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for key in ("base", "eps"):
+        f = figures[key]
+        for index, seed in enumerate(seeds):
+            eps_cells = (
+                f"{f['eps_ticks'][index]} | {f['rounds'][index]} ({f['crossovers'][index]})"
+                if key == "eps"
+                else "- | -"
+            )
+            lines.append(
+                f"| {names[key]} | {seed} | {ticks_text(f['to80'][index])} | {ticks_text(f['to90'][index])} | "
+                f"{f['last3'][index]:.1%} | {f['auc'][index]:.3f} | {eps_cells} |"
+            )
+    lines.append("")
+    means = {key: float(np.mean(figures[key]["last3"])) for key in figures}
+    aucs = {key: float(np.mean(figures[key]["auc"])) for key in figures}
+    gap = 100 * (means["eps"] - means["base"])
+    lines.append(
+        f"Mean of the last 3 evaluations: {names['base']} {means['base']:.1%}, {names['eps']} {means['eps']:.1%} "
+        f"({gap:+.1f} points). Area under the curve: {aucs['base']:.3f} against {aucs['eps']:.3f}."
+    )
+    lines.append(
+        f"Floor (EPS at most 3 points below at equal total ticks): {'met' if gap >= -3 else 'NOT met'}."
+    )
+    grid = list(range(10_000, target_ticks + 1, 10_000))
+    eps_mean = mean_curve(eps, seeds, grid)
+    base_mean = mean_curve(base, seeds, list(range(10_000, budget + 1, 10_000)))
+    eps_90 = next((t for t, m in zip(grid, eps_mean) if m >= 0.9), None)
+    base_90 = next((t for t, m in zip(range(10_000, budget + 1, 10_000), base_mean) if m >= 0.9), None)
+    lines.append(
+        f"Mean over seeds (interpolated every 10k ticks): {names['eps']} best {max(eps_mean):.1%} within "
+        f"{target_ticks // 1000}k, reaching 90 % at {ticks_text(eps_90)}; {names['base']} reaches 90 % at "
+        f"{ticks_text(base_90)} (within {budget // 1000}k). Target (>= 90 % within {target_ticks // 1000}k, "
+        f"1.5x fewer ticks): {'met' if eps_90 is not None and (base_90 is None or base_90 >= 1.5 * eps_90) else 'NOT met'}."
+    )
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("base", type=pathlib.Path, help="records of the base algorithm")
+    parser.add_argument("eps", type=pathlib.Path, help="records of EPS-<algo> (ticks include EPS ticks)")
+    parser.add_argument("--budget", type=int, required=True, help="total ticks compared")
+    parser.add_argument("--target-ticks", type=int, default=100_000)
+    parser.add_argument("--plot", type=pathlib.Path, default=None, help="draw both (mean +/- std over seeds)")
+    args = parser.parse_args()
+    print(report(args.base, args.eps, args.budget, args.target_ticks))
+    if args.plot is not None:
+        from sb3_eps.zoo.plotting import plot_learning_curves, record_curves
+
+        curves = record_curves([args.base, args.eps])
+        plot_learning_curves(curves, args.plot, window=1, title="greedy evaluations (100 episodes)")
+        print(f"picture: {args.plot}")
+
+
+if __name__ == "__main__":
+    main()
