@@ -94,7 +94,11 @@ def mean_curve(runs: dict[int, list[dict]], seeds: list[int], at: list[int]) -> 
 
 def report(base_dir: pathlib.Path, eps_dir: pathlib.Path, budget: int, target_ticks: int) -> str:
     base, eps = read_runs(base_dir), read_runs(eps_dir)
-    seeds = sorted(set(base) & set(eps))
+    finished = {seed for seed, curve in {**base, **eps}.items() if curve[-1]["ticks"] >= budget}
+    unfinished = {seed for runs in (base, eps) for seed, curve in runs.items() if curve[-1]["ticks"] < budget}
+    seeds = sorted((set(base) & set(eps) & finished) - unfinished)
+    if unfinished:
+        print(f"left out, not at {budget} ticks yet: seeds {sorted(unfinished)}")
     if not seeds:
         raise SystemExit(f"no seed in common between {base_dir} and {eps_dir}")
     figures = {"base": summary(base, seeds, budget), "eps": summary(eps, seeds, budget)}
