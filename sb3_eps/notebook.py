@@ -1,0 +1,115 @@
+"""Helpers for Jupyter: an episode as an inline animation, a strip of its pictures, one picture as a figure.
+
+``notebooks/01_quickstart.ipynb`` uses them with :func:`sb3_eps.common.evaluation.record_frames`::
+
+    frames, episodes = record_frames(model, "MultiRobotNav-4-v0", frame_every=2)
+    Animation(frames, fps=10)      # the cell's value: a looping GIF in the notebook
+    filmstrip(frames)              # a static strip of pictures (a PNG, which every notebook viewer shows)
+
+Nothing here imports IPython: :class:`Animation` is displayed through its ``_repr_html_``. Figures are made
+without pyplot, so they neither need nor change a matplotlib backend.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import imageio.v2 as imageio
+import numpy as np
+from matplotlib.figure import Figure
+
+
+def gif_bytes(frames: Sequence[np.ndarray], fps: float = 20.0) -> bytes:
+    """Encode ``rgb_array`` pictures as a looping GIF.
+
+    :param frames: ``(H, W, 3)`` uint8 pictures of one size
+    :param fps: frames per second
+    :return: the GIF file's bytes
+    """
+    if len(frames) == 0:
+        raise ValueError("an animation needs at least one frame")
+    if fps <= 0:
+        raise ValueError(f"fps must be positive, got {fps}")
+    buffer = io.BytesIO()
+    # The Pillow GIF writer takes the frame duration in milliseconds.
+    imageio.mimsave(
+        buffer,
+        [np.asarray(frame, dtype=np.uint8) for frame in frames],
+        format="GIF",
+        duration=1000.0 / fps,
+        loop=0,
+    )
+    return buffer.getvalue()
+
+
+class Animation:
+    """An episode's pictures shown as a looping GIF where a notebook displays the object.
+
+    :param frames: ``(H, W, 3)`` uint8 pictures of one size
+    :param fps: frames per second (the robots decide at 20 Hz: with ``frame_every=2`` pictures, 10 plays in real
+        time)
+    :param width: displayed width in pixels (None: the pictures' own)
+    """
+
+    def __init__(self, frames: Sequence[np.ndarray], fps: float = 20.0, width: int | None = None) -> None:
+        self.data = gif_bytes(frames, fps)
+        self.n_frames = len(frames)
+        self.width = width
+
+    def _repr_html_(self) -> str:
+        encoded = base64.b64encode(self.data).decode("ascii")
+        width = f' width="{self.width}"' if self.width else ""
+        return f'<img src="data:image/gif;base64,{encoded}"{width} alt="episode animation"/>'
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the GIF to ``path`` (its folder is created). :return: the path."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(self.data)
+        return path
+
+
+def filmstrip(frames: Sequence[np.ndarray], n_pictures: int = 6, title: str | None = None) -> Figure:
+    """``n_pictures`` pictures evenly spread over an episode, side by side, each labelled with its index.
+
+    :param frames: the episode's pictures
+    :param n_pictures: how many to show (fewer if there are fewer frames)
+    :param title: the figure's title
+    :return: the figure
+    """
+    if len(frames) == 0:
+        raise ValueError("a filmstrip needs at least one frame")
+    chosen = np.unique(np.linspace(0, len(frames) - 1, min(n_pictures, len(frames))).round().astype(int))
+    figure = Figure(figsize=(2.6 * len(chosen), 2.9))
+    axes = np.atleast_1d(figure.subplots(1, len(chosen)))
+    for axis, index in zip(axes, chosen, strict=True):
+        axis.imshow(frames[index])
+        axis.set_title(f"frame {index}", fontsize="small")
+        axis.axis("off")
+    if title:
+        figure.suptitle(title)
+    figure.tight_layout()
+    return figure
+
+
+def show_picture(picture: np.ndarray, title: str | None = None, size: float = 5.0) -> Figure:
+    """One ``rgb_array`` picture as a figure (e.g. ``env.render()`` of a world just reset).
+
+    :param picture: ``(H, W, 3)`` uint8
+    :param title: the axis title
+    :param size: the figure's height in inches
+    :return: the figure
+    """
+    height, width = picture.shape[:2]
+    figure = Figure(figsize=(size * width / height, size))
+    axis = figure.subplots()
+    axis.imshow(picture)
+    axis.axis("off")
+    if title:
+        axis.set_title(title)
+    figure.tight_layout()
+    return figure
