@@ -23,22 +23,24 @@ import numpy as np
 from matplotlib.figure import Figure
 
 
-def gif_bytes(frames: Sequence[np.ndarray], fps: float = 20.0) -> bytes:
+def gif_bytes(frames: Sequence[np.ndarray], fps: float = 20.0, shrink: int = 1) -> bytes:
     """Encode ``rgb_array`` pictures as a looping GIF.
 
     :param frames: ``(H, W, 3)`` uint8 pictures of one size
     :param fps: frames per second
+    :param shrink: keep every ``shrink``-th pixel in both directions (2: a quarter of the bytes, for a notebook
+        that is committed with its outputs)
     :return: the GIF file's bytes
     """
     if len(frames) == 0:
         raise ValueError("an animation needs at least one frame")
-    if fps <= 0:
-        raise ValueError(f"fps must be positive, got {fps}")
+    if fps <= 0 or shrink < 1:
+        raise ValueError(f"fps must be positive and shrink >= 1, got {fps} and {shrink}")
     buffer = io.BytesIO()
     # The Pillow GIF writer takes the frame duration in milliseconds.
     imageio.mimsave(
         buffer,
-        [np.asarray(frame, dtype=np.uint8) for frame in frames],
+        [np.asarray(frame, dtype=np.uint8)[::shrink, ::shrink] for frame in frames],
         format="GIF",
         duration=1000.0 / fps,
         loop=0,
@@ -53,12 +55,18 @@ class Animation:
     :param fps: frames per second (the robots decide at 20 Hz: with ``frame_every=2`` pictures, 10 plays in real
         time)
     :param width: displayed width in pixels (None: the pictures' own)
+    :param shrink: keep every ``shrink``-th pixel (:func:`gif_bytes`)
     """
 
-    def __init__(self, frames: Sequence[np.ndarray], fps: float = 20.0, width: int | None = None) -> None:
-        self.data = gif_bytes(frames, fps)
+    def __init__(
+        self, frames: Sequence[np.ndarray], fps: float = 20.0, width: int | None = None, shrink: int = 1
+    ) -> None:
+        self.data = gif_bytes(frames, fps, shrink)
         self.n_frames = len(frames)
         self.width = width
+
+    def __repr__(self) -> str:
+        return f"Animation({self.n_frames} frames, {len(self.data) / 1e3:.0f} kB GIF)"
 
     def _repr_html_(self) -> str:
         encoded = base64.b64encode(self.data).decode("ascii")

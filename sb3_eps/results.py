@@ -236,7 +236,7 @@ def draw_seed_curves(
         for x, y in curves:
             axis.plot(x, y, color=color, alpha=0.3, linewidth=1)
         x_mean, y_mean = _mean_curve(curves)
-        axis.plot(x_mean, y_mean, color=color, linewidth=2.5, label=f"{label} ({len(curves)} seeds)")
+        axis.plot(x_mean, y_mean, color=color, linewidth=2.5, label=f"{label} ({len(curves)} seed{'s' if len(curves) > 1 else ''})")
     axis.set_xlabel(xlabel)
     axis.set_ylabel(ylabel or (f"{key} (%)" if percent else key))
     if title:

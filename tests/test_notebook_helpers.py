@@ -136,6 +136,7 @@ def test_animation_of_a_recorded_episode(tmp_path) -> None:
     assert len(frames) == 3 and frames[0].ndim == 3  # before ticks 1, 3 and 5
     data = gif_bytes(frames, fps=10)
     assert data[:6] == b"GIF89a"
+    assert len(gif_bytes(frames, fps=10, shrink=2)) < len(data)
     animation = Animation(frames, fps=10, width=300)
     assert animation._repr_html_().startswith('<img src="data:image/gif;base64,')
     assert animation.save(tmp_path / "episode.gif").read_bytes() == data
