@@ -19,7 +19,7 @@ import json
 import math
 import re
 from collections import defaultdict
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -203,7 +203,7 @@ def _to_float(text: str | None) -> float:
 
 
 def draw_seed_curves(
-    groups: dict[str, list[EvaluationRun]] | dict[str, list[tuple[np.ndarray, np.ndarray]]],
+    groups: Mapping[str, Sequence[EvaluationRun | tuple[np.ndarray, np.ndarray]]],
     key: str = "success_rate",
     title: str | None = None,
     xlabel: str = "ticks",
@@ -257,7 +257,8 @@ def _xy(member: Any, key: str) -> tuple[np.ndarray, np.ndarray]:
 
 def _mean_curve(curves: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
     """The mean over seeds: at shared x values when the seeds share them, else interpolated on the common range."""
-    shared = sorted(set.intersection(*(set(x.tolist()) for x, _ in curves)))
+    x_sets = [set(x.tolist()) for x, _ in curves]
+    shared = sorted(x_sets[0].intersection(*x_sets[1:]))
     if len(shared) >= 2:
         grid = np.array(shared)
         return grid, np.mean([y[np.searchsorted(x, grid)] for x, y in curves], axis=0)

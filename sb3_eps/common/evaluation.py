@@ -108,19 +108,19 @@ def record_frames(
     """
     if frame_every < 1:
         raise ValueError(f"frame_every must be >= 1, got {frame_every}")
-    owned = isinstance(env, str)
-    venv = (
-        make_vec_env(env, n_envs=1, seed=seed, env_kwargs={**(env_kwargs or {}), "render_mode": "rgb_array"})
-        if owned
-        else env
-    )
-    assert isinstance(venv, MultiAgentVecEnv)
-    if not owned and seed is not None:
-        venv.seed(seed)
+    owned = not isinstance(env, MultiAgentVecEnv)
+    if isinstance(env, MultiAgentVecEnv):
+        venv = env
+        if seed is not None:
+            venv.seed(seed)
+    else:
+        venv = make_vec_env(
+            env, n_envs=1, seed=seed, env_kwargs={**(env_kwargs or {}), "render_mode": "rgb_array"}
+        )
     frames: list[np.ndarray] = []
     episodes: list[dict[str, Any]] = []
     try:
-        observations = venv.reset()
+        observations: Any = venv.reset()
         tick = 0
         while len(episodes) < n_episodes and len(frames) < max_frames:
             picture = venv.get_images()[0]

@@ -390,6 +390,7 @@ def make_vec_env(
             f"allowed: {sorted(allowed) or 'none'}"
         )
     kwargs = dict(env_kwargs or {})
+    make_world: Callable[..., ParallelEnv | gymnasium.Env]
     if isinstance(env_id, str):
         make = envs.make_parallel_env if multi_agent else envs.make_single_env
         make_world = functools.partial(make, env_id)
