@@ -1,4 +1,5 @@
-"""Helpers for Jupyter: an episode as an inline animation, a strip of its pictures, one picture as a figure.
+"""Helpers for Jupyter: an episode as an inline animation, a strip of its pictures, one picture as a figure; and
+:func:`execute_notebook`, which runs the notebooks headless (the tests at a small budget, ``make notebooks`` at full).
 
 ``notebooks/01_quickstart.ipynb`` uses them with :func:`sb3_eps.common.evaluation.record_frames`::
 
@@ -15,8 +16,10 @@ from __future__ import annotations
 import base64
 import io
 import os
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import imageio.v2 as imageio
 import numpy as np
@@ -121,3 +124,88 @@ def show_picture(picture: np.ndarray, title: str | None = None, size: float = 5.
         axis.set_title(title)
     figure.tight_layout()
     return figure
+
+
+#: The environment variables a notebook's first cell reads: its budget ("full" or "small") and its output folder.
+BUDGET_VARIABLE = "SB3_EPS_NOTEBOOK_BUDGET"
+OUTPUT_VARIABLE = "SB3_EPS_NOTEBOOK_OUTPUT"
+BUDGETS = ("full", "small")
+_KERNEL_NAME = "sb3-eps-this-python"
+
+
+def execute_notebook(
+    path: str | os.PathLike[str],
+    budget: str = "small",
+    output: str | os.PathLike[str] | None = None,
+    timeout: float = 1_800,
+) -> Any:
+    """Run a notebook of ``notebooks/`` from top to bottom in a kernel of this interpreter, headless.
+
+    The kernel is this interpreter (a kernelspec written to a temporary folder, so neither a ``python3`` kernel found
+    elsewhere on the machine nor another installed copy of the package runs instead), with this checkout first on
+    ``PYTHONPATH``, in the notebook's folder, with matplotlib's inline backend. Needs the ``dev`` extra (nbclient,
+    ipykernel).
+
+    :param path: the ``.ipynb`` file
+    :param budget: ``"full"`` (the run its committed outputs come from) or ``"small"`` (seconds: the tests)
+    :param output: the folder the notebook writes into (:data:`OUTPUT_VARIABLE`); None: the notebook's default
+    :param timeout: seconds a cell may run
+    :return: the executed notebook (an ``nbformat`` node); ``nbclient.exceptions.CellExecutionError`` on the first
+        failing cell
+    """
+    import nbformat
+    from ipykernel.kernelspec import install
+    from jupyter_client.kernelspec import KernelSpecManager
+    from jupyter_client.manager import AsyncKernelManager
+    from nbclient import NotebookClient
+
+    if budget not in BUDGETS:
+        raise ValueError(f"budget must be one of {BUDGETS}, got {budget!r}")
+    path = Path(path).resolve()
+    notebook = nbformat.read(path, as_version=4)
+    checkout = str(Path(__file__).resolve().parents[1])
+    environment = {key: value for key, value in os.environ.items() if key != "MPLBACKEND"}  # inline figures
+    environment["PYTHONPATH"] = os.pathsep.join(filter(None, [checkout, os.environ.get("PYTHONPATH")]))
+    environment[BUDGET_VARIABLE] = budget
+    if output is not None:
+        environment[OUTPUT_VARIABLE] = str(Path(output).resolve())
+    with tempfile.TemporaryDirectory() as prefix:
+        kernel_dir = Path(install(kernel_name=_KERNEL_NAME, prefix=prefix)).parent
+        specs = KernelSpecManager(kernel_dirs=[str(kernel_dir)], ensure_native_kernel=False)
+        manager = AsyncKernelManager(kernel_name=_KERNEL_NAME, kernel_spec_manager=specs)
+        client = NotebookClient(
+            notebook, km=manager, timeout=timeout, resources={"metadata": {"path": str(path.parent)}}
+        )
+        client.execute(env=environment)
+    return notebook
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m sb3_eps.notebook [--budget full] NOTEBOOK...``: execute notebooks and write them back with their
+    outputs (``make notebooks`` re-runs all of them at their full budget).
+
+    :return: the exit status
+    """
+    import argparse
+    import time
+
+    import nbformat
+
+    parser = argparse.ArgumentParser(prog="python -m sb3_eps.notebook", description=main.__doc__)
+    parser.add_argument("notebooks", nargs="+", help=".ipynb files, executed in place")
+    parser.add_argument("--budget", choices=BUDGETS, default="full")
+    parser.add_argument("--output", default=None, help="the folder the notebooks write into")
+    args = parser.parse_args(argv)
+    for name in args.notebooks:
+        start = time.perf_counter()
+        kernelspec = nbformat.read(name, as_version=4).metadata.get("kernelspec")
+        notebook = execute_notebook(name, args.budget, args.output)
+        if kernelspec is not None:  # the file keeps naming the usual kernel, not the temporary one
+            notebook.metadata["kernelspec"] = kernelspec
+        nbformat.write(notebook, name)
+        print(f"{name}: {args.budget} budget, {time.perf_counter() - start:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

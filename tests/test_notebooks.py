@@ -1,35 +1,21 @@
 """The notebooks run end to end at their small budget, headless, and each draws at least one picture.
 
-Each notebook reads ``SB3_EPS_NOTEBOOK_BUDGET`` in its first code cell; here it is ``small``, and its files go to a
-temporary ``SB3_EPS_NOTEBOOK_OUTPUT``. The kernel is this interpreter's: a kernelspec written into a temporary
-Jupyter path, so neither a ``python3`` kernel elsewhere on the machine (the one ipykernel installs runs whatever
-``python`` is first on PATH) nor an installed copy of the package is used instead of this checkout.
+:func:`sb3_eps.notebook.execute_notebook` runs them as ``make notebooks`` does at full budget: a kernel of this
+interpreter (not whatever ``python3`` kernel the machine has), this checkout first on ``PYTHONPATH``, the budget
+``small`` in ``SB3_EPS_NOTEBOOK_BUDGET`` and a temporary ``SB3_EPS_NOTEBOOK_OUTPUT`` for the files they write.
 """
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import nbformat
 import pytest
-from ipykernel.kernelspec import install as install_kernelspec
-from nbclient import NotebookClient
+
+from sb3_eps.notebook import BUDGET_VARIABLE, execute_notebook
 
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
-KERNEL = "sb3-eps-tests"
-
-
-@pytest.fixture(scope="module")
-def kernel_environment(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
-    prefix = tmp_path_factory.mktemp("jupyter")
-    install_kernelspec(kernel_name=KERNEL, prefix=str(prefix))  # argv: this interpreter, -m ipykernel_launcher
-    return {
-        "JUPYTER_PATH": str(prefix / "share" / "jupyter"),
-        "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep),
-        "SB3_EPS_NOTEBOOK_BUDGET": "small",
-    }
 
 
 def test_there_are_three_notebooks() -> None:
@@ -41,27 +27,18 @@ def test_there_are_three_notebooks() -> None:
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda path: path.stem)
-def test_notebook_runs_at_its_small_budget(
-    path: Path, kernel_environment: dict[str, str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    notebook = nbformat.read(path, as_version=4)
-    first_code = next(cell for cell in notebook.cells if cell.cell_type == "code")
-    assert "BUDGET = os.environ.get(\"SB3_EPS_NOTEBOOK_BUDGET\"" in first_code.source
-    for name, value in {**kernel_environment, "SB3_EPS_NOTEBOOK_OUTPUT": str(tmp_path)}.items():
-        monkeypatch.setenv(name, value)
-    # The test suite's Agg backend would hide the figures: the kernel chooses its inline one.
-    monkeypatch.delenv("MPLBACKEND", raising=False)
-    client = NotebookClient(
-        notebook,
-        kernel_name=KERNEL,
-        timeout=300,
-        resources={"metadata": {"path": str(path.parent)}},
-    )
+def test_notebook_runs_at_its_small_budget(path: Path, tmp_path: Path) -> None:
+    first_code = next(cell for cell in nbformat.read(path, as_version=4).cells if cell.cell_type == "code")
+    assert f'BUDGET = os.environ.get("{BUDGET_VARIABLE}", "full")' in first_code.source
     before = sorted(path.parent.rglob("*"))
-    client.execute()  # raises CellExecutionError on the first failing cell
+    notebook = execute_notebook(path, "small", output=tmp_path, timeout=300)  # raises on a failing cell
     outputs = [output for cell in notebook.cells if cell.cell_type == "code" for output in cell.outputs]
     errors = [output for output in outputs if output.output_type == "error"]
     assert not errors, errors
-    pictures = [output for output in outputs if "image/png" in output.get("data", {})]
-    assert pictures, f"{path.name} drew no picture"
+    assert any("image/png" in output.get("data", {}) for output in outputs), f"{path.name} drew no picture"
     assert sorted(path.parent.rglob("*")) == before, "the notebook wrote beside itself, not into its OUTPUT"
+
+
+def test_a_budget_must_be_known() -> None:
+    with pytest.raises(ValueError, match="budget must be one of"):
+        execute_notebook(NOTEBOOKS[0], "huge")
