@@ -150,3 +150,14 @@ def test_one_eps_round_in_the_single_agent_variant() -> None:
 def test_the_single_agent_variant_needs_one_agent() -> None:
     with pytest.raises(ValueError, match="one agent"):
         ParallelEnvAsGymnasium(LineWorld(n_agents=2))
+
+
+def test_the_single_agent_variant_reports_arrivals_as_successes() -> None:
+    env = make_line_world_single()
+    observation, _ = env.reset(seed=3)
+    terminated = truncated = False
+    info: dict = {}
+    while not (terminated or truncated):
+        action = 2 if observation[1] > 0 else 0  # walk toward the goal
+        observation, _, terminated, truncated, info = env.step(action)
+    assert terminated and info["is_success"] is True
