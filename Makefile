@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 TORCH_SPEC ?= torch==2.13.0
 PYTEST_ARGS ?=
 
-.PHONY: install run test test-slow test-ray lint format type bench soak clean
+.PHONY: install run test test-slow test-ray lint format type bench soak notebooks clean
 
 install: $(VENV)/.installed
 
@@ -47,6 +47,10 @@ bench: install
 # Long-run check (about 15 minutes on 2 cores): memory, PyBullet clients and processes over 1M agent-steps of EPS-GDQ.
 soak: install
 	$(PY) benchmarks/soak.py --out logs/soak/soak.json
+
+# Re-run the notebooks at their full budget, outputs written back (about 10 minutes on 2 cores); commit them.
+notebooks: install
+	$(PY) -m sb3_eps.notebook --budget full notebooks/*.ipynb
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build dist *.egg-info

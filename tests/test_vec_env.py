@@ -132,7 +132,7 @@ def assert_records_equal(a: list, b: list) -> None:
     ("kwargs", "message"),
     [
         ({"env_id": "Nope-v0"}, "unknown env id 'Nope-v0'; multi-agent ids"),
-        ({"env_id": 3}, "env_id must be a str"),
+        ({"env_id": 3}, "env_id must be a registered id"),
         (
             {"env_id": "CooperativeNavigation-v0", "n_envs": 0},
             r"n_envs \(the number of worlds\) must be an int >= 1",

@@ -82,3 +82,58 @@ def summarize_episodes(episodes: list[dict[str, Any]]) -> dict[str, Any]:
             summary[name] = float(values.mean())
             summary[name.replace("_rate", "_std").replace("_mean", "_std")] = float(values.std())
     return summary
+
+
+def record_frames(
+    model: Any,
+    env: str | MultiAgentVecEnv,
+    n_episodes: int = 1,
+    seed: int | None = 0,
+    env_kwargs: dict[str, Any] | None = None,
+    max_frames: int = 3_000,
+    frame_every: int = 1,
+) -> tuple[list[np.ndarray], list[dict[str, Any]]]:
+    """Play greedy episodes in one world and keep its pictures (for a GIF or a notebook animation).
+
+    :param model: anything with ``predict(obs, deterministic=True)``
+    :param env: an env id (one world drawn as ``rgb_array`` is made and closed) or a one-world vec env whose worlds
+        render ``rgb_array`` pictures
+    :param n_episodes: episodes to play
+    :param seed: seed of the world (None: leave a given vec env's seed as it is)
+    :param env_kwargs: constructor arguments when ``env`` is an id
+    :param max_frames: stop after this many pictures even if the episodes are not over
+    :param frame_every: keep one picture every this many ticks of an episode, from its first
+    :return: the pictures (the last one of an episode is the one before its final tick: the bridge resets a world in
+        the step that ends its episode) and the episode dicts of the finished episodes (``r``, ``l``, ``success``...)
+    """
+    if frame_every < 1:
+        raise ValueError(f"frame_every must be >= 1, got {frame_every}")
+    owned = not isinstance(env, MultiAgentVecEnv)
+    if isinstance(env, MultiAgentVecEnv):
+        venv = env
+        if seed is not None:
+            venv.seed(seed)
+    else:
+        venv = make_vec_env(
+            env, n_envs=1, seed=seed, env_kwargs={**(env_kwargs or {}), "render_mode": "rgb_array"}
+        )
+    frames: list[np.ndarray] = []
+    episodes: list[dict[str, Any]] = []
+    try:
+        observations: Any = venv.reset()
+        tick = 0
+        while len(episodes) < n_episodes and len(frames) < max_frames:
+            picture = venv.get_images()[0]
+            if picture is not None and tick % frame_every == 0:
+                frames.append(picture)
+            actions, _ = model.predict(observations, deterministic=True)
+            observations, _, _, infos = venv.step(actions)
+            tick += 1
+            if "episode" in infos[0]:
+                # The world has already been reset for the next episode: its picture starts that one.
+                episodes.append(dict(infos[0]["episode"]))
+                tick = 0
+    finally:
+        if owned:
+            venv.close()
+    return frames, episodes

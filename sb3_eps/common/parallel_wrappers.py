@@ -3,7 +3,8 @@
 SuperSuit's ``pettingzoo_env_to_vec_env_v1`` needs every agent in every step, drops ``state()``, and its
 ``black_death_v3`` is broken in 3.11 (a phantom zero step, dead agents never flagged). :class:`FixedAgentSet` owns
 the end-of-life logic instead; :class:`SingleAgentParallelEnv` turns a gymnasium env into a one-agent world so the
-single-agent ids run through the same bridge (single-robot pre-training).
+single-agent ids run through the same bridge (single-robot pre-training); :class:`ParallelEnvAsGymnasium` turns a
+one-agent ParallelEnv into a gymnasium env, the single-agent variant EPS evaluates in.
 """
 
 from __future__ import annotations
@@ -87,6 +88,59 @@ class SingleAgentParallelEnv(ParallelEnv):
 
     def close(self) -> None:
         """Close the env."""
+        self.env.close()
+
+
+class ParallelEnvAsGymnasium(gymnasium.Env):
+    """A one-agent PettingZoo ParallelEnv seen as a gymnasium env: the reverse of :class:`SingleAgentParallelEnv`.
+
+    It gives a world of your own its single-agent variant for EPS (``EvolutionCallback(eval_env_id=...)`` takes
+    a gymnasium id; ``docs/bring_your_own_world.md``): build the ParallelEnv with one agent, wrap it, register
+    the wrapper with ``gymnasium.register``. ``info["is_success"]`` (what EPS's outcome fitness reads) is set at the
+    end of an episode from the agent's ``info["is_success"]``, ``info["success"]`` or ``info["team"]["success"]``,
+    whichever the env reports.
+
+    :param env: a ParallelEnv with exactly one possible agent
+    """
+
+    def __init__(self, env: ParallelEnv) -> None:
+        if len(env.possible_agents) != 1:
+            raise ValueError(
+                f"ParallelEnvAsGymnasium needs a ParallelEnv with one agent, got {len(env.possible_agents)} "
+                f"({env.possible_agents}); build your world with a single agent"
+            )
+        self.env = env
+        self.agent = env.possible_agents[0]
+        self.observation_space = env.observation_space(self.agent)
+        self.action_space = env.action_space(self.agent)
+        self.metadata = dict(getattr(env, "metadata", {}))
+        self.render_mode = getattr(env, "render_mode", None)
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[Any, dict[str, Any]]:
+        """Reset the world. :return: the agent's observation and info."""
+        super().reset(seed=seed)
+        observations, infos = self.env.reset(seed=seed, options=options)
+        return observations[self.agent], dict(infos.get(self.agent, {}))
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        """Step the world with the agent's action. :return: gymnasium's step tuple."""
+        observations, rewards, terminations, truncations, infos = self.env.step({self.agent: action})
+        terminated, truncated = bool(terminations[self.agent]), bool(truncations[self.agent])
+        info = dict(infos.get(self.agent, {}))
+        if (terminated or truncated) and "is_success" not in info:
+            success = info.get("success", info.get("team", {}).get("success"))
+            if success is not None:
+                info["is_success"] = bool(success)
+        return observations[self.agent], float(rewards[self.agent]), terminated, truncated, info
+
+    def render(self) -> Any:
+        """Render the world."""
+        return self.env.render()
+
+    def close(self) -> None:
+        """Close the world."""
         self.env.close()
 
 

@@ -101,3 +101,28 @@ def input_gain(head: Callable[..., th.Tensor], inputs: th.Tensor, *args: Any) ->
     probe = inputs.detach().clone().requires_grad_(True)
     with th.enable_grad():
         return th.autograd.grad(head(probe, *args).sum(), probe)[0]
+
+
+def format_table(rows: list[dict[str, Any]], columns: list[str] | None = None, precision: int = 3) -> str:
+    """Rows of dicts as a fixed-width text table (for a notebook's or a terminal's plain-text output).
+
+    :param rows: the rows; a missing value prints as an empty cell
+    :param columns: the columns, in order (default: the first row's keys)
+    :param precision: significant digits of floats
+    :return: a header line, a rule and one line per row
+    """
+    if not rows:
+        return "(no rows)"
+    columns = list(columns or rows[0])
+
+    def cell(value: Any) -> str:
+        if isinstance(value, float):
+            return f"{value:.{precision}g}"
+        return "" if value is None else str(value)
+
+    cells = [[cell(row.get(column)) for column in columns] for row in rows]
+    widths = [max(len(column), *(len(line[i]) for line in cells)) for i, column in enumerate(columns)]
+    lines = ["  ".join(column.ljust(width) for column, width in zip(columns, widths, strict=True))]
+    lines.append("  ".join("-" * width for width in widths))
+    lines += ["  ".join(value.ljust(width) for value, width in zip(line, widths, strict=True)) for line in cells]
+    return "\n".join(line.rstrip() for line in lines)

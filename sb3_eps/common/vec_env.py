@@ -24,6 +24,7 @@ Do not wrap the result in SB3's ``VecMonitor``: it would count every agent as an
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
@@ -345,17 +346,20 @@ def vec_env_mode(vec_env_cls: type[VecEnv] | str | None) -> str:
 
 
 def make_vec_env(
-    env_id: str,
+    env_id: str | Callable[..., ParallelEnv | gymnasium.Env],
     n_envs: int = 1,
     seed: int | None = None,
     env_kwargs: dict[str, Any] | None = None,
     vec_env_cls: type[VecEnv] | str | None = None,
     vec_env_kwargs: dict[str, Any] | None = None,
 ) -> MultiAgentVecEnv:
-    """Build the parameter-shared SB3 vector env of a registered env id.
+    """Build the parameter-shared SB3 vector env of a registered env id, or of your own world.
 
     :param env_id: a multi-agent id (``envs.MULTI_AGENT_ENV_IDS``), or a single-agent id
-        (``envs.SINGLE_AGENT_ENV_IDS``), which gives one-agent worlds
+        (``envs.SINGLE_AGENT_ENV_IDS``), which gives one-agent worlds; or a callable that returns a new world each
+        time it is called with ``env_kwargs``: a PettingZoo ``ParallelEnv`` whose agents share one observation
+        space and one Discrete action space, or a gymnasium env (``docs/bring_your_own_world.md``). The vec env
+        of a callable has ``env_id = None``
     :param n_envs: number of worlds (the VecEnv has ``n_envs * n_agents`` sub-envs)
     :param seed: seed of the first reset (world ``w`` gets ``seed + w``); None for random
     :param env_kwargs: constructor arguments of every world
@@ -368,9 +372,12 @@ def make_vec_env(
     :raises ValueError: for an unknown id, ``n_envs < 1``, a seed that is not a non-negative int, or an unknown
         ``vec_env_cls`` / ``vec_env_kwargs``
     """
-    if not isinstance(env_id, str):
-        raise ValueError(f"env_id must be a str, one of {list(envs.ENV_IDS)}; got {env_id!r}")
-    multi_agent = envs.is_multi_agent(env_id)
+    if not isinstance(env_id, str) and not callable(env_id):
+        raise ValueError(
+            f"env_id must be a registered id, one of {list(envs.ENV_IDS)}, or a callable returning a PettingZoo "
+            f"ParallelEnv (or a gymnasium env); got {env_id!r}"
+        )
+    multi_agent = envs.is_multi_agent(env_id) if isinstance(env_id, str) else None  # raises for an unknown id
     if isinstance(n_envs, bool) or not isinstance(n_envs, int | np.integer) or n_envs < 1:
         raise ValueError(f"n_envs (the number of worlds) must be an int >= 1, got {n_envs!r}")
     seed = check_seed(seed)
@@ -383,10 +390,16 @@ def make_vec_env(
             f"allowed: {sorted(allowed) or 'none'}"
         )
     kwargs = dict(env_kwargs or {})
-    make = envs.make_parallel_env if multi_agent else envs.make_single_env
+    make_world: Callable[..., ParallelEnv | gymnasium.Env]
+    if isinstance(env_id, str):
+        make = envs.make_parallel_env if multi_agent else envs.make_single_env
+        make_world = functools.partial(make, env_id)
+        recorded_id: str | None = env_id
+    else:
+        make_world, recorded_id = env_id, None
 
     def env_fn() -> ParallelEnv | gymnasium.Env:
-        return make(env_id, **kwargs)
+        return make_world(**kwargs)
 
     venv: MultiAgentVecEnv
     if mode == "subproc":
@@ -394,9 +407,9 @@ def make_vec_env(
 
         # Build one world here first, so a bad env_kwargs is a plain ValueError / TypeError, not a worker's.
         env_fn().close()
-        venv = SubprocMultiAgentVecEnv([env_fn] * int(n_envs), env_id=env_id, **vec_kwargs)
+        venv = SubprocMultiAgentVecEnv([env_fn] * int(n_envs), env_id=recorded_id, **vec_kwargs)
     else:
-        venv = MultiAgentVecEnv([env_fn] * int(n_envs), env_id=env_id)
+        venv = MultiAgentVecEnv([env_fn] * int(n_envs), env_id=recorded_id)
     if seed is not None:
         venv.seed(seed)
     return venv

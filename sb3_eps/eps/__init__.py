@@ -1,6 +1,6 @@
 """Evolutionary Policy Search (Marchesini & Farinelli, ICRA 2022) as an SB3 callback, and its math."""
 
-from sb3_eps.eps.callback import PAPER_SETTINGS, EvolutionCallback
+from sb3_eps.eps.callback import PAPER_SETTINGS, EvolutionCallback, sample_visited_observations
 from sb3_eps.eps.diagnostics import RoundLog, read_round_log
 from sb3_eps.eps.evaluation import (
     EvaluationFailed,
@@ -39,5 +39,6 @@ __all__ = [
     "population_fitness",
     "read_round_log",
     "safe_mutation_step",
+    "sample_visited_observations",
     "select_best",
 ]

@@ -545,36 +545,11 @@ class EvolutionCallback(BaseCallback):
         return output_sensitivity(q_net, observations)
 
     def _visited_mask(self, robot: int | None) -> np.ndarray:
-        """``(rows, agents)`` bool: True where the replay buffer holds a real visited observation (an alive agent).
-
-        :param robot: keep only this agent's column of the joint rows; None for every agent
-        """
-        buffer = self._model.replay_buffer
-        size = int(buffer.size())
-        alive = getattr(buffer, "alive", None)  # SB3's own buffers have none: every stored row is real
-        mask = np.ones(buffer.observations.shape[1:2], dtype=bool)[None].repeat(size, 0)
-        if alive is not None:
-            mask = np.asarray(alive[:size]) > 0
-        return mask if robot is None else mask[:, robot : robot + 1]
+        return visited_mask(self._model.replay_buffer, robot)
 
     def _visited_observations(self, robot: int | None, batch_size: int) -> th.Tensor | None:
-        """Sample up to ``batch_size`` distinct visited observations (alive entries only) from the replay buffer.
-
-        :param robot: restrict to this agent's column of the joint rows; None for every agent
-        :return: ``(batch, obs_dim)`` on the network's device, or None when nothing was visited yet
-        """
-        mask = self._visited_mask(robot)
-        candidates = np.flatnonzero(mask.reshape(-1))
-        if candidates.size == 0:
-            return None
         assert self._rng is not None
-        chosen = np.sort(self._rng.choice(candidates, size=min(batch_size, candidates.size), replace=False))
-        observations = self._model.replay_buffer.observations[: mask.shape[0]]
-        if robot is not None:
-            observations = observations[:, robot : robot + 1]
-        flat = np.asarray(observations).reshape(-1, observations.shape[-1])
-        device = next(self._q_net().parameters()).device
-        return th.as_tensor(flat[chosen], dtype=th.float32, device=device)
+        return sample_visited_observations(self.model, batch_size, self._rng, robot)
 
     # ------------------------------------------------------------------ records
     def _make_round_log(self) -> RoundLog | None:
@@ -780,6 +755,45 @@ class EvolutionCallback(BaseCallback):
                     )
         finally:
             env.close()
+
+
+def visited_mask(replay_buffer: Any, robot: int | None = None) -> np.ndarray:
+    """``(rows, agents)`` bool: True where the replay buffer holds a real visited observation (an alive agent).
+
+    :param replay_buffer: the model's replay buffer (ours records ``alive``; in SB3's every stored row is real)
+    :param robot: keep only this agent's column of the joint rows; None for every agent
+    """
+    size = int(replay_buffer.size())
+    alive = getattr(replay_buffer, "alive", None)
+    mask = np.ones(replay_buffer.observations.shape[1:2], dtype=bool)[None].repeat(size, 0)
+    if alive is not None:
+        mask = np.asarray(alive[:size]) > 0
+    return mask if robot is None else mask[:, robot : robot + 1]
+
+
+def sample_visited_observations(
+    model: Any, batch_size: int, rng: np.random.Generator, robot: int | None = None
+) -> th.Tensor | None:
+    """Sample up to ``batch_size`` distinct visited observations (alive agents' entries) from a model's replay
+    buffer: the batch ``b`` of Eq. 6, of the calibration and of the diagnostics.
+
+    :param model: an off-policy model with ``replay_buffer`` and ``policy.q_net``
+    :param batch_size: the most observations returned
+    :param rng: the generator that picks them
+    :param robot: restrict to this agent's column of the joint rows; None for every agent
+    :return: ``(batch, obs_dim)`` on the network's device, or None when nothing was visited yet
+    """
+    mask = visited_mask(model.replay_buffer, robot)
+    candidates = np.flatnonzero(mask.reshape(-1))
+    if candidates.size == 0:
+        return None
+    chosen = np.sort(rng.choice(candidates, size=min(batch_size, candidates.size), replace=False))
+    observations = model.replay_buffer.observations[: mask.shape[0]]
+    if robot is not None:
+        observations = observations[:, robot : robot + 1]
+    flat = np.asarray(observations).reshape(-1, observations.shape[-1])
+    device = next(model.policy.q_net.parameters()).device
+    return th.as_tensor(flat[chosen], dtype=th.float32, device=device)
 
 
 def _warn_disqualified(population: Parameters, valid: np.ndarray) -> None:

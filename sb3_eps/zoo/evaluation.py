@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from sb3_eps.common.evaluation import evaluate_team
+from sb3_eps.common.evaluation import evaluate_team, record_frames
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.vec_env import make_vec_env
 from sb3_eps.zoo.callbacks import BEST_MODEL_NAME
@@ -208,14 +208,7 @@ def record_gif(
     )
     try:
         check_spaces(run, venv, env_id)
-        observations: Any = venv.reset()
-        frames = [venv.get_images()[0]]
-        finished = 0
-        while finished < n_episodes and len(frames) < max_frames:
-            actions, _ = run.model.predict(observations, deterministic=True)
-            observations, _, _, infos = venv.step(actions)
-            frames.append(venv.get_images()[0])
-            finished += int("episode" in infos[0])
+        frames, _ = record_frames(run.model, venv, n_episodes, max_frames=max_frames)
     finally:
         venv.close()
-    return save_gif([frame for frame in frames if frame is not None], path, fps=fps)
+    return save_gif(frames, path, fps=fps)

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from sb3_eps.zoo.callbacks import EVALUATIONS_NAME, MONITOR_NAME, read_monitor
 from sb3_eps.zoo.config import load_yaml
@@ -117,23 +118,21 @@ def label_of(algo: str) -> str:
     return ALGORITHMS[algo].label if algo in ALGORITHMS else algo
 
 
-def plot_learning_curves(
-    curves: list[RunCurve], output: str | Path, window: int = 100, title: str | None = None
-) -> Path:
-    """Draw the learning curves: one column per env id, rows team return and (if reported) success rate.
+def draw_learning_curves(curves: list[RunCurve], window: int = 100, title: str | None = None) -> Figure:
+    """The learning curves as a figure: one column per env id, rows team return and (if reported) success rate.
 
-    :return: the image's path
+    The figure is made without pyplot, so drawing it neither needs nor changes a backend (a notebook shows it with
+    ``display(figure)``).
+
+    :param curves: the runs (:func:`load_curve` or :func:`evaluation_curves`)
+    :param window: episodes of the trailing mean (1: no smoothing)
+    :param title: prefix of each column's title
+    :return: the figure
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     env_ids = sorted({curve.env_id for curve in curves})
     keys = [key for key in PANELS if any(key in curve.values for curve in curves)]
-    figure, axes = plt.subplots(
-        len(keys), len(env_ids), figsize=(5.5 * len(env_ids), 3.4 * len(keys)), squeeze=False
-    )
+    figure = Figure(figsize=(5.5 * len(env_ids), 3.4 * len(keys)))
+    axes = figure.subplots(len(keys), len(env_ids), squeeze=False)
     for row, key in enumerate(keys):
         grouped = group_curves(curves, key, window)
         for column, env_id in enumerate(env_ids):
@@ -153,10 +152,20 @@ def plot_learning_curves(
             axis.grid(alpha=0.3)
             axis.legend(fontsize="small")
     figure.tight_layout()
+    return figure
+
+
+def plot_learning_curves(
+    curves: list[RunCurve], output: str | Path, window: int = 100, title: str | None = None
+) -> Path:
+    """Draw the learning curves (:func:`draw_learning_curves`) into an image file.
+
+    :return: the image's path
+    """
+    figure = draw_learning_curves(curves, window, title)
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(output, dpi=120)
-    plt.close(figure)
     return output
 
 
