@@ -301,19 +301,17 @@ def evaluation_curves(run_dirs: list[Path]) -> list[RunCurve]:
 
 
 def record_curves(paths: list[str | Path], label: str | None = None) -> list[RunCurve]:
-    """Greedy-evaluation records of ``benchmarks/learning_check.py`` (JSON lines) as curves, one per file.
+    """Greedy-evaluation records of ``benchmarks/learning_check.py`` (:func:`sb3_eps.results.read_evaluation_run`)
+    as curves, one per file, to draw them with :func:`plot_learning_curves` beside run folders.
 
-    A record file ``[eps_]<algo>_<env id>_seed<k>.jsonl`` holds one line per evaluation with ``ticks`` (training
-    plus EPS ticks), ``success_rate`` and ``team_return_mean``; these are the files committed under
-    ``docs/results/``. ``paths`` are files or folders (searched for ``*.jsonl`` directly inside).
+    ``paths`` are ``<algo>_<env id>_seed<k>.jsonl`` files or folders (searched for ``*.jsonl`` directly inside);
+    a record's ``ticks`` already count the EPS ticks.
 
     :param label: the group name of every curve (default: the algorithm of the file name, e.g. ``eps_gdq``)
     :raises ConfigError: when a path does not exist or a file is not such a record
     """
-    import json
-    import re
+    from sb3_eps.results import read_evaluation_run
 
-    pattern = re.compile(r"^(?P<algo>(?:eps_)?[a-z]+)_(?P<env>.+)_seed(?P<seed>-?\d+)\.jsonl$")
     files: list[Path] = []
     for path in map(Path, paths):
         if not path.exists():
@@ -321,17 +319,10 @@ def record_curves(paths: list[str | Path], label: str | None = None) -> list[Run
         files.extend(sorted(path.glob("*.jsonl")) if path.is_dir() else [path])
     curves = []
     for file in files:
-        match = pattern.match(file.name)
-        if match is None:
-            raise ConfigError(f"{file}: not an evaluation record (<algo>_<env id>_seed<k>.jsonl)")
         try:
-            rows = [json.loads(line) for line in file.read_text().splitlines() if line.strip()]
-            x = np.array([row["ticks"] for row in rows], dtype=float)
-            values = {
-                "r": np.array([row["team_return_mean"] for row in rows], dtype=float),
-                "success": np.array([row["success_rate"] for row in rows], dtype=float),
-            }
+            run = read_evaluation_run(file)
+            values = {"r": run.metrics["team_return_mean"], "success": run.metrics["success_rate"]}
         except (ValueError, KeyError, TypeError) as error:
-            raise ConfigError(f"{file}: not an evaluation record ({error!r})") from error
-        curves.append(RunCurve(file, label or match["algo"], match["env"], x, values))
+            raise ConfigError(f"{file}: not an evaluation record ({error})") from error
+        curves.append(RunCurve(file, label or run.algo, run.env_id, run.ticks.astype(float), values))
     return curves
