@@ -74,13 +74,33 @@ def default_start_method() -> str:
     return "fork" if "fork" in mp.get_all_start_methods() else "spawn"
 
 
+def available_cores() -> int:
+    """Cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
 def default_n_workers(n_worlds: int) -> int:
     """One worker per core this process may use, at most one per world."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        cores = os.cpu_count() or 1
-    return max(1, min(n_worlds, cores))
+    return max(1, min(n_worlds, available_cores()))
+
+
+def default_layout(n_worlds: int, cores: int | None = None) -> tuple[int, int]:
+    """The default split of ``n_worlds`` over the main process and workers: :return: ``(main_worlds, n_workers)``.
+
+    With ``C`` cores and at least 2 worlds, the main process steps one block itself while ``C - 1`` workers step
+    the others, side by side (``min(C, n_worlds)`` blocks of sizes differing by at most one; the main process
+    takes the first). The main process would otherwise sit idle waiting for its workers, and a worker fewer is
+    a process fewer to wake on every step (``docs/benchmarks.md``, scale-out). On one core, or with one world,
+    every world goes to one worker.
+    """
+    cores = available_cores() if cores is None else cores
+    steppers = min(cores, n_worlds)
+    if steppers < 2:
+        return 0, 1
+    return len(split_worlds(n_worlds, steppers)[0]), steppers - 1
 
 
 def split_worlds(n_worlds: int, n_workers: int) -> list[range]:
@@ -179,14 +199,18 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
     """A :class:`~sb3_eps.common.vec_env.MultiAgentVecEnv` whose worlds run in worker processes.
 
     Same attributes, step semantics and sub-env order as in-process (``docs/architecture.md``); world ``w`` lives
-    in the worker whose block holds it.
+    in the worker whose block holds it, or in the main process's own block (the first ``main_worlds`` worlds),
+    which the main process steps while the workers step theirs.
 
     :param env_fns: one constructor per world (PettingZoo ParallelEnv or gymnasium env); they are sent to the
         workers with cloudpickle, so lambdas and closures work
     :param env_id: the registered id the worlds were built from, for the record and error messages
-    :param n_workers: worker processes (None: one per core, at most one per world); each holds a contiguous
-        block of worlds
+    :param n_workers: worker processes, each holding a contiguous block of worlds (None: see ``main_worlds``)
     :param start_method: multiprocessing start method (None: ``"fork"`` where available, else ``"spawn"``)
+    :param main_worlds: worlds the main process steps itself, side by side with the workers (the first ones).
+        None: with ``n_workers`` None, :func:`default_layout` (on ``C`` cores, the main process holds one block and
+        ``C - 1`` workers the others); with ``n_workers`` given, 0 (every world in a worker, as before this
+        option). Given with ``n_workers`` None: the rest of the worlds go to one worker per remaining core.
     """
 
     def __init__(
@@ -195,27 +219,52 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         env_id: str | None = None,
         n_workers: int | None = None,
         start_method: str | None = None,
+        main_worlds: int | None = None,
     ):
         n_worlds = len(env_fns)
         if n_worlds < 1:
             raise ValueError("SubprocMultiAgentVecEnv needs at least one env constructor")
-        if n_workers is None:
-            n_workers = default_n_workers(n_worlds)
-        if isinstance(n_workers, bool) or not isinstance(n_workers, int | np.integer) or n_workers < 1:
+        if n_workers is not None and (
+            isinstance(n_workers, bool) or not isinstance(n_workers, int | np.integer) or n_workers < 1
+        ):
             raise ValueError(f"n_workers must be an int >= 1 (or None: one per core), got {n_workers!r}")
+        if main_worlds is not None and (
+            isinstance(main_worlds, bool)
+            or not isinstance(main_worlds, int | np.integer)
+            or not 0 <= main_worlds < n_worlds
+        ):
+            raise ValueError(
+                f"main_worlds must be an int in [0, {n_worlds - 1}] (at least one of the {n_worlds} worlds in a "
+                f"worker; DummyVecEnv keeps them all in this process), or None for the default; got {main_worlds!r}"
+            )
         if start_method is not None and start_method not in mp.get_all_start_methods():
             raise ValueError(
                 f"start_method {start_method!r} is not available here; use one of {mp.get_all_start_methods()}"
             )
+        if main_worlds is None:
+            if n_workers is None:
+                main_worlds, n_workers = default_layout(n_worlds)
+            else:
+                main_worlds = 0
+        elif n_workers is None:
+            n_workers = max(1, available_cores() - (1 if main_worlds else 0))
+        main_worlds = int(main_worlds)
         self.env_id = env_id
         self.n_worlds = n_worlds
         self.start_method = start_method or default_start_method()
-        self._blocks = split_worlds(n_worlds, min(int(n_workers), n_worlds))
+        self._main_block = range(0, main_worlds)
+        self._blocks = [
+            range(block.start + main_worlds, block.stop + main_worlds)
+            for block in split_worlds(n_worlds - main_worlds, min(int(n_workers), n_worlds - main_worlds))
+        ]
         self._t_start = time.time()
         payloads = [
             ("fns", CloudpickleWrapper(([env_fns[w] for w in block], env_id))) for block in self._blocks
         ]
-        self._start_workers(payloads)
+        main_payload = (
+            ("fns", CloudpickleWrapper(([env_fns[w] for w in self._main_block], env_id))) if main_worlds else None
+        )
+        self._start_workers(payloads, main_payload)
 
     # -------------------------------------------------------------------------------- workers
     @property
@@ -224,15 +273,21 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         return len(self._blocks)
 
     @property
+    def main_worlds(self) -> int:
+        """Number of worlds the main process steps itself (worlds ``0 .. main_worlds - 1``)."""
+        return len(self._main_block)
+
+    @property
     def worker_pids(self) -> list[int | None]:
         """Process id of each worker (world block ``i`` lives in ``worker_pids[i]``)."""
         return [process.pid for process in self._processes]
 
-    def _start_workers(self, payloads: list[tuple[str, Any]]) -> None:
+    def _start_workers(self, payloads: list[tuple[str, Any]], main_payload: tuple[str, Any] | None) -> None:
         context: Any = mp.get_context(self.start_method)
         self._closed = False
         self._remotes: list[Connection] = []
         self._processes: list[Any] = []
+        self._local: MultiAgentVecEnv | None = None
         try:
             for payload in payloads:
                 remote, child = context.Pipe()
@@ -243,11 +298,16 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
                 child.close()
                 self._remotes.append(remote)
                 self._processes.append(process)
+            if main_payload is not None:  # built while the workers build theirs, after the forks
+                self._local = _build_worker_env(main_payload, self._t_start)
             infos = [self._receive(i, "building its worlds", START_TIMEOUT) for i in range(len(payloads))]
         except BaseException:
             self._terminate()
             raise
         _OPEN.add(self)
+        if self._local is not None:
+            local = self._local
+            infos.insert(0, (local.possible_agents, local.observation_space, local.action_space, local.state_space))
         possible_agents, observation_space, action_space, state_space = infos[0]
         for info in infos[1:]:
             if info[0] != possible_agents:
@@ -256,6 +316,7 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         self.possible_agents = list(possible_agents)
         self.n_agents = len(self.possible_agents)
         self.state_space = state_space
+        self._main_slice = slice(0, len(self._main_block) * self.n_agents)
         self._slices = [
             slice(block.start * self.n_agents, block.stop * self.n_agents) for block in self._blocks
         ]
@@ -303,12 +364,42 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
             raise VecEnvWorkerError(f"{self._describe(i)} failed while {doing}: {value}")
         return value
 
-    def _ask_all(self, command: str, data: Sequence[Any] | None = None) -> list[Any]:
-        """Send ``command`` to every worker (``data[i]`` to worker ``i``), then gather the replies in order."""
+    def _gather(self, workers: Iterable[int], doing: str) -> list[Any]:
+        """Receive the reply of each of ``workers``, all of them even when one fails (so no reply stays in a pipe
+        to answer the next command); then raise the first failure."""
+        replies, failure = [], None
+        for i in workers:
+            try:
+                replies.append(self._receive(i, doing))
+            except VecEnvWorkerError as error:
+                failure = failure or error
+        if failure is not None:
+            raise failure
+        return replies
+
+    def _ask_all(self, command: str, data: Sequence[Any] | None = None, local: Any = None) -> list[Any]:
+        """Send ``command`` to every worker (``data[i]`` to worker ``i``), run it on the main process's block
+        meanwhile (with ``local`` as its data), then gather the replies in order, the main block's first."""
         for i in range(self.n_workers):
             self._send(i, command, None if data is None else data[i])
         doing = _DOING.get(command, command)
-        return [self._receive(i, doing) for i in range(self.n_workers)]
+        mine = self._while_workers_run(lambda venv: _handle(venv, command, local), doing)
+        replies = self._gather(range(self.n_workers), doing)
+        return replies if self._local is None else [mine, *replies]
+
+    def _while_workers_run(self, work: Callable[[MultiAgentVecEnv], Any], doing: str) -> Any:
+        """Run ``work`` on the main process's block while the workers run a command; if it raises, collect the
+        workers' replies first (the error of the main block is the one raised, as in process)."""
+        if self._local is None:
+            return None
+        try:
+            return work(self._local)
+        except BaseException:
+            try:
+                self._gather(range(self.n_workers), doing)
+            except VecEnvWorkerError:
+                pass
+            raise
 
     # -------------------------------------------------------------------------------- VecEnv
     def reset(self) -> np.ndarray:
@@ -321,7 +412,8 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
             )
             for block, part in zip(self._blocks, self._slices)
         ]
-        replies = self._ask_all("reset", data)
+        local = (self._seed, self._options[self._main_slice], self._want_state)
+        replies = self._ask_all("reset", data, local)
         obs = self._join([reply[0] for reply in replies])
         self.reset_infos = [info for reply in replies for info in reply[1]]
         self._state = self._join_states([reply[2] for reply in replies])
@@ -332,14 +424,18 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         return obs
 
     def step_wait(self) -> VecEnvStepReturn:
-        """Step every world once (each worker its block, side by side) and return all agents' results."""
-        actions = self._actions
-        replies = self._ask_all("step", [(actions[part], self._want_state) for part in self._slices])
+        """Step every world once (each worker its block, the main process its own, side by side) and return all
+        agents' results."""
+        actions, want_state = self._actions, self._want_state
+        replies = self._ask_all(
+            "step", [(actions[part], want_state) for part in self._slices], (actions[self._main_slice], want_state)
+        )
         obs, rewards, dones, alive = (self._join([reply[i] for reply in replies]) for i in (0, 1, 2, 4))
         infos = [info for reply in replies for info in reply[3]]
         self.alive = alive
         self._state = self._join_states([reply[5] for reply in replies])
-        for part, reply in zip(self._slices, replies):
+        parts = self._slices if self._local is None else [self._main_slice, *self._slices]
+        for part, reply in zip(parts, replies):
             if reply[6] is not None:
                 self.reset_infos[part] = reply[6]
         self._n_steps += 1
@@ -364,6 +460,12 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         for remote in self._remotes:
             try:
                 remote.send(("close", None))
+            except (EOFError, OSError):
+                pass
+        if self._local is not None:
+            self._local.close()
+        for remote in self._remotes:
+            try:
                 if remote.poll(CLOSE_TIMEOUT):
                     remote.recv()
             except (EOFError, OSError):
@@ -396,13 +498,16 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
             if local:
                 self._send(i, "call", (local, kind, name, args, kwargs))
                 asked.append(i)
+        doing = f"running {kind} {name or ''}".strip()
+        mine = [w for w in self._main_block if w in wanted]
         results: dict[int, Any] = {}
-        for i in asked:
-            start = self._blocks[i].start
+        if mine:  # the main block starts at world 0: its local indices are the global ones
             results.update(
-                (start + w, value)
-                for w, value in self._receive(i, f"running {kind} {name or ''}".strip()).items()
+                self._while_workers_run(lambda venv: venv._world_call(mine, kind, name, args, kwargs), doing)
             )
+        for i, replies in zip(asked, self._gather(asked, doing)):
+            start = self._blocks[i].start
+            results.update((start + w, value) for w, value in replies.items())
         return results
 
     def _join(self, parts: list[np.ndarray]) -> np.ndarray:
@@ -413,24 +518,32 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
 
     # -------------------------------------------------------------------------------- pickling
     def __getstate__(self) -> dict[str, Any]:
-        """The main process's bookkeeping plus a snapshot of every worker's worlds (mid-episode)."""
+        """The main process's bookkeeping plus a snapshot of every worker's worlds and of the main process's block
+        (mid-episode)."""
         snapshots = self._ask_all("snapshot")
         state = {
             key: value
             for key, value in self.__dict__.items()
-            if key not in ("_remotes", "_processes", "_closed", "_slices")
+            if key not in ("_remotes", "_processes", "_closed", "_slices", "_main_slice", "_local")
         }
+        if self._local is not None:
+            state["_main_snapshot"], snapshots = snapshots[0], snapshots[1:]
         state["_snapshots"] = snapshots
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         snapshots = state.pop("_snapshots")
+        main_snapshot = state.pop("_main_snapshot", None)
+        state.setdefault("_main_block", range(0))  # checkpoints written before the main process held worlds
         bookkeeping: dict[str, Any] = {
             key: state[key]
             for key in ("alive", "_seed", "_seeds", "_options", "_n_steps", "_want_state", "reset_infos")
             if key in state
         }
         self.__dict__.update(state)
-        self._start_workers([("snapshot", snapshot) for snapshot in snapshots])
+        self._start_workers(
+            [("snapshot", snapshot) for snapshot in snapshots],
+            None if main_snapshot is None else ("snapshot", main_snapshot),
+        )
         self.__dict__.update(bookkeeping)
         self._state = None
