@@ -26,6 +26,7 @@ import atexit
 import multiprocessing as mp
 import os
 import pickle
+import select
 import signal
 import time
 import traceback
@@ -44,6 +45,10 @@ from sb3_eps.common.vec_env import MultiAgentVecEnv
 #: Seconds a worker gets to start (import, build its worlds) or to close before it is terminated.
 START_TIMEOUT = 120.0
 CLOSE_TIMEOUT = 10.0
+#: Seconds a process polls its pipe without sleeping before it sleeps until the next message, where every process
+#: of the vec env has a core of its own (``spin_s`` None). Waking a sleeping process costs 50-200 us on a VM, as
+#: much as stepping a world; a short poll answers within microseconds (``docs/benchmarks.md``, scale-out).
+DEFAULT_SPIN_S = 0.002
 
 
 # Vec envs with running workers. Their workers ignore SIGTERM, so multiprocessing's own exit handler (terminate,
@@ -114,6 +119,27 @@ def split_worlds(n_worlds: int, n_workers: int) -> list[range]:
     return blocks
 
 
+def _poller(remote: Connection) -> Callable[[], Any]:
+    """:return: a cheap "has ``remote`` a message (or is it closed)?" check: a ``poll(2)`` of its file descriptor
+    (about 1 us; ``Connection.poll`` builds a selector on every call, about 10 us)."""
+    if hasattr(select, "poll"):
+        poller = select.poll()
+        poller.register(remote.fileno(), select.POLLIN)
+        return lambda: poller.poll(0)
+    return remote.poll  # Windows
+
+
+def _wait(ready: Callable[[], Any], spin_s: float) -> None:
+    """Return when ``ready()`` (a :func:`_poller`) is true, or after asking it for ``spin_s`` seconds without
+    sleeping; the caller's ``recv`` then sleeps in the kernel until the message comes."""
+    if spin_s <= 0:
+        return
+    deadline = time.perf_counter() + spin_s
+    while not ready():
+        if time.perf_counter() > deadline:
+            return
+
+
 # ---------------------------------------------------------------------------------------------- worker side
 def _build_worker_env(payload: tuple[str, Any], t_start: float) -> MultiAgentVecEnv:
     kind, value = payload
@@ -157,7 +183,7 @@ def _handle(venv: MultiAgentVecEnv, command: str, data: Any) -> Any:
 
 
 def _worker_main(
-    remote: Connection, parent_remote: Connection, payload: tuple[str, Any], t_start: float
+    remote: Connection, parent_remote: Connection, payload: tuple[str, Any], t_start: float, spin_s: float = 0.0
 ) -> None:
     # The main process decides when workers stop: a Ctrl-C or SIGTERM sent to the whole process group must not
     # kill the worlds before the main process has written its checkpoint (which asks them for a snapshot).
@@ -165,6 +191,7 @@ def _worker_main(
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     parent_remote.close()
     venv: MultiAgentVecEnv | None = None
+    ready = _poller(remote)
     try:
         venv = _build_worker_env(payload, t_start)
         remote.send(
@@ -172,6 +199,7 @@ def _worker_main(
         )
         while True:
             try:
+                _wait(ready, spin_s)
                 command, data = remote.recv()
             except (EOFError, OSError):  # the main process is gone
                 break
@@ -211,6 +239,12 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         None: with ``n_workers`` None, :func:`default_layout` (on ``C`` cores, the main process holds one block and
         ``C - 1`` workers the others); with ``n_workers`` given, 0 (every world in a worker, as before this
         option). Given with ``n_workers`` None: the rest of the worlds go to one worker per remaining core.
+    :param spin_s: seconds a worker waiting for its next command, and the main process waiting for a reply, poll
+        their pipe without sleeping before they sleep (waking a sleeping process costs as much as stepping a
+        world). None: :data:`DEFAULT_SPIN_S` where the main process and the workers have a core each (``n_workers
+        + 1 <=`` cores, as in the default layout), else 0 (never poll: pollers would take the cores of the
+        processes with work). Polling keeps a worker's core busy for up to ``spin_s`` after each step; use 0 on
+        a machine shared with other jobs.
     """
 
     def __init__(
@@ -220,6 +254,7 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         n_workers: int | None = None,
         start_method: str | None = None,
         main_worlds: int | None = None,
+        spin_s: float | None = None,
     ):
         n_worlds = len(env_fns)
         if n_worlds < 1:
@@ -241,6 +276,10 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
             raise ValueError(
                 f"start_method {start_method!r} is not available here; use one of {mp.get_all_start_methods()}"
             )
+        if spin_s is not None and (
+            isinstance(spin_s, bool) or not isinstance(spin_s, int | float) or not 0 <= spin_s < float("inf")
+        ):
+            raise ValueError(f"spin_s must be a number of seconds >= 0 (or None for the default), got {spin_s!r}")
         if main_worlds is None:
             if n_workers is None:
                 main_worlds, n_workers = default_layout(n_worlds)
@@ -257,6 +296,9 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
             range(block.start + main_worlds, block.stop + main_worlds)
             for block in split_worlds(n_worlds - main_worlds, min(int(n_workers), n_worlds - main_worlds))
         ]
+        if spin_s is None:
+            spin_s = DEFAULT_SPIN_S if len(self._blocks) + 1 <= available_cores() else 0.0
+        self.spin_s = float(spin_s)
         self._t_start = time.time()
         payloads = [
             ("fns", CloudpickleWrapper(([env_fns[w] for w in block], env_id))) for block in self._blocks
@@ -287,17 +329,19 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         self._closed = False
         self._remotes: list[Connection] = []
         self._processes: list[Any] = []
+        self._ready: list[Callable[[], Any]] = []
         self._local: MultiAgentVecEnv | None = None
         try:
             for payload in payloads:
                 remote, child = context.Pipe()
                 process = context.Process(
-                    target=_worker_main, args=(child, remote, payload, self._t_start), daemon=True
+                    target=_worker_main, args=(child, remote, payload, self._t_start, self.spin_s), daemon=True
                 )
                 process.start()
                 child.close()
                 self._remotes.append(remote)
                 self._processes.append(process)
+                self._ready.append(_poller(remote))
             if main_payload is not None:  # built while the workers build theirs, after the forks
                 self._local = _build_worker_env(main_payload, self._t_start)
             infos = [self._receive(i, "building its worlds", START_TIMEOUT) for i in range(len(payloads))]
@@ -357,6 +401,7 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
                 raise VecEnvWorkerError(
                     f"{self._describe(i)} did not answer within {timeout:.0f} s while {doing}"
                 )
+            _wait(self._ready[i], self.spin_s)
             status, value = remote.recv()
         except (EOFError, ConnectionResetError, BrokenPipeError, OSError):
             raise self._died(i, doing) from None
@@ -524,7 +569,7 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         state = {
             key: value
             for key, value in self.__dict__.items()
-            if key not in ("_remotes", "_processes", "_closed", "_slices", "_main_slice", "_local")
+            if key not in ("_remotes", "_processes", "_ready", "_closed", "_slices", "_main_slice", "_local")
         }
         if self._local is not None:
             state["_main_snapshot"], snapshots = snapshots[0], snapshots[1:]
@@ -535,6 +580,7 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         snapshots = state.pop("_snapshots")
         main_snapshot = state.pop("_main_snapshot", None)
         state.setdefault("_main_block", range(0))  # checkpoints written before the main process held worlds
+        state.setdefault("spin_s", 0.0)  # and before processes polled
         bookkeeping: dict[str, Any] = {
             key: state[key]
             for key in ("alive", "_seed", "_seeds", "_options", "_n_steps", "_want_state", "reset_infos")

@@ -376,7 +376,7 @@ def make_vec_env(
     seed = check_seed(seed)
     mode = vec_env_mode(vec_env_cls)
     vec_kwargs = dict(vec_env_kwargs or {})
-    allowed = {"n_workers", "start_method", "main_worlds"} if mode == "subproc" else set()
+    allowed = {"n_workers", "start_method", "main_worlds", "spin_s"} if mode == "subproc" else set()
     if set(vec_kwargs) - allowed:
         raise ValueError(
             f"vec_env_kwargs {sorted(set(vec_kwargs) - allowed)} not understood with {mode!r}; "
