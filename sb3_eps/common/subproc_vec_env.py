@@ -33,6 +33,7 @@ import traceback
 import weakref
 from collections.abc import Callable, Iterable, Sequence
 from multiprocessing.connection import Connection
+from multiprocessing.reduction import ForkingPickler
 from typing import Any
 
 import gymnasium
@@ -119,6 +120,9 @@ def split_worlds(n_worlds: int, n_workers: int) -> list[range]:
     return blocks
 
 
+_yield: Callable[[], Any] = getattr(os, "sched_yield", lambda: None)
+
+
 def _poller(remote: Connection) -> Callable[[], Any]:
     """:return: a cheap "has ``remote`` a message (or is it closed)?" check: a ``poll(2)`` of its file descriptor
     (about 1 us; ``Connection.poll`` builds a selector on every call, about 10 us)."""
@@ -131,13 +135,66 @@ def _poller(remote: Connection) -> Callable[[], Any]:
 
 def _wait(ready: Callable[[], Any], spin_s: float) -> None:
     """Return when ``ready()`` (a :func:`_poller`) is true, or after asking it for ``spin_s`` seconds without
-    sleeping; the caller's ``recv`` then sleeps in the kernel until the message comes."""
+    sleeping; the caller's ``recv`` then sleeps in the kernel until the message comes. Between two questions the
+    process yields its core to any other runnable process there (on a busy machine, maybe the one it waits for)."""
     if spin_s <= 0:
         return
     deadline = time.perf_counter() + spin_s
     while not ready():
         if time.perf_counter() > deadline:
             return
+        _yield()
+
+
+# ---------------------------------------------------------------------------------------------- step messages
+# The step, every tick, goes as raw bytes; everything else (and a step whose actions are not a 1-D int64 array)
+# as a pickle, which starts with pickle's PROTO opcode. Pickling the few small arrays of a step (actions there,
+# observations, rewards, dones and alive flags back) cost more than the rest of the protocol together.
+_STEP, _STEP_WITH_STATE, _STEP_REPLY = b"s", b"S", b"R"
+_HEADER = 8  # a message's first byte says what it is; arrays start 8-byte aligned
+
+
+def _pack_step(actions: np.ndarray, want_state: bool) -> bytes | None:
+    """:return: the step command as bytes, or None where the actions need the pickled command."""
+    if actions.dtype != np.int64 or actions.ndim != 1:
+        return None
+    return (_STEP_WITH_STATE if want_state else _STEP).ljust(_HEADER, b"\0") + actions.tobytes()
+
+
+def _unpack_step(message: bytes) -> tuple[np.ndarray, bool]:
+    return np.frombuffer(message, dtype=np.int64, offset=_HEADER), message[:1] == _STEP_WITH_STATE
+
+
+def _pack_step_reply(reply: tuple[Any, ...]) -> bytes:
+    """The reply of :func:`_handle`'s step: its arrays as raw bytes, the rest (infos, reset infos) pickled."""
+    obs, rewards, dones, infos, alive, state, reset_infos = reply
+    arrays = [np.ascontiguousarray(array) for array in (obs, rewards, dones, alive)]
+    if state is not None:
+        arrays.append(np.ascontiguousarray(state))
+    meta = pickle.dumps(
+        ([(array.dtype.str, array.shape) for array in arrays], infos, reset_infos), protocol=pickle.HIGHEST_PROTOCOL
+    )
+    parts = [_STEP_REPLY.ljust(4, b"\0"), len(meta).to_bytes(4, "little"), meta]
+    parts.append(b"\0" * (-len(meta) % 8))
+    for array in arrays:
+        data = array.tobytes()
+        parts.extend((data, b"\0" * (-len(data) % 8)))
+    return b"".join(parts)
+
+
+def _unpack_step_reply(message: bytes) -> tuple[Any, ...]:
+    size = int.from_bytes(message[4:8], "little")
+    specs, infos, reset_infos = pickle.loads(memoryview(message)[_HEADER : _HEADER + size])
+    offset = _HEADER + size + (-size % 8)
+    arrays = []
+    for dtype_str, shape in specs:
+        dtype = np.dtype(dtype_str)
+        count = int(np.prod(shape))
+        arrays.append(np.frombuffer(message, dtype=dtype, count=count, offset=offset).reshape(shape))
+        offset += count * dtype.itemsize
+        offset += -offset % 8
+    obs, rewards, dones, alive = arrays[:4]
+    return obs, rewards, dones, infos, alive, arrays[4] if len(arrays) > 4 else None, reset_infos
 
 
 # ---------------------------------------------------------------------------------------------- worker side
@@ -200,17 +257,25 @@ def _worker_main(
         while True:
             try:
                 _wait(ready, spin_s)
-                command, data = remote.recv()
+                message = remote.recv_bytes()
             except (EOFError, OSError):  # the main process is gone
                 break
+            if message[:1] in (_STEP, _STEP_WITH_STATE):
+                command, data = "step", _unpack_step(message)
+            else:
+                command, data = ForkingPickler.loads(message)
             if command == "close":
                 remote.send(("ok", None))
                 break
             try:
-                reply = ("ok", _handle(venv, command, data))
+                result = _handle(venv, command, data)
             except Exception as error:  # anything a world raises goes back to the main process
-                reply = ("error", f"{type(error).__name__}: {error}\n{traceback.format_exc()}")
-            remote.send(reply)
+                remote.send(("error", f"{type(error).__name__}: {error}\n{traceback.format_exc()}"))
+                continue
+            if command == "step":
+                remote.send_bytes(_pack_step_reply(result))
+            else:
+                remote.send(("ok", result))
     except Exception as error:  # building the worlds failed
         try:
             remote.send(("error", f"{type(error).__name__}: {error}\n{traceback.format_exc()}"))
@@ -402,9 +467,12 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
                     f"{self._describe(i)} did not answer within {timeout:.0f} s while {doing}"
                 )
             _wait(self._ready[i], self.spin_s)
-            status, value = remote.recv()
+            message = remote.recv_bytes()
         except (EOFError, ConnectionResetError, BrokenPipeError, OSError):
             raise self._died(i, doing) from None
+        if message[:1] == _STEP_REPLY:
+            return _unpack_step_reply(message)
+        status, value = ForkingPickler.loads(message)
         if status == "error":
             raise VecEnvWorkerError(f"{self._describe(i)} failed while {doing}: {value}")
         return value
@@ -426,7 +494,14 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         """Send ``command`` to every worker (``data[i]`` to worker ``i``), run it on the main process's block
         meanwhile (with ``local`` as its data), then gather the replies in order, the main block's first."""
         for i in range(self.n_workers):
-            self._send(i, command, None if data is None else data[i])
+            message = _pack_step(*data[i]) if command == "step" and data is not None else None
+            if message is None:
+                self._send(i, command, None if data is None else data[i])
+            else:
+                try:
+                    self._remotes[i].send_bytes(message)
+                except (BrokenPipeError, ConnectionResetError, EOFError, OSError):
+                    raise self._died(i, command) from None
         doing = _DOING.get(command, command)
         mine = self._while_workers_run(lambda venv: _handle(venv, command, local), doing)
         replies = self._gather(range(self.n_workers), doing)
@@ -556,7 +631,9 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         return results
 
     def _join(self, parts: list[np.ndarray]) -> np.ndarray:
-        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+        if len(parts) > 1:
+            return np.concatenate(parts)
+        return parts[0] if parts[0].flags.writeable else parts[0].copy()  # a step reply's arrays are read-only
 
     def _join_states(self, parts: list[np.ndarray | None]) -> np.ndarray | None:
         return None if any(part is None for part in parts) else self._join(parts)  # type: ignore[arg-type]
