@@ -1,23 +1,33 @@
 """The bridge with its worlds in worker processes: :class:`SubprocMultiAgentVecEnv`.
 
 ``make_vec_env(env_id, n_envs, vec_env_cls=SubprocVecEnv)`` (or ``"subproc"``) builds it. The worlds are split
-into contiguous blocks, one per worker process (``n_workers``, by default one per core, at most one per world);
-each worker runs an ordinary in-process :class:`~sb3_eps.common.vec_env.MultiAgentVecEnv` over its block, with
-its own PyBullet clients, and the main process concatenates the blocks. So every promise of the bridge holds
-unchanged (the worker's own bridge keeps them) and a seeded run gives the same numbers as in-process: world
-``w`` is still reset with ``seed + w``, and no state is shared between worlds.
+into contiguous blocks. By default (:func:`default_layout`), on ``C`` cores the main process steps the first block
+itself while ``C - 1`` worker processes step the others, side by side: the main process would otherwise wait idle
+for its workers, and every worker is one more process to wake per step. With ``n_workers`` alone, every world
+lives in those workers (the layout before ``main_worlds`` existed). Each worker runs an ordinary in-process
+:class:`~sb3_eps.common.vec_env.MultiAgentVecEnv` over its block, with its own PyBullet clients, as does the
+main process over its own block, and the main process concatenates the blocks. So every promise of the bridge
+holds unchanged (each block's own bridge keeps them) and a seeded run gives the same numbers as in-process:
+world ``w`` is still reset with ``seed + w``, and no state is shared between worlds.
+
+A step goes to the workers as raw bytes (the actions) and comes back as raw bytes (observations, rewards, dones,
+alive flags, the global state) plus the pickled infos; everything else is pickled. Where every process has a core
+of its own, a process waiting for the next message polls its pipe for ``spin_s`` (2 ms) before it sleeps: waking
+a sleeping process costs about as much as stepping a world (``docs/benchmarks.md``, scale-out).
 
 The main process keeps what SB3 reads between steps (``alive``, ``reset_infos``, the tick counter, seeds and
 reset options) and the global state of the last step: once :meth:`get_state` has been called, every step brings
 the state back with the observations, so algorithms that read it every tick pay no extra round trip.
 
 Pickling (the checkpoint of ``python -m sb3_eps.train``) asks every worker for a snapshot of its worlds,
-mid-episode; unpickling starts new workers from those snapshots, so a resumed run continues exactly.
+mid-episode, and takes one of the main process's block; unpickling starts new workers from those snapshots, so a
+resumed run continues exactly.
 
 A worker that dies (killed, out of memory, a crash in PyBullet) raises :class:`VecEnvWorkerError` naming its
-worlds; an exception inside a world is raised again in the main process as :class:`VecEnvWorkerError` with the
-worker's traceback. Workers ignore SIGINT and SIGTERM: the main process decides when they stop (after writing
-its checkpoint), and a worker whose main process is gone exits on its own.
+worlds; an exception inside a world of a worker is raised again in the main process as :class:`VecEnvWorkerError`
+with the worker's traceback (one inside a world of the main process's block is raised as is, as in process).
+Workers ignore SIGINT and SIGTERM: the main process decides when they stop (after writing its checkpoint), and a
+worker whose main process is gone exits on its own.
 """
 
 from __future__ import annotations
