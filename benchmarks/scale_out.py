@@ -158,7 +158,7 @@ def parts_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
             t0 = time.perf_counter()
             venv.step_async(action)
             for i, part in enumerate(venv._slices):
-                venv._send(i, "step", (action[part], False))
+                venv._send_step(i, action[part], False)
             t1 = time.perf_counter()
             _handle(venv._local, "step", (action[venv._main_slice], False))
             t2 = time.perf_counter()

@@ -12,7 +12,7 @@ world ``w`` is still reset with ``seed + w``, and no state is shared between wor
 
 A step goes to the workers as raw bytes (the actions) and comes back as raw bytes (observations, rewards, dones,
 alive flags, the global state) plus the pickled infos; everything else is pickled. Where every process has a core
-of its own, a process waiting for the next message polls its pipe for ``spin_s`` (2 ms) before it sleeps: waking
+of its own, a process waiting for the next message polls its pipe for ``spin_s`` (0.5 ms) before it sleeps: waking
 a sleeping process costs about as much as stepping a world (``docs/benchmarks.md``, scale-out).
 
 The main process keeps what SB3 reads between steps (``alive``, ``reset_infos``, the tick counter, seeds and
@@ -58,8 +58,9 @@ START_TIMEOUT = 120.0
 CLOSE_TIMEOUT = 10.0
 #: Seconds a process polls its pipe without sleeping before it sleeps until the next message, where every process
 #: of the vec env has a core of its own (``spin_s`` None). Waking a sleeping process costs 50-200 us on a VM, as
-#: much as stepping a world; a short poll answers within microseconds (``docs/benchmarks.md``, scale-out).
-DEFAULT_SPIN_S = 0.002
+#: much as stepping a world; a short poll answers within microseconds (``docs/benchmarks.md``, scale-out). A worker
+#: whose last wait for a command was longer sleeps at once: the main process is busy between steps (learning).
+DEFAULT_SPIN_S = 0.0005
 
 
 # Vec envs with running workers. Their workers ignore SIGTERM, so multiprocessing's own exit handler (terminate,
@@ -143,17 +144,21 @@ def _poller(remote: Connection) -> Callable[[], Any]:
     return remote.poll  # Windows
 
 
-def _wait(ready: Callable[[], Any], spin_s: float) -> None:
+def _wait(ready: Callable[[], Any], spin_s: float) -> bool:
     """Return when ``ready()`` (a :func:`_poller`) is true, or after asking it for ``spin_s`` seconds without
     sleeping; the caller's ``recv`` then sleeps in the kernel until the message comes. Between two questions the
-    process yields its core to any other runnable process there (on a busy machine, maybe the one it waits for)."""
+    process yields its core to any other runnable process there (on a busy machine, maybe the one it waits for).
+
+    :return: whether the message came while polling
+    """
     if spin_s <= 0:
-        return
+        return False
     deadline = time.perf_counter() + spin_s
     while not ready():
         if time.perf_counter() > deadline:
-            return
+            return False
         _yield()
+    return True
 
 
 # ---------------------------------------------------------------------------------------------- step messages
@@ -264,10 +269,16 @@ def _worker_main(
         remote.send(
             ("ok", (venv.possible_agents, venv.observation_space, venv.action_space, venv.state_space))
         )
+        poll = True
         while True:
             try:
-                _wait(ready, spin_s)
+                # Poll only where the last wait was short: between the steps of a training run the main process
+                # learns for milliseconds, and polling all that time would take a core from it.
+                idle_since = time.perf_counter()
+                if poll:
+                    _wait(ready, spin_s)
                 message = remote.recv_bytes()
+                poll = time.perf_counter() - idle_since <= spin_s
             except (EOFError, OSError):  # the main process is gone
                 break
             if message[:1] in (_STEP, _STEP_WITH_STATE):
@@ -318,8 +329,9 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         their pipe without sleeping before they sleep (waking a sleeping process costs as much as stepping a
         world). None: :data:`DEFAULT_SPIN_S` where the main process and the workers have a core each (``n_workers
         + 1 <=`` cores, as in the default layout), else 0 (never poll: pollers would take the cores of the
-        processes with work). Polling keeps a worker's core busy for up to ``spin_s`` after each step; use 0 on
-        a machine shared with other jobs.
+        processes with work). A worker whose last wait for a command took longer than ``spin_s`` does not poll
+        the next one (in training the main process learns between steps, often for milliseconds: polling all
+        that time would only take hardware from it). Use 0 on a machine shared with other jobs.
     """
 
     def __init__(
@@ -469,6 +481,16 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         except (BrokenPipeError, ConnectionResetError, EOFError, OSError):
             raise self._died(i, command) from None
 
+    def _send_step(self, i: int, actions: np.ndarray, want_state: bool) -> None:
+        message = _pack_step(actions, want_state)
+        if message is None:
+            self._send(i, "step", (actions, want_state))
+            return
+        try:
+            self._remotes[i].send_bytes(message)
+        except (BrokenPipeError, ConnectionResetError, EOFError, OSError):
+            raise self._died(i, "step") from None
+
     def _receive(self, i: int, doing: str, timeout: float | None = None) -> Any:
         remote = self._remotes[i]
         try:
@@ -504,14 +526,10 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         """Send ``command`` to every worker (``data[i]`` to worker ``i``), run it on the main process's block
         meanwhile (with ``local`` as its data), then gather the replies in order, the main block's first."""
         for i in range(self.n_workers):
-            message = _pack_step(*data[i]) if command == "step" and data is not None else None
-            if message is None:
-                self._send(i, command, None if data is None else data[i])
+            if command == "step" and data is not None:
+                self._send_step(i, *data[i])
             else:
-                try:
-                    self._remotes[i].send_bytes(message)
-                except (BrokenPipeError, ConnectionResetError, EOFError, OSError):
-                    raise self._died(i, command) from None
+                self._send(i, command, None if data is None else data[i])
         doing = _DOING.get(command, command)
         mine = self._while_workers_run(lambda venv: _handle(venv, command, local), doing)
         replies = self._gather(range(self.n_workers), doing)
