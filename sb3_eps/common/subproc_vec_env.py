@@ -12,7 +12,7 @@ world ``w`` is still reset with ``seed + w``, and no state is shared between wor
 
 A step goes to the workers as raw bytes (the actions) and comes back as raw bytes (observations, rewards, dones,
 alive flags, the global state) plus the pickled infos; everything else is pickled. Where every process has a core
-of its own, a process waiting for the next message polls its pipe for ``spin_s`` (0.5 ms) before it sleeps: waking
+of its own, a process waiting for the next message polls its pipe for ``spin_s`` (10 ms) before it sleeps: waking
 a sleeping process costs about as much as stepping a world (``docs/benchmarks.md``, scale-out).
 
 The main process keeps what SB3 reads between steps (``alive``, ``reset_infos``, the tick counter, seeds and
@@ -57,10 +57,11 @@ from sb3_eps.common.vec_env import MultiAgentVecEnv
 START_TIMEOUT = 120.0
 CLOSE_TIMEOUT = 10.0
 #: Seconds a process polls its pipe without sleeping before it sleeps until the next message, where every process
-#: of the vec env has a core of its own (``spin_s`` None). Waking a sleeping process costs 50-200 us on a VM, as
-#: much as stepping a world; a short poll answers within microseconds (``docs/benchmarks.md``, scale-out). A worker
-#: whose last wait for a command was longer sleeps at once: the main process is busy between steps (learning).
-DEFAULT_SPIN_S = 0.0005
+#: of the vec env has a core of its own (``spin_s`` None). Waking a sleeping process costs 50-200 us on a VM (more
+#: after milliseconds asleep), as much as stepping a world; a poll answers within microseconds. 10 ms covers the
+#: learning between two training steps (2-6 ms for GDQ), so a worker stays awake through a run and sleeps only
+#: through long pauses (evaluations, checkpoints): ``docs/benchmarks.md``, scale-out, measured 0, 0.5, 2 and 10 ms.
+DEFAULT_SPIN_S = 0.01
 
 
 # Vec envs with running workers. Their workers ignore SIGTERM, so multiprocessing's own exit handler (terminate,
@@ -272,8 +273,8 @@ def _worker_main(
         poll = True
         while True:
             try:
-                # Poll only where the last wait was short: between the steps of a training run the main process
-                # learns for milliseconds, and polling all that time would take a core from it.
+                # Poll only where the last wait was short: after a long pause (an evaluation, a checkpoint) the
+                # next one may be long too.
                 idle_since = time.perf_counter()
                 if poll:
                     _wait(ready, spin_s)
@@ -329,9 +330,9 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         their pipe without sleeping before they sleep (waking a sleeping process costs as much as stepping a
         world). None: :data:`DEFAULT_SPIN_S` where the main process and the workers have a core each (``n_workers
         + 1 <=`` cores, as in the default layout), else 0 (never poll: pollers would take the cores of the
-        processes with work). A worker whose last wait for a command took longer than ``spin_s`` does not poll
-        the next one (in training the main process learns between steps, often for milliseconds: polling all
-        that time would only take hardware from it). Use 0 on a machine shared with other jobs.
+        processes with work). A worker whose last wait for a command took longer than ``spin_s`` sleeps at once
+        the next time (a long pause: an evaluation, a checkpoint). Polling keeps a core busy between steps: use 0
+        on a machine shared with other jobs.
     """
 
     def __init__(

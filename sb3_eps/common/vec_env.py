@@ -365,7 +365,7 @@ def make_vec_env(
     :param vec_env_kwargs: for ``SubprocVecEnv``: ``n_workers`` and ``main_worlds`` (the layout: by default, on
         ``C`` cores, this process steps one block of worlds itself while ``C - 1`` workers step the others; with
         ``n_workers`` alone, every world in those workers), ``spin_s`` (seconds the processes poll their pipes
-        before they sleep; None: 0.5 ms where each process has a core, else 0) and ``start_method`` (None:
+        before they sleep; None: 10 ms where each process has a core, else 0) and ``start_method`` (None:
         ``"fork"`` where available); see :class:`~sb3_eps.common.subproc_vec_env.SubprocMultiAgentVecEnv`
     :return: the vector env (the same results in both modes for the same seed)
     :raises ValueError: for an unknown id, ``n_envs < 1``, a seed that is not a non-negative int, or an unknown
