@@ -5,13 +5,14 @@ on the local backend against the same runs one after another.
   (``DummyVecEnv``), with ``SubprocVecEnv``'s default layout (``subproc``: on ``C`` cores the main process steps
   one block of worlds itself while ``C - 1`` workers step the others, polling their pipes between steps) and with
   every world in workers (``workers``: one per core, no polling: the layout before the default changed),
-  interleaved repeats, median wall time; robot-steps per second and the ratios to in-process.
+  interleaved repeats, median wall time and the median of the repeats' ratios; robot-steps per second and the
+  ratios to in-process.
 - **parts**: where the time of a step of the default layout goes (sending the actions, the main process's own
   block, waiting for and reading the workers' replies, the rest), what a block of worlds costs alone and while
-  another process steps worlds on the other core (the cores share hardware: contention), and a pipe round trip
-  of a step's messages.
-- **train**: GDQ on the same worlds in process and in the default layout, after a warm-up, with the settings of
-  ``benchmarks/train_throughput.py`` (package defaults, one gradient step every 4 vector steps) and with its
+  another process steps worlds on the other core (the cores share hardware: contention).
+- **train**: GDQ on the same worlds in process and in the default layout, after a warm-up, the two models
+  training in turns of ``--train-steps / --train-slices`` agent-steps (a slow spell of the machine falls on
+  both), torch on one thread in the main process, with the settings of ``benchmarks/train_throughput.py`` (package defaults, one gradient step every 4 vector steps) and with its
   ``zoo_configs/gdq.yml`` entry for ``MultiRobotNav-4-v0`` (one gradient step per vector step, 30-step returns,
   recomputed global values); ticks per second and the ratio. Only the env part of a tick runs in the workers, so
   the more learning per tick, the smaller the gain (Amdahl).
@@ -32,6 +33,7 @@ grid <= 0.6x the time of its runs in sequence. Speed-ups need a quiet machine: t
 average before and after.
 
     python benchmarks/scale_out.py [--parts latency env parts train grid] [--worlds 4 8] [--repeats 3]
+        [--train-steps 8000 --train-slices 8]
 """
 
 from __future__ import annotations
@@ -90,20 +92,17 @@ def gdq_kwargs(config: str) -> dict[str, Any]:
     return {"batch_size": 64, "train_freq": 4, "gradient_steps": 1, "buffer_size": 50_000}
 
 
-def train_seconds(mode: str, n_worlds: int, warmup: int, steps: int, config: str) -> float:
-    """Wall seconds per tick of GDQ after a warm-up."""
+def train_models(n_worlds: int, warmup: int, config: str) -> dict[str, Any]:
+    """One GDQ per mode on the same worlds and seed, after a warm-up (they train the same numbers)."""
     from sb3_eps.gdq import GDQ
 
-    kwargs = gdq_kwargs(config)
-    kwargs["learning_starts"] = warmup // 2
-    venv = make(mode, n_worlds)
-    model = GDQ("MlpPolicy", venv, seed=0, **kwargs)
-    model.learn(warmup)
-    start = time.perf_counter()
-    model.learn(steps, reset_num_timesteps=False)
-    elapsed = time.perf_counter() - start
-    venv.close()
-    return elapsed / (steps / venv.n_agents)
+    models = {}
+    for mode in TRAIN_MODES:
+        kwargs = gdq_kwargs(config)
+        kwargs["learning_starts"] = warmup // 2
+        models[mode] = GDQ("MlpPolicy", make(mode, n_worlds), seed=0, **kwargs)
+        models[mode].learn(warmup)
+    return models
 
 
 def env_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
@@ -117,6 +116,9 @@ def env_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
             for mode in MODES:
                 samples[mode].append(env_seconds(venvs[mode], actions))
         step = {mode: statistics.median(values) for mode, values in samples.items()}
+        paired = {
+            mode: statistics.median(d / w for d, w in zip(samples["dummy"], samples[mode])) for mode in MODES[1:]
+        }
         default = venvs["subproc"]
         processes = default.n_workers + (1 if default.main_worlds else 0)
         t_w = step["dummy"] / n_worlds
@@ -131,6 +133,12 @@ def env_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
             f"({layout}) {robots / step['subproc']:8.0f} -> {step['dummy'] / step['subproc']:.2f}x; "
             f"all in {venvs['workers'].n_workers} workers {robots / step['workers']:8.0f} -> "
             f"{step['dummy'] / step['workers']:.2f}x  (t_w {t_w * 1e6:.0f} us/world tick, c {c * 1e6:.0f} us)",
+            flush=True,
+        )
+        print(
+            f"      median of the {args.repeats} repeats' ratios: default layout {paired['subproc']:.2f}x, all in "
+            f"workers {paired['workers']:.2f}x; us/step of each repeat: "
+            + "; ".join(f"{mode} {[round(value * 1e6) for value in samples[mode]]}" for mode in MODES),
             flush=True,
         )
 
@@ -153,7 +161,7 @@ def parts_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
     actions = np.random.default_rng(0).integers(5, size=(args.env_steps, venv.num_envs))
     venv.reset()
     times: dict[str, list[float]] = {"send": [], "own block": [], "wait + read replies": [], "rest": []}
-    for _ in range(args.repeats):
+    for _ in range(min(args.repeats, 5)):
         for action in actions:
             t0 = time.perf_counter()
             venv.step_async(action)
@@ -181,7 +189,7 @@ def parts_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
     env_seconds(alone_venv, block_actions[:50])
     context = mp.get_context("fork")
     samples: dict[str, list[float]] = {"alone": [], "beside another": []}
-    for _ in range(args.repeats):
+    for _ in range(min(args.repeats, 5)):
         samples["alone"].append(env_seconds(alone_venv, block_actions))
         stop = context.Event()
         other = context.Process(target=_step_block_forever, args=(block, stop), daemon=True)
@@ -200,18 +208,29 @@ def parts_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
 
 
 def train_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
+    """Both modes train in rotating slices of ``train_steps / train_slices`` agent-steps, so that a slow minute of
+    the machine falls on both; wall seconds per tick summed over the slices, and the median of the slice ratios."""
     for config in args.train_configs:
         for n_worlds in args.worlds:
-            samples: dict[str, list[float]] = {mode: [] for mode in TRAIN_MODES}
-            for _ in range(args.repeats):
-                for mode in TRAIN_MODES:
-                    samples[mode].append(train_seconds(mode, n_worlds, args.warmup, args.train_steps, config))
-            tick = {mode: statistics.median(values) for mode, values in samples.items()}
+            models = train_models(n_worlds, args.warmup, config)
+            n_agents = models["dummy"].env.n_agents
+            size = args.train_steps // args.train_slices
+            seconds: dict[str, list[float]] = {mode: [] for mode in TRAIN_MODES}
+            for _ in range(args.train_slices):
+                for mode, model in models.items():
+                    start = time.perf_counter()
+                    model.learn(size, reset_num_timesteps=False)
+                    seconds[mode].append(time.perf_counter() - start)
+            for model in models.values():
+                model.env.close()
+            tick = {mode: sum(values) / (len(values) * size / n_agents) for mode, values in seconds.items()}
+            paired = statistics.median(d / w for d, w in zip(seconds["dummy"], seconds["subproc"]))
             if config == args.train_configs[0]:
                 results[f"train{n_worlds}"] = tick
             print(
                 f"train GDQ ({config} settings) {n_worlds} worlds: in process {1 / tick['dummy']:5.0f} ticks/s, "
-                f"default layout {1 / tick['subproc']:5.0f} ticks/s -> {tick['dummy'] / tick['subproc']:.2f}x per tick",
+                f"default layout {1 / tick['subproc']:5.0f} ticks/s -> {tick['dummy'] / tick['subproc']:.2f}x per tick "
+                f"(median of {args.train_slices} slice ratios {paired:.2f}x)",
                 flush=True,
             )
 
@@ -327,9 +346,10 @@ def main() -> None:
     parser.add_argument("--parts", nargs="+", default=parts, choices=parts)
     parser.add_argument("--worlds", nargs="+", type=int, default=[4, 8])
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--env-steps", type=int, default=400, help="vector steps per env measurement")
+    parser.add_argument("--env-steps", type=int, default=200, help="vector steps per env measurement")
     parser.add_argument("--warmup", type=int, default=2_000, help="agent-steps before timing training")
-    parser.add_argument("--train-steps", type=int, default=8_000, help="timed agent-steps of training")
+    parser.add_argument("--train-steps", type=int, default=8_000, help="timed agent-steps of training per mode")
+    parser.add_argument("--train-slices", type=int, default=8, help="slices the modes train in, in turn")
     parser.add_argument("--train-configs", nargs="+", default=list(TRAIN_CONFIGS), choices=TRAIN_CONFIGS)
     parser.add_argument("--grid-steps", type=int, default=4_000, help="agent-steps of each grid run")
     parser.add_argument("--grid-repeats", type=int, default=1)
