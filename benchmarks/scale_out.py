@@ -102,7 +102,22 @@ def train_models(n_worlds: int, warmup: int, config: str) -> dict[str, Any]:
         kwargs["learning_starts"] = warmup // 2
         models[mode] = GDQ("MlpPolicy", make(mode, n_worlds), seed=0, **kwargs)
         models[mode].learn(warmup)
+        _time_steps(models[mode].env)
     return models
+
+
+def _time_steps(venv: Any) -> None:
+    """Sum the wall time of ``venv``'s ``step_wait`` in ``venv.step_seconds`` (the env part of a training tick)."""
+    inner = venv.step_wait
+    venv.step_seconds = 0.0
+
+    def timed() -> Any:
+        start = time.perf_counter()
+        result = inner()
+        venv.step_seconds += time.perf_counter() - start
+        return result
+
+    venv.step_wait = timed
 
 
 def env_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
@@ -180,6 +195,12 @@ def parts_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
             times["rest"].append((t4 - t3) - (t3 - t0))
     layout = f"main {venv.main_worlds} worlds + {venv.n_workers} worker(s)"
     venv.close()
+    whole = np.array(times["send"]) + times["own block"] + times["wait + read replies"] + times["rest"]
+    print(
+        f"whole steps of the default layout (us): mean {whole.mean() * 1e6:.0f}, median "
+        f"{np.median(whole) * 1e6:.0f}, 90th percentile {np.percentile(whole, 90) * 1e6:.0f}",
+        flush=True,
+    )
     cells = ", ".join(f"{name} {statistics.median(values) * 1e6:.0f}" for name, values in times.items())
     print(f"parts of a step, {n_worlds} worlds, {layout} (median us): {cells}", flush=True)
     # One block of worlds alone, and while a second process steps as many worlds on the other core.
@@ -221,6 +242,10 @@ def train_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
                     start = time.perf_counter()
                     model.learn(size, reset_num_timesteps=False)
                     seconds[mode].append(time.perf_counter() - start)
+            n_steps = args.train_slices * size / (n_agents * n_worlds)  # vector steps per mode
+            parts = {
+                mode: (sum(seconds[mode]) / n_steps, model.env.step_seconds / n_steps) for mode, model in models.items()
+            }
             for model in models.values():
                 model.env.close()
             tick = {mode: sum(values) / (len(values) * size / n_agents) for mode, values in seconds.items()}
@@ -231,6 +256,14 @@ def train_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
                 f"train GDQ ({config} settings) {n_worlds} worlds: in process {1 / tick['dummy']:5.0f} ticks/s, "
                 f"default layout {1 / tick['subproc']:5.0f} ticks/s -> {tick['dummy'] / tick['subproc']:.2f}x per tick "
                 f"(median of {args.train_slices} slice ratios {paired:.2f}x)",
+                flush=True,
+            )
+            print(
+                "      per vector step: "
+                + "; ".join(
+                    f"{mode} {total * 1e6:.0f} us = env step {env * 1e6:.0f} + the rest {(total - env) * 1e6:.0f}"
+                    for mode, (total, env) in parts.items()
+                ),
                 flush=True,
             )
 
