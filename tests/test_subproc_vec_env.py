@@ -21,7 +21,16 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
 from sb3_eps import EvolutionCallback, make_vec_env
 from sb3_eps.common import subproc_vec_env
-from sb3_eps.common.subproc_vec_env import DEFAULT_SPIN_S, VecEnvWorkerError, default_layout, split_worlds
+from sb3_eps.common.subproc_vec_env import (
+    DEFAULT_SPIN_S,
+    VecEnvWorkerError,
+    _pack_step,
+    _pack_step_reply,
+    _unpack_step,
+    _unpack_step_reply,
+    default_layout,
+    split_worlds,
+)
 from sb3_eps.gdq import GDQ
 from sb3_eps.zoo.checkpoint import snapshot_dumps
 
@@ -86,6 +95,36 @@ def test_default_layout_main_process_and_one_worker_per_other_core() -> None:
     assert default_layout(2, cores=8) == (1, 1)
     assert default_layout(1, cores=2) == (0, 1)  # one world: in a worker
     assert default_layout(4, cores=1) == (0, 1)  # one core: one worker
+
+
+@pytest.mark.parametrize("with_state", [False, True])
+def test_a_step_travels_as_raw_bytes_and_comes_back_equal(with_state) -> None:
+    """Actions out, observations, rewards, dones, alive flags and states back as bytes; infos pickled."""
+    actions = np.array([4, 0, 2, 1], dtype=np.int64)
+    assert _unpack_step(_pack_step(actions, with_state)) == (pytest.approx(actions), with_state)
+    assert _pack_step(actions.astype(np.int32), False) is None  # anything else: the pickled command
+    assert _pack_step(np.zeros((4, 2)), False) is None
+    rng = np.random.default_rng(0)
+    reply = (
+        rng.random((4, 7), dtype=np.float32),  # odd sizes: the arrays after them stay 8-byte aligned
+        rng.random(4, dtype=np.float32),
+        np.array([True, False, False, True]),
+        [{"alive": True, "terminal_observation": np.ones(7)}, {}, {}, {"episode": {"r": 1.5}}],
+        np.array([True, True, False, True]),
+        rng.random((1, 5), dtype=np.float32) if with_state else None,
+        [{"seed": 3}] * 4 if with_state else None,
+    )
+    back = _unpack_step_reply(_pack_step_reply(reply))
+    for sent, got in zip(reply, back):
+        if isinstance(sent, np.ndarray):
+            assert got.dtype == sent.dtype and got.flags.aligned
+            np.testing.assert_array_equal(got, sent)
+        elif sent is None:
+            assert got is None
+    assert back[3][0]["terminal_observation"].tolist() == [1.0] * 7 and back[3][3] == {"episode": {"r": 1.5}}
+    assert back[6] == reply[6]
+    objects = (np.array([None] * 4), *reply[1:])
+    assert _pack_step_reply(objects) is None  # arrays of Python objects: the pickled reply
 
 
 @pytest.mark.parametrize(

@@ -181,12 +181,17 @@ def _unpack_step(message: bytes) -> tuple[np.ndarray, bool]:
     return np.frombuffer(message, dtype=np.int64, offset=_HEADER), message[:1] == _STEP_WITH_STATE
 
 
-def _pack_step_reply(reply: tuple[Any, ...]) -> bytes:
-    """The reply of :func:`_handle`'s step: its arrays as raw bytes, the rest (infos, reset infos) pickled."""
+def _pack_step_reply(reply: tuple[Any, ...]) -> bytes | None:
+    """The reply of :func:`_handle`'s step: its arrays as raw bytes, the rest (infos, reset infos) pickled.
+
+    :return: None where an array holds Python objects (the pickled reply then)
+    """
     obs, rewards, dones, infos, alive, state, reset_infos = reply
     arrays = [np.ascontiguousarray(array) for array in (obs, rewards, dones, alive)]
     if state is not None:
         arrays.append(np.ascontiguousarray(state))
+    if any(array.dtype.hasobject for array in arrays):
+        return None
     meta = pickle.dumps(
         ([(array.dtype.str, array.shape) for array in arrays], infos, reset_infos), protocol=pickle.HIGHEST_PROTOCOL
     )
@@ -294,8 +299,9 @@ def _worker_main(
             except Exception as error:  # anything a world raises goes back to the main process
                 remote.send(("error", f"{type(error).__name__}: {error}\n{traceback.format_exc()}"))
                 continue
-            if command == "step":
-                remote.send_bytes(_pack_step_reply(result))
+            packed = _pack_step_reply(result) if command == "step" else None
+            if packed is not None:
+                remote.send_bytes(packed)
             else:
                 remote.send(("ok", result))
     except Exception as error:  # building the worlds failed
