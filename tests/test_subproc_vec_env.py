@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import pickle
+import re
 import signal
 import subprocess
 import sys
@@ -19,7 +20,17 @@ import torch as th
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
 from sb3_eps import EvolutionCallback, make_vec_env
-from sb3_eps.common.subproc_vec_env import VecEnvWorkerError, split_worlds
+from sb3_eps.common import subproc_vec_env
+from sb3_eps.common.subproc_vec_env import (
+    DEFAULT_SPIN_S,
+    VecEnvWorkerError,
+    _pack_step,
+    _pack_step_reply,
+    _unpack_step,
+    _unpack_step_reply,
+    default_layout,
+    split_worlds,
+)
 from sb3_eps.gdq import GDQ
 from sb3_eps.zoo.checkpoint import snapshot_dumps
 
@@ -76,15 +87,64 @@ def test_worlds_are_split_into_contiguous_blocks() -> None:
     assert split_worlds(4, 4) == [range(i, i + 1) for i in range(4)]
 
 
-@pytest.mark.parametrize("n_workers", [1, 2, 3])
-def test_same_seed_same_results_as_in_process(closing, n_workers) -> None:
-    """3 worlds of 4 robots, one worker (all worlds), blocks of 2 + 1, or one world per worker."""
+def test_default_layout_main_process_and_one_worker_per_other_core() -> None:
+    """(main_worlds, n_workers): the main process holds the first of min(cores, worlds) blocks."""
+    assert default_layout(4, cores=2) == (2, 1)
+    assert default_layout(3, cores=2) == (2, 1)
+    assert default_layout(8, cores=4) == (2, 3)
+    assert default_layout(2, cores=8) == (1, 1)
+    assert default_layout(1, cores=2) == (0, 1)  # one world: in a worker
+    assert default_layout(4, cores=1) == (0, 1)  # one core: one worker
+
+
+@pytest.mark.parametrize("with_state", [False, True])
+def test_a_step_travels_as_raw_bytes_and_comes_back_equal(with_state) -> None:
+    """Actions out, observations, rewards, dones, alive flags and states back as bytes; infos pickled."""
+    actions = np.array([4, 0, 2, 1], dtype=np.int64)
+    assert _unpack_step(_pack_step(actions, with_state)) == (pytest.approx(actions), with_state)
+    assert _pack_step(actions.astype(np.int32), False) is None  # anything else: the pickled command
+    assert _pack_step(np.zeros((4, 2)), False) is None
+    rng = np.random.default_rng(0)
+    reply = (
+        rng.random((4, 7), dtype=np.float32),  # odd sizes: the arrays after them stay 8-byte aligned
+        rng.random(4, dtype=np.float32),
+        np.array([True, False, False, True]),
+        [{"alive": True, "terminal_observation": np.ones(7)}, {}, {}, {"episode": {"r": 1.5}}],
+        np.array([True, True, False, True]),
+        rng.random((1, 5), dtype=np.float32) if with_state else None,
+        [{"seed": 3}] * 4 if with_state else None,
+    )
+    back = _unpack_step_reply(_pack_step_reply(reply))
+    for sent, got in zip(reply, back):
+        if isinstance(sent, np.ndarray):
+            assert got.dtype == sent.dtype and got.flags.aligned
+            np.testing.assert_array_equal(got, sent)
+        elif sent is None:
+            assert got is None
+    assert back[3][0]["terminal_observation"].tolist() == [1.0] * 7 and back[3][3] == {"episode": {"r": 1.5}}
+    assert back[6] == reply[6]
+    objects = (np.array([None] * 4), *reply[1:])
+    assert _pack_step_reply(objects) is None  # arrays of Python objects: the pickled reply
+
+
+@pytest.mark.parametrize(
+    ("vec_env_kwargs", "main_worlds", "n_workers"),
+    [
+        ({"n_workers": 1}, 0, 1),  # one worker holds all worlds
+        ({"n_workers": 2}, 0, 2),  # blocks of 2 + 1
+        ({"n_workers": 3}, 0, 3),  # one world per worker
+        ({"main_worlds": 1, "n_workers": 1}, 1, 1),  # the main process steps world 0, a worker worlds 1-2
+        ({"main_worlds": 2, "n_workers": 1, "spin_s": 0}, 2, 1),  # worlds 0-1 here, no polling
+        ({"main_worlds": 1, "n_workers": 2, "spin_s": 0.01}, 1, 2),  # world 0 here, one per worker
+    ],
+)
+def test_same_seed_same_results_as_in_process(closing, vec_env_kwargs, main_worlds, n_workers) -> None:
+    """3 worlds of 4 robots in every layout: all in workers, or a block in the main process beside them."""
     in_process = make_vec_env(ROBOTS, n_envs=3, seed=5, env_kwargs=SHORT, vec_env_cls=DummyVecEnv)
     closing(in_process)
-    workers = subproc(
-        closing, ROBOTS, n_envs=3, seed=5, env_kwargs=SHORT, vec_env_kwargs={"n_workers": n_workers}
-    )
-    assert workers.n_workers == n_workers and len(set(workers.worker_pids)) == n_workers
+    workers = subproc(closing, ROBOTS, n_envs=3, seed=5, env_kwargs=SHORT, vec_env_kwargs=vec_env_kwargs)
+    assert (workers.main_worlds, workers.n_workers) == (main_worlds, n_workers)
+    assert len(set(workers.worker_pids)) == n_workers
     assert os.getpid() not in workers.worker_pids
     expected = rollout(in_process, 40)
     assert any("episode" in item for item in expected if isinstance(item, dict))  # episodes ended and reset
@@ -92,12 +152,16 @@ def test_same_seed_same_results_as_in_process(closing, n_workers) -> None:
     assert workers.total_ticks == in_process.total_ticks == 120
 
 
-def test_a_snapshot_continues_mid_episode_in_new_workers(closing) -> None:
-    venv = subproc(closing, ROBOTS, n_envs=2, seed=1, env_kwargs={"max_episode_steps": 30})
+@pytest.mark.parametrize("vec_env_kwargs", [{"n_workers": 2}, {"main_worlds": 1}])
+def test_a_snapshot_continues_mid_episode_in_new_workers(closing, vec_env_kwargs) -> None:
+    venv = subproc(
+        closing, ROBOTS, n_envs=2, seed=1, env_kwargs={"max_episode_steps": 30}, vec_env_kwargs=vec_env_kwargs
+    )
     rollout(venv, 7)  # mid-episode
     copy = pickle.loads(snapshot_dumps(venv))  # what a checkpoint does
     closing(copy)
     assert set(copy.worker_pids).isdisjoint(venv.worker_pids)
+    assert (copy.main_worlds, copy.n_workers, copy.spin_s) == (venv.main_worlds, venv.n_workers, venv.spin_s)
     assert copy.total_ticks == venv.total_ticks and copy.reset_infos == venv.reset_infos
     rng = np.random.default_rng(2)
     for _ in range(30):  # across the end of the episode
@@ -151,10 +215,43 @@ def test_eps_evaluation_workers_next_to_the_world_workers() -> None:
 # --- errors ---------------------------------------------------------------------------------------------------------
 
 
-def test_a_killed_worker_raises_a_clear_error_naming_its_worlds(closing) -> None:
-    venv = subproc(closing, "Corridor-2-v0", n_envs=4, seed=0, vec_env_kwargs={"n_workers": 2})
+def test_the_default_layout_steps_a_block_in_the_main_process(closing, monkeypatch) -> None:
+    """On 2 cores: worlds 0-1 here and 2-3 in one worker, both polling; where the processes outnumber the cores,
+    nobody polls."""
+    monkeypatch.setattr(subproc_vec_env, "available_cores", lambda: 2)
+    venv = subproc(closing, "Corridor-2-v0", n_envs=4, seed=0)
+    assert (venv.main_worlds, venv.n_workers, venv.spin_s) == (2, 1, DEFAULT_SPIN_S)
+    assert subproc(closing, "Corridor-2-v0", n_envs=4, vec_env_kwargs={"n_workers": 2}).spin_s == 0.0
+    assert subproc(closing, "Corridor-2-v0", n_envs=4, vec_env_kwargs={"main_worlds": 1}).n_workers == 1
+    monkeypatch.setattr(subproc_vec_env, "available_cores", lambda: 1)
+    venv = subproc(closing, "Corridor-2-v0", n_envs=4, seed=0)
+    assert (venv.main_worlds, venv.n_workers, venv.spin_s) == (0, 1, 0.0)
+
+
+def test_an_error_in_the_main_process_block_keeps_the_workers_in_step(closing) -> None:
+    """An exception inside a world of the main process's block is raised as is (as in process), after the workers'
+    replies to the same command have been collected: the next commands get their own replies."""
+    in_process = make_vec_env(ROBOTS, n_envs=2, seed=4, env_kwargs=SHORT, vec_env_cls=DummyVecEnv)
+    closing(in_process)
+    venv = subproc(closing, ROBOTS, n_envs=2, seed=4, env_kwargs=SHORT, vec_env_kwargs={"main_worlds": 1})
+    expected, got = rollout(in_process, 3), rollout(venv, 3)
+    with pytest.raises(AttributeError, match="no_such_method"):
+        venv.env_method("no_such_method")  # both worlds: the worker's reply is an error too
+    assert venv.get_attr("max_episode_steps") == [12] * venv.num_envs
+    rng = np.random.default_rng(1)
+    for _ in range(15):
+        actions = rng.integers(5, size=venv.num_envs)
+        for x, y in zip(in_process.step(actions)[:3], venv.step(actions)[:3]):
+            np.testing.assert_array_equal(x, y)
+    assert_same(got, expected)
+
+
+@pytest.mark.parametrize("vec_env_kwargs", [{"n_workers": 2}, {"main_worlds": 2, "n_workers": 1}])
+def test_a_killed_worker_raises_a_clear_error_naming_its_worlds(closing, vec_env_kwargs) -> None:
+    """Worlds 2-3 live in the last worker, whether worlds 0-1 are in another worker or in the main process."""
+    venv = subproc(closing, "Corridor-2-v0", n_envs=4, seed=0, vec_env_kwargs=vec_env_kwargs)
     venv.reset()
-    victim = venv.worker_pids[1]
+    victim = venv.worker_pids[-1]
     os.kill(victim, signal.SIGKILL)
     with pytest.raises(VecEnvWorkerError) as caught:
         venv.step(np.zeros(venv.num_envs, dtype=np.int64))
@@ -192,6 +289,11 @@ def test_workers_ignore_sigterm_until_the_main_process_closes_them(closing) -> N
             "start_method 'teleport'",
         ),
         ({"vec_env_cls": "subproc", "vec_env_kwargs": {"workers": 2}}, r"vec_env_kwargs \['workers'\]"),
+        ({"vec_env_cls": "subproc", "vec_env_kwargs": {"main_worlds": 2}}, r"main_worlds must be an int in \[0, 1\]"),
+        ({"vec_env_cls": "subproc", "vec_env_kwargs": {"main_worlds": -1}}, "main_worlds must be"),
+        ({"vec_env_cls": "subproc", "vec_env_kwargs": {"main_worlds": True}}, "main_worlds must be"),
+        ({"vec_env_cls": "subproc", "vec_env_kwargs": {"spin_s": -0.1}}, "spin_s must be a number"),
+        ({"vec_env_cls": "subproc", "vec_env_kwargs": {"spin_s": "long"}}, "spin_s must be a number"),
         ({"vec_env_cls": "dummy", "vec_env_kwargs": {"n_workers": 2}}, "not understood with 'dummy'"),
         ({"vec_env_cls": "subproc", "env_kwargs": {"max_episode_steps": -1}}, "max_episode_steps"),
     ],
@@ -219,12 +321,12 @@ def test_a_run_whose_worker_dies_stops_with_one_line_and_keeps_its_checkpoint(tm
         for path in Path("/proc").glob("[0-9]*/stat")
         if _parent_pid(path) == process.pid
     ]
-    assert len(workers) == 2  # one per world (2 cores)
-    os.kill(workers[1], signal.SIGKILL)
+    assert len(workers) >= 1  # the default layout: world 0 in this process, world 1 in a worker (2 cores)
+    os.kill(workers[-1], signal.SIGKILL)
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == 1
     (line,) = stderr.strip().splitlines()
-    assert "error:" in line and "world 1 of Corridor-2-v0" in line and "killed by signal 9" in line
+    assert "error:" in line and re.search(r"worlds? (1|0-1) of Corridor-2-v0", line) and "killed by signal 9" in line
     assert "--resume" in line and "Traceback" not in stderr
     (run,) = tmp_path.glob("gdq/*")
     assert (run / "checkpoint.zip").is_file()

@@ -120,9 +120,9 @@ def test_resume_equals_the_uninterrupted_run(uninterrupted, tmp_path, stop, vec_
             )
             time.sleep(0.02)
     workers = worker_processes(process.pid)
-    assert len(workers) == (
-        3 if vec_env == "subproc" else 0
-    )  # 2 training + 1 evaluation world, one per worker
+    # The default layout: training world 0 in the training process and world 1 in a worker (on 1 core both in
+    # one worker), the evaluation world in its own worker.
+    assert len(workers) == (2 if vec_env == "subproc" else 0)
     process.send_signal(stop)
     assert process.wait(timeout=120) == (0 if stop == signal.SIGTERM else -signal.SIGKILL)
     run = run_folder(folder)

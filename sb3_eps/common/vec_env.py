@@ -366,8 +366,11 @@ def make_vec_env(
     :param vec_env_cls: SB3's switch: ``DummyVecEnv`` (None, the default: every world in this process) or
         ``SubprocVecEnv`` (worlds in worker processes, each with its own PyBullet clients:
         :class:`~sb3_eps.common.subproc_vec_env.SubprocMultiAgentVecEnv`); also ``"dummy"`` / ``"subproc"``
-    :param vec_env_kwargs: for ``SubprocVecEnv``: ``n_workers`` (None: one per core, at most one per world;
-        each worker holds a block of worlds) and ``start_method`` (None: ``"fork"`` where available)
+    :param vec_env_kwargs: for ``SubprocVecEnv``: ``n_workers`` and ``main_worlds`` (the layout: by default, on
+        ``C`` cores, this process steps one block of worlds itself while ``C - 1`` workers step the others; with
+        ``n_workers`` alone, every world in those workers), ``spin_s`` (seconds the processes poll their pipes
+        before they sleep; None: 10 ms where each process has a core, else 0) and ``start_method`` (None:
+        ``"fork"`` where available); see :class:`~sb3_eps.common.subproc_vec_env.SubprocMultiAgentVecEnv`
     :return: the vector env (the same results in both modes for the same seed)
     :raises ValueError: for an unknown id, ``n_envs < 1``, a seed that is not a non-negative int, or an unknown
         ``vec_env_cls`` / ``vec_env_kwargs``
@@ -383,7 +386,7 @@ def make_vec_env(
     seed = check_seed(seed)
     mode = vec_env_mode(vec_env_cls)
     vec_kwargs = dict(vec_env_kwargs or {})
-    allowed = {"n_workers", "start_method"} if mode == "subproc" else set()
+    allowed = {"n_workers", "start_method", "main_worlds", "spin_s"} if mode == "subproc" else set()
     if set(vec_kwargs) - allowed:
         raise ValueError(
             f"vec_env_kwargs {sorted(set(vec_kwargs) - allowed)} not understood with {mode!r}; "
