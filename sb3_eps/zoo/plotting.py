@@ -146,7 +146,7 @@ def draw_learning_curves(curves: list[RunCurve], window: int = 100, title: str |
                     stats["x"], stats["mean"] - stats["std"], stats["mean"] + stats["std"], alpha=0.2
                 )
             axis.set_xlabel("ticks (training + EPS)")
-            axis.set_ylabel(f"{PANELS[key]} ({window}-episode mean)")
+            axis.set_ylabel(PANELS[key] if window == 1 else f"{PANELS[key]} ({window}-episode mean)")
             if row == 0:
                 axis.set_title(env_id if title is None else f"{title}: {env_id}")
             axis.grid(alpha=0.3)
