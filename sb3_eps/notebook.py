@@ -157,6 +157,7 @@ def execute_notebook(
     from ipykernel.kernelspec import install
     from jupyter_client.kernelspec import KernelSpecManager
     from jupyter_client.manager import AsyncKernelManager
+    from jupyter_core.utils import run_sync
     from nbclient import NotebookClient
 
     if budget not in BUDGETS:
@@ -176,7 +177,11 @@ def execute_notebook(
         client = NotebookClient(
             notebook, km=manager, timeout=timeout, resources={"metadata": {"path": str(path.parent)}}
         )
-        client.execute(env=environment)
+        try:
+            client.execute(env=environment)
+        finally:  # nbclient shuts down only the kernels it created itself, not one of a manager given to it
+            if manager.has_kernel:
+                run_sync(manager.shutdown_kernel)(now=True)
     return notebook
 
 

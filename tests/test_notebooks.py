@@ -18,6 +18,17 @@ ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))
 
 
+def _kernels() -> set[int]:
+    """:return: the process ids of the kernels this test process started."""
+    import psutil
+
+    return {
+        child.pid
+        for child in psutil.Process().children(recursive=True)
+        if "ipykernel_launcher" in " ".join(child.cmdline())
+    }
+
+
 def test_there_are_three_notebooks() -> None:
     assert [path.name for path in NOTEBOOKS] == [
         "01_quickstart.ipynb",
@@ -31,7 +42,9 @@ def test_notebook_runs_at_its_small_budget(path: Path, tmp_path: Path) -> None:
     first_code = next(cell for cell in nbformat.read(path, as_version=4).cells if cell.cell_type == "code")
     assert f'BUDGET = os.environ.get("{BUDGET_VARIABLE}", "full")' in first_code.source
     before = sorted(path.parent.rglob("*"))
+    kernels_before = _kernels()
     notebook = execute_notebook(path, "small", output=tmp_path, timeout=300)  # raises on a failing cell
+    assert _kernels() <= kernels_before, "the notebook's kernel is still running after the execution"
     outputs = [output for cell in notebook.cells if cell.cell_type == "code" for output in cell.outputs]
     errors = [output for output in outputs if output.output_type == "error"]
     assert not errors, errors
