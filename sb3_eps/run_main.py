@@ -63,6 +63,23 @@ def main_algorithm() -> str:
     return "eps_gdq"
 
 
+def draw_evaluations(run_dir: Path, output: Path, references: list[RunCurve] | None = None) -> Path | None:
+    """Draw a run's greedy evaluations beside the reference curves (default :func:`reference_curves`), x axis =
+    training + EPS ticks; the README's picture of the main job is drawn so.
+
+    :return: the picture's path, None when the run has no evaluation
+    """
+    from sb3_eps.zoo.plotting import evaluation_curves, label_of, plot_learning_curves
+
+    evaluations = evaluation_curves([Path(run_dir)])
+    if not evaluations:
+        return None
+    references = reference_curves() if references is None else references
+    for curve in evaluations:
+        curve.algo = f"this run: {label_of(curve.algo)}"
+    return plot_learning_curves(evaluations + references, output, window=1, title="greedy evaluations")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Train, plot, print the paths. :return: the exit status."""
     parser = OneLineArgumentParser(prog=PROG, description=__doc__)
@@ -78,7 +95,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     from sb3_eps.zoo.exp_manager import TrainOptions, train
-    from sb3_eps.zoo.plotting import evaluation_curves, load_curve, plot_learning_curves
+    from sb3_eps.zoo.plotting import load_curve, plot_learning_curves
 
     algo = args.algo or main_algorithm()
     options = TrainOptions(
@@ -89,15 +106,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     result = train(options)
     run_dir = result.run_dir
     curve = plot_learning_curves([load_curve(run_dir)], run_dir / "learning_curve.png", window=100)
-    evaluations = evaluation_curves([run_dir])
     references = reference_curves()
-    eval_curve = (
-        plot_learning_curves(
-            evaluations + references, run_dir / "eval_curve.png", window=1, title="greedy evaluations"
-        )
-        if evaluations
-        else None
-    )
+    eval_curve = draw_evaluations(run_dir, run_dir / "eval_curve.png", references)
     print()
     if result.status == "interrupted":
         print(

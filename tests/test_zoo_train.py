@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import pathlib
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from sb3_eps.zoo.config import load_config_entries
 from sb3_eps.zoo.errors import ConfigError
 
 ENV_ID = "CooperativeNavigation-v0"
+ROOT = pathlib.Path(__file__).resolve().parents[1]
 TINY = [
     "policy_kwargs:dict(net_arch=[16], stream_arch=[16], global_net_arch=[16])",
     "learning_starts:150",
@@ -182,3 +184,9 @@ def test_record_curves_read_the_committed_evaluation_records(tmp_path) -> None:
     assert len(gdq) == 5 and all(c.env_id == MAIN_ENV and c.x[-1] >= 150_000 for c in gdq)
     output = plot_learning_curves([curve, *references], tmp_path / "refs.png", window=1)
     assert output.stat().st_size > 10_000
+    # The README's picture of the main job: the committed make-run folder beside the references.
+    from sb3_eps.run_main import draw_evaluations
+
+    main_job = ROOT / "docs" / "results" / "main_job" / "2026-11-30_eps_gdq_seed0"
+    assert draw_evaluations(main_job, tmp_path / "main.png").stat().st_size > 10_000
+    assert draw_evaluations(tmp_path, tmp_path / "none.png") is None  # no evaluations.npz: nothing drawn

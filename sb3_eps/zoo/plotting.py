@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.ticker import FuncFormatter
 
 from sb3_eps.zoo.callbacks import EVALUATIONS_NAME, MONITOR_NAME, read_monitor
 from sb3_eps.zoo.config import load_yaml
@@ -146,6 +147,7 @@ def draw_learning_curves(curves: list[RunCurve], window: int = 100, title: str |
                     stats["x"], stats["mean"] - stats["std"], stats["mean"] + stats["std"], alpha=0.2
                 )
             axis.set_xlabel("ticks (training + EPS)")
+            axis.xaxis.set_major_formatter(FuncFormatter(_thousands))
             axis.set_ylabel(PANELS[key] if window == 1 else f"{PANELS[key]} ({window}-episode mean)")
             if row == 0:
                 axis.set_title(env_id if title is None else f"{title}: {env_id}")
@@ -153,6 +155,11 @@ def draw_learning_curves(curves: list[RunCurve], window: int = 100, title: str |
             axis.legend(fontsize="small")
     figure.tight_layout()
     return figure
+
+
+def _thousands(value: float, _position: int) -> str:
+    """A tick label in thousands (``150k``), readable where ticks run to hundreds of thousands."""
+    return f"{value / 1000:g}k" if value else "0"
 
 
 def plot_learning_curves(
