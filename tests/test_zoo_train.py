@@ -58,6 +58,11 @@ def test_run_folder_follows_the_zoo_layout(run_dir) -> None:
     header, columns = read_monitor(run_dir / "monitor.csv")
     assert header["env_id"] == ENV_ID and header["n_agents"] == 3
     assert np.all(columns["l"] == 25) and np.all(np.diff(columns["ticks"]) >= 0)  # one row per world episode
+    # SB3's own reader (and so RL Zoo's monitor-based plots) reads the run folder.
+    from stable_baselines3.common.monitor import load_results
+
+    frame = load_results(str(run_dir))
+    assert len(frame) == len(columns["r"]) and {"r", "l", "t"} <= set(frame.columns)
     progress = (run_dir / "progress.csv").read_text().splitlines()[0].split(",")
     assert {"eval/success_rate", "eval/team_return", "rollout/team_return", "time/ticks"} <= set(progress)
 

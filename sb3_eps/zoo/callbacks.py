@@ -83,7 +83,8 @@ class TeamMonitor(BaseCallback):
     """One CSV row per world (team) episode: ``r`` team return, ``l`` ticks, ``t`` seconds, ``ticks`` / ``eps_ticks``
     at its end (``ticks`` = the model's ticks, all worlds together), ``world`` and the env's team metrics.
 
-    The first line is a ``#`` comment with a JSON header (env id, agents, worlds, algorithm).
+    The first line is a ``#`` comment with a JSON header (``t_start`` as SB3's ``Monitor`` writes it, env id, agents,
+    worlds, algorithm), so SB3's ``load_results`` reads the file.
 
     :param path: the CSV file; an existing one is continued (after :meth:`truncate_after` when resuming)
     :param header: what the first line records
@@ -95,7 +96,8 @@ class TeamMonitor(BaseCallback):
     ) -> None:
         super().__init__()
         self.path = Path(path)
-        self.header = header
+        # t_start (seconds since the epoch) as SB3's Monitor writes it: SB3's load_results and RL Zoo's plots need it.
+        self.header = {"t_start": time.time(), **header}
         self.eps_callbacks = list(eps_callbacks)
         self.columns: list[str] | None = None
         if self.path.exists():
