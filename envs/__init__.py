@@ -1,7 +1,8 @@
 """The env registry: env ids -> constructors, and gymnasium registration of the single-agent ids.
 
-Multi-agent ids build PettingZoo ParallelEnvs (:func:`make_parallel_env`), single-agent ids gymnasium envs
-(:func:`make_single_env`, or ``gymnasium.make(env_id)`` once this package is imported). Constructors are imported
+Multi-agent ids build PettingZoo ParallelEnvs (:func:`make_parallel_env`, or ``pettingzoo.make("parallel", env_id)``
+once this package is imported), single-agent ids gymnasium envs (:func:`make_single_env`, or
+``gymnasium.make(env_id)``). Constructors are imported
 lazily, so importing ``envs`` neither loads PyBullet nor mpe2.
 
 Each multi-agent id has a single-agent counterpart for Evolutionary Policy Search (:func:`eps_env_id_for`): the
@@ -13,11 +14,13 @@ robots' EPS world for every ``MultiRobotNav*`` id, and the single-agent Cooperat
 
 from __future__ import annotations
 
+import functools
 import importlib
 from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium
+import pettingzoo
 from pettingzoo import ParallelEnv
 
 
@@ -157,7 +160,20 @@ def _register_with_gymnasium() -> None:
             gymnasium.register(id=env_id, entry_point=spec.entry_point, kwargs=dict(spec.fixed_kwargs))
 
 
+def _make_registered(env_id: str, **kwargs: Any) -> ParallelEnv:
+    """The entry point PettingZoo's registry calls: :func:`make_parallel_env`, so an id's fixed arguments hold."""
+    return make_parallel_env(env_id, **kwargs)
+
+
+def _register_with_pettingzoo() -> None:
+    # PettingZoo 1.27's registry (``pettingzoo.register``); it warns when an id is registered twice.
+    for env_id in _PARALLEL_SPECS:
+        if env_id not in pettingzoo.parallel_registry:
+            pettingzoo.register("parallel", env_id, entry_point=functools.partial(_make_registered, env_id))
+
+
 _register_with_gymnasium()
+_register_with_pettingzoo()
 
 __all__ = [
     "DEBUG_ENV_IDS",

@@ -94,3 +94,32 @@ def test_wrong_kind_of_id_names_the_right_function() -> None:
 def test_the_id_fixes_its_team_size() -> None:
     with pytest.raises(ValueError, match="fixes n_robots=4"):
         envs.make_parallel_env("MultiRobotNav-4-v0", n_robots=8)
+
+
+@pytest.mark.parametrize("env_id", envs.MULTI_AGENT_ENV_IDS + envs.DEBUG_ENV_IDS)
+def test_pettingzoo_make_builds_every_multi_agent_id(env_id: str) -> None:
+    """PettingZoo's own registry (``pettingzoo.make("parallel", id)``) knows every id once ``envs`` is imported."""
+    import pettingzoo
+
+    env, direct = pettingzoo.make("parallel", env_id), envs.make_parallel_env(env_id)
+    try:
+        assert type(env) is type(direct) and env.possible_agents == direct.possible_agents
+    finally:
+        env.close()
+        direct.close()
+    # The id's fixed arguments hold there too.
+    if env_id.startswith("MultiRobotNav-"):
+        with pytest.raises(ValueError, match="fixes n_robots"):
+            pettingzoo.make("parallel", env_id, n_robots=3)
+
+
+@pytest.mark.parametrize("env_id", ["MultiRobotNav-2-v0", "CooperativeNavigation-v0", "Corridor-2-v0"])
+def test_registered_worlds_pass_pettingzoo_parallel_api_test(env_id: str) -> None:
+    import pettingzoo
+    from pettingzoo.test import parallel_api_test
+
+    env = pettingzoo.make("parallel", env_id)
+    try:
+        parallel_api_test(env, num_cycles=50)
+    finally:
+        env.close()
