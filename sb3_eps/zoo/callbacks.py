@@ -441,46 +441,19 @@ def stop_on_signals(callback: CheckpointCallback) -> Iterator[None]:
 
 
 # ---------------------------------------------------------------------------------------------- callback states
-# EvolutionCallback attributes that make up its training state (used while it has no state_dict() of its own);
-# its evaluation workers and forward pass are rebuilt by its _init_callback, its episodes are seeded per round.
-_EPS_STATE_ATTRIBUTES = (
-    "eps_ticks",
-    "n_rounds",
-    "n_skipped_rounds",
-    "eps_time",
-    "history",
-    "_rng",
-    "_last_round_mark",
-)
-
-
 def callback_state(callback: BaseCallback) -> Any:
-    """:return: the resumable state of a callback: its ``state_dict()``, or for EPS the attributes above."""
-    if hasattr(callback, "state_dict"):
-        return callback.state_dict()
-    if type(callback).__name__ == "EvolutionCallback":
-        state = {name: getattr(callback, name) for name in _EPS_STATE_ATTRIBUTES}
-        generator = getattr(callback, "_generator", None)
-        state["_generator"] = generator.get_state() if isinstance(generator, th.Generator) else None
-        return state
-    raise ValueError(f"{type(callback).__name__} has no state_dict(): it cannot be checkpointed")
+    """:return: the resumable state of a callback: its ``state_dict()`` (``EvolutionCallback`` has one)."""
+    if not hasattr(callback, "state_dict"):
+        raise ValueError(f"{type(callback).__name__} has no state_dict(): it cannot be checkpointed")
+    return callback.state_dict()
 
 
 def set_callback_state(callback: BaseCallback, state: Any) -> None:
-    """Restore what :func:`callback_state` returned (after the callback's ``init_callback``)."""
-    if hasattr(callback, "load_state_dict"):
-        callback.load_state_dict(state)
-        return
-    state = dict(state)
-    generator_state = state.pop("_generator")
-    for name, value in state.items():
-        setattr(callback, name, value)
-    if generator_state is not None:
-        generator = getattr(callback, "_generator", None)
-        if not isinstance(generator, th.Generator):
-            generator = th.Generator()
-            callback._generator = generator  # type: ignore[attr-defined]
-        generator.set_state(generator_state)
+    """Restore what :func:`callback_state` returned, after the callback's ``init_callback``. ``EvolutionCallback``'s
+    ``load_state_dict`` also takes the attribute dictionary that checkpoints held before it had a ``state_dict``."""
+    if not hasattr(callback, "load_state_dict"):
+        raise ValueError(f"{type(callback).__name__} has no load_state_dict(): it cannot be resumed")
+    callback.load_state_dict(state)
 
 
 # ---------------------------------------------------------------------------------------------- logs
