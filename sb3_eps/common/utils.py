@@ -45,11 +45,6 @@ def td_target(rewards: th.Tensor, discounts: th.Tensor, dones: th.Tensor, next_v
     return rewards + discounts * (1.0 - dones) * next_values
 
 
-def masked_mean(values: th.Tensor, mask: th.Tensor) -> th.Tensor:
-    """Mean of ``values`` over the entries where ``mask`` is 1 (0 when the mask is empty)."""
-    return (values * mask).sum() / mask.sum().clamp(min=1.0)
-
-
 def polyak_update_(target: th.nn.Module, source: th.nn.Module, tau: float) -> None:
     """In place ``target = tau * source + (1 - tau) * target`` over parameters and buffers."""
     target_params, params = list(target.parameters()), list(source.parameters())

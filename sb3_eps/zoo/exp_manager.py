@@ -676,8 +676,3 @@ def _run(
             flush=True,
         )
     return TrainResult(run_dir, "complete", int(model.num_timesteps))
-
-
-def available_env_ids() -> tuple[str, ...]:
-    """:return: the env ids a run may use."""
-    return tuple(envs.ENV_IDS)

@@ -242,8 +242,6 @@ _CALLBACK_SPELLINGS: dict[str, str] = {
     "sb3_eps.eps.EvolutionCallback": EVOLUTION_CALLBACK,
     "EvolutionCallback": EVOLUTION_CALLBACK,
 }
-#: Arguments the experiment manager fills in and a config may leave out.
-_CALLBACK_MANAGED_ARGUMENTS = {EVOLUTION_CALLBACK: ("eval_env_id", "verbose")}
 
 
 def callback_class(name: str, where: str = "callback") -> type[BaseCallback]:
@@ -617,8 +615,3 @@ def build_callbacks(
         except (TypeError, ValueError) as error:
             raise ConfigError(f"{where}: callback {name}: {error}") from None
     return callbacks
-
-
-def managed_callback_arguments(name: str) -> tuple[str, ...]:
-    """:return: the arguments of callback ``name`` that the experiment manager fills in when a config omits them."""
-    return _CALLBACK_MANAGED_ARGUMENTS.get(name, ())
