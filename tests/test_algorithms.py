@@ -44,6 +44,15 @@ def test_it_runs_and_logs_team_metrics(algorithm, tmp_path) -> None:
     assert "train/loss" in header
 
 
+def test_tensorboard_runs_are_named_after_the_algorithm(tmp_path) -> None:
+    """As SB3's own algorithms (``DQN_1``): ``GDQ_1``, then ``GDQ_2``; an explicit ``tb_log_name`` still wins."""
+    model = tiny_model(GDQ, tensorboard_log=str(tmp_path))
+    model.learn(90)
+    model.learn(90)
+    model.learn(90, tb_log_name="mine")
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["GDQ_1", "GDQ_2", "mine_1"]
+
+
 @pytest.mark.parametrize("algorithm", ALGORITHMS, ids=lambda a: a.__name__)
 def test_save_load_gives_identical_predictions(algorithm, tmp_path) -> None:
     model = tiny_model(algorithm)

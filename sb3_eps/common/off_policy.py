@@ -316,6 +316,26 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         )
         self._convert_train_freq()
 
+    def learn(
+        self: SelfMultiAgentOffPolicyAlgorithm,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 4,
+        tb_log_name: str | None = None,
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfMultiAgentOffPolicyAlgorithm:
+        """SB3's ``learn``; TensorBoard runs are named after the algorithm (``GDQ_1``), as SB3's own algorithms name
+        theirs (``DQN_1``), unless ``tb_log_name`` is given."""
+        return super().learn(
+            total_timesteps,
+            callback=callback,
+            log_interval=log_interval,
+            tb_log_name=tb_log_name or type(self).__name__,
+            reset_num_timesteps=reset_num_timesteps,
+            progress_bar=progress_bar,
+        )
+
     def _setup_learn(
         self,
         total_timesteps: int,
