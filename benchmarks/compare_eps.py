@@ -20,83 +20,70 @@ Example::
 from __future__ import annotations
 
 import argparse
-import json
 import pathlib
-import re
 
 import numpy as np
 
-SEED = re.compile(r"_seed(-?\d+)\.jsonl$")
+from sb3_eps.results import EvaluationRun, read_evaluation_run
 
 
-def read_runs(folder: pathlib.Path) -> dict[int, list[dict]]:
-    """:return: seed -> the evaluations of that seed, by ticks."""
-    runs = {}
-    for path in sorted(folder.glob("*.jsonl")):
-        match = SEED.search(path.name)
-        if match is None:
-            continue
-        records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-        runs[int(match[1])] = sorted(records, key=lambda record: record["ticks"])
+def read_runs(folder: pathlib.Path) -> dict[int, EvaluationRun]:
+    """:return: seed -> the evaluations of that seed (``sb3_eps.results``' reader of the committed records)."""
+    runs = {run.seed: run for run in map(read_evaluation_run, sorted(folder.glob("*_seed*.jsonl")))}
     if not runs:
-        raise SystemExit(f"{folder}: no <name>_seed<k>.jsonl record files")
+        raise SystemExit(f"{folder}: no <algo>_<env id>_seed<k>.jsonl record files")
     return runs
 
 
-def ticks_to(curve: list[dict], level: float) -> int | None:
+def ticks_to(run: EvaluationRun, level: float) -> int | None:
     """:return: the ticks of the first evaluation at or above ``level``, or None."""
-    return next((record["ticks"] for record in curve if record["success_rate"] >= level), None)
+    reached = run.ticks[run.metrics["success_rate"] >= level]
+    return int(reached[0]) if len(reached) else None
 
 
-def last_mean(curve: list[dict], budget: int, n: int = 3) -> float:
+def last_mean(run: EvaluationRun, budget: int, n: int = 3) -> float:
     """:return: the mean success of the last ``n`` evaluations at or before ``budget`` ticks."""
-    within = [record["success_rate"] for record in curve if record["ticks"] <= budget]
-    return float(np.mean(within[-n:])) if within else float("nan")
+    within = run.metrics["success_rate"][run.ticks <= budget]
+    return float(np.mean(within[-n:])) if len(within) else float("nan")
 
 
-def area(curve: list[dict], budget: int) -> float:
+def area(run: EvaluationRun, budget: int) -> float:
     """:return: the area under success(ticks) on [0, budget] over ``budget`` (0 at 0 ticks; the last value held)."""
-    x = [0.0] + [float(r["ticks"]) for r in curve if r["ticks"] <= budget]
-    y = [0.0] + [float(r["success_rate"]) for r in curve if r["ticks"] <= budget]
-    x.append(float(budget))
-    y.append(y[-1])
-    return float(np.sum((np.diff(x)) * (np.array(y[1:]) + np.array(y[:-1])) / 2) / budget)
+    within = run.ticks <= budget
+    x = np.concatenate([[0.0], run.ticks[within], [budget]])
+    y = np.concatenate([[0.0], run.metrics["success_rate"][within]])
+    y = np.append(y, y[-1])
+    return float(np.trapezoid(y, x) / budget)
 
 
-def summary(runs: dict[int, list[dict]], seeds: list[int], budget: int) -> dict[str, list]:
+def last_value(run: EvaluationRun, key: str) -> int:
+    """:return: the last record's ``key`` (0 when the records do not have it: a run without EPS)."""
+    return int(run.metrics[key][-1]) if key in run.metrics else 0
+
+
+def summary(runs: dict[int, EvaluationRun], seeds: list[int], budget: int) -> dict[str, list]:
     """:return: per-seed figures, in the order of ``seeds``."""
     return {
         "to80": [ticks_to(runs[s], 0.8) for s in seeds],
         "to90": [ticks_to(runs[s], 0.9) for s in seeds],
         "last3": [last_mean(runs[s], budget) for s in seeds],
         "auc": [area(runs[s], budget) for s in seeds],
-        "end": [max(r["ticks"] for r in runs[s]) for s in seeds],
-        "eps_ticks": [runs[s][-1].get("eps_ticks", 0) for s in seeds],
-        "crossovers": [runs[s][-1].get("eps_crossovers", 0) for s in seeds],
-        "rounds": [runs[s][-1].get("eps_rounds", 0) for s in seeds],
+        "eps_ticks": [last_value(runs[s], "eps_ticks") for s in seeds],
+        "crossovers": [last_value(runs[s], "eps_crossovers") for s in seeds],
+        "rounds": [last_value(runs[s], "eps_rounds") for s in seeds],
     }
 
 
-def mean_curve(runs: dict[int, list[dict]], seeds: list[int], at: list[int]) -> list[float]:
+def mean_curve(runs: dict[int, EvaluationRun], seeds: list[int], at: list[int]) -> list[float]:
     """:return: the mean over seeds of success interpolated at ``at`` ticks."""
-    return [
-        float(
-            np.mean(
-                [
-                    np.interp(t, [r["ticks"] for r in runs[s]], [r["success_rate"] for r in runs[s]])
-                    for s in seeds
-                ]
-            )
-        )
-        for t in at
-    ]
+    curves = [np.interp(at, runs[s].ticks, runs[s].metrics["success_rate"]) for s in seeds]
+    return [float(value) for value in np.mean(curves, axis=0)]
 
 
 def report(base_dir: pathlib.Path, eps_dir: pathlib.Path, budget: int, target_ticks: int) -> str:
     base, eps = read_runs(base_dir), read_runs(eps_dir)
-    finished = {seed for seed, curve in {**base, **eps}.items() if curve[-1]["ticks"] >= budget}
-    unfinished = {seed for runs in (base, eps) for seed, curve in runs.items() if curve[-1]["ticks"] < budget}
-    seeds = sorted((set(base) & set(eps) & finished) - unfinished)
+    unfinished = {seed for runs in (base, eps) for seed, run in runs.items() if run.ticks[-1] < budget}
+    seeds = sorted((set(base) & set(eps)) - unfinished)
     if unfinished:
         print(f"left out, not at {budget} ticks yet: seeds {sorted(unfinished)}")
     if not seeds:

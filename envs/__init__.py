@@ -160,16 +160,12 @@ def _register_with_gymnasium() -> None:
             gymnasium.register(id=env_id, entry_point=spec.entry_point, kwargs=dict(spec.fixed_kwargs))
 
 
-def _make_registered(env_id: str, **kwargs: Any) -> ParallelEnv:
-    """The entry point PettingZoo's registry calls: :func:`make_parallel_env`, so an id's fixed arguments hold."""
-    return make_parallel_env(env_id, **kwargs)
-
-
 def _register_with_pettingzoo() -> None:
-    # PettingZoo 1.27's registry (``pettingzoo.register``); it warns when an id is registered twice.
+    # PettingZoo 1.27's registry (``pettingzoo.register``); it warns when an id is registered twice. The entry point
+    # is make_parallel_env, so an id's fixed arguments hold there too.
     for env_id in _PARALLEL_SPECS:
         if env_id not in pettingzoo.parallel_registry:
-            pettingzoo.register("parallel", env_id, entry_point=functools.partial(_make_registered, env_id))
+            pettingzoo.register("parallel", env_id, entry_point=functools.partial(make_parallel_env, env_id))
 
 
 _register_with_gymnasium()
