@@ -10,12 +10,14 @@ on the local backend against the same runs one after another.
 - **parts**: where the time of a step of the default layout goes (sending the actions, the main process's own
   block, waiting for and reading the workers' replies, the rest), what a block of worlds costs alone and while
   another process steps worlds on the other core (the cores share hardware: contention).
-- **train**: GDQ on the same worlds in process and in the default layout, after a warm-up, the two models
+- **train**: GDQ on the same worlds in process, in the default layout, and with every world in ``C - 1`` workers
+  while the main process learns (``overlap_training=True``, ``main_worlds=0``), after a warm-up, the models
   training in turns of ``--train-steps / --train-slices`` agent-steps (a slow spell of the machine falls on
-  both), torch on one thread in the main process, with the settings of ``benchmarks/train_throughput.py`` (package defaults, one gradient step every 4 vector steps) and with its
-  ``zoo_configs/gdq.yml`` entry for ``MultiRobotNav-4-v0`` (one gradient step per vector step, 30-step returns,
-  recomputed global values); ticks per second and the ratio. Only the env part of a tick runs in the workers, so
-  the more learning per tick, the smaller the gain (Amdahl).
+  all), torch on one thread in the main process, with the settings of ``benchmarks/train_throughput.py`` (package
+  defaults, one gradient step every 4 vector steps) and with its ``zoo_configs/gdq.yml`` entry for
+  ``MultiRobotNav-4-v0`` (one gradient step per vector step); ticks per second and the ratios. Without overlap,
+  only the env part of a tick runs in the workers (Amdahl: the more learning per tick, the smaller the gain);
+  with it, a tick costs about the larger of its learning and its env step.
 - **projection**: from the measured cost of one world tick in process (``t_w``) and the measured cost per extra
   process of the default layout (``c``: a step of ``S`` processes, the main one and ``S - 1`` workers, holding
   ``n / S`` worlds each costs ``(n / S) t_w + (S - 1) c``), the ratio expected with ``K`` cores, for env stepping
@@ -58,12 +60,15 @@ from sb3_eps.zoo.schema import algorithm_kwargs
 ENV_ID = "MultiRobotNav-4-v0"
 #: in process; SubprocVecEnv's default layout; every world in a worker (one per core, the earlier default)
 MODES = ("dummy", "subproc", "workers")
-TRAIN_MODES = ("dummy", "subproc")
+#: training: in process; the default layout; every world in workers while the main process learns (overlap_training)
+TRAIN_MODES = ("dummy", "subproc", "overlap")
 
 
 def make(mode: str, n_worlds: int, seed: int = 0) -> Any:
-    if mode == "workers":
-        kwargs = {"n_workers": default_n_workers(n_worlds), "main_worlds": 0}
+    if mode in ("workers", "overlap"):
+        # overlap: the main process learns while the workers step, so it keeps no worlds and leaves them a core
+        workers = default_n_workers(n_worlds) if mode == "workers" else max(1, default_n_workers(n_worlds) - 1)
+        kwargs = {"n_workers": workers, "main_worlds": 0}
         return make_vec_env(ENV_ID, n_envs=n_worlds, seed=seed, vec_env_cls="subproc", vec_env_kwargs=kwargs)
     return make_vec_env(ENV_ID, n_envs=n_worlds, seed=seed, vec_env_cls=mode)
 
@@ -100,6 +105,7 @@ def train_models(n_worlds: int, warmup: int, config: str) -> dict[str, Any]:
     for mode in TRAIN_MODES:
         kwargs = gdq_kwargs(config)
         kwargs["learning_starts"] = warmup // 2
+        kwargs["overlap_training"] = mode == "overlap"
         models[mode] = GDQ("MlpPolicy", make(mode, n_worlds), seed=0, **kwargs)
         models[mode].learn(warmup)
         _time_steps(models[mode].env)
@@ -249,13 +255,18 @@ def train_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
             for model in models.values():
                 model.env.close()
             tick = {mode: sum(values) / (len(values) * size / n_agents) for mode, values in seconds.items()}
-            paired = statistics.median(d / w for d, w in zip(seconds["dummy"], seconds["subproc"]))
+            paired = {
+                mode: statistics.median(d / w for d, w in zip(seconds["dummy"], seconds[mode]))
+                for mode in TRAIN_MODES[1:]
+            }
             if config == args.train_configs[0]:
                 results[f"train{n_worlds}"] = tick
             print(
                 f"train GDQ ({config} settings) {n_worlds} worlds: in process {1 / tick['dummy']:5.0f} ticks/s, "
                 f"default layout {1 / tick['subproc']:5.0f} ticks/s -> {tick['dummy'] / tick['subproc']:.2f}x per tick "
-                f"(median of {args.train_slices} slice ratios {paired:.2f}x)",
+                f"(median of {args.train_slices} slice ratios {paired['subproc']:.2f}x); learning while all worlds "
+                f"step in workers (overlap_training) {1 / tick['overlap']:5.0f} ticks/s -> "
+                f"{tick['dummy'] / tick['overlap']:.2f}x (slice median {paired['overlap']:.2f}x)",
                 flush=True,
             )
             print(

@@ -191,6 +191,62 @@ def test_gdq_trains_the_same_with_workers() -> None:
         assert th.equal(weights[1][key], value), key
 
 
+def _train_gdq(vec_env_cls, overlap_training: bool, **vec_env_kwargs) -> tuple[dict, int]:
+    venv = make_vec_env(
+        "MultiRobotNav-2-v0", n_envs=2, env_kwargs={"max_episode_steps": 30}, vec_env_cls=vec_env_cls,
+        vec_env_kwargs=vec_env_kwargs or None,
+    )  # fmt: skip
+    try:
+        model = GDQ(
+            "MlpPolicy", venv, seed=3, learning_starts=100, batch_size=16, buffer_size=2_000, train_freq=2,
+            gradient_steps=2, overlap_training=overlap_training,
+            policy_kwargs={"net_arch": [16], "stream_arch": [16], "global_net_arch": [16]},
+        )  # fmt: skip
+        model.learn(800)
+        return {k: v.clone() for k, v in model.policy.state_dict().items()}, model._n_updates
+    finally:
+        venv.close()
+
+
+def test_overlap_training_learns_while_the_workers_step_and_gives_the_same_results_in_both_modes() -> None:
+    """overlap_training runs the gradient steps between step_async and step_wait: the same network in process
+    and with every world in a worker, and another network than without it (a tick's transition joins the buffer
+    after its gradient steps). Gradient steps: as many as without it, less the one training call that found the
+    buffer still empty (its first n-step row came with that very tick)."""
+    in_process, n_in_process = _train_gdq(DummyVecEnv, True)
+    workers, n_workers = _train_gdq(SubprocVecEnv, True, main_worlds=0, n_workers=1)
+    plain, n_plain = _train_gdq(DummyVecEnv, False)
+    assert n_in_process == n_workers > 0
+    assert n_plain - n_in_process in (0, 2)  # gradient_steps=2 per call
+    for key, value in in_process.items():
+        assert th.equal(workers[key], value), key
+    assert any(not th.equal(plain[key], value) for key, value in in_process.items())
+
+
+def test_a_step_in_flight_refuses_other_commands_and_closes_cleanly(closing) -> None:
+    venv = subproc(closing, ROBOTS, n_envs=2, vec_env_kwargs={"main_worlds": 0, "n_workers": 1})
+    venv.reset()
+    with pytest.raises(RuntimeError, match="step_async"):
+        venv.step_wait()
+    venv.step_async(np.zeros(venv.num_envs, dtype=np.int64))
+    with pytest.raises(RuntimeError, match="in flight"):
+        venv.reset()
+    with pytest.raises(RuntimeError, match="in flight"):
+        venv.get_attr("n_robots")
+    obs, *_ = venv.step_wait()
+    assert obs.shape[0] == venv.num_envs
+    venv.step_async(np.zeros(venv.num_envs, dtype=np.int64))
+    venv.close()  # drains the step's replies before it asks the workers to close
+    assert all(not process.is_alive() for process in venv._processes)
+
+
+def test_overlap_training_needs_train_freq_in_steps() -> None:
+    venv = make_vec_env("MultiRobotNav-2-v0", n_envs=1)
+    with pytest.raises(ValueError, match="overlap_training needs train_freq in steps"):
+        GDQ("MlpPolicy", venv, train_freq=(1, "episode"), overlap_training=True)
+    venv.close()
+
+
 def test_eps_evaluation_workers_next_to_the_world_workers() -> None:
     """EPS forks its evaluation workers while the training worlds live in their own workers."""
     results = []
@@ -289,7 +345,10 @@ def test_workers_ignore_sigterm_until_the_main_process_closes_them(closing) -> N
             "start_method 'teleport'",
         ),
         ({"vec_env_cls": "subproc", "vec_env_kwargs": {"workers": 2}}, r"vec_env_kwargs \['workers'\]"),
-        ({"vec_env_cls": "subproc", "vec_env_kwargs": {"main_worlds": 2}}, r"main_worlds must be an int in \[0, 1\]"),
+        (
+            {"vec_env_cls": "subproc", "vec_env_kwargs": {"main_worlds": 2}},
+            r"main_worlds must be an int in \[0, 1\]",
+        ),
         ({"vec_env_cls": "subproc", "vec_env_kwargs": {"main_worlds": -1}}, "main_worlds must be"),
         ({"vec_env_cls": "subproc", "vec_env_kwargs": {"main_worlds": True}}, "main_worlds must be"),
         ({"vec_env_cls": "subproc", "vec_env_kwargs": {"spin_s": -0.1}}, "spin_s must be a number"),
@@ -326,7 +385,11 @@ def test_a_run_whose_worker_dies_stops_with_one_line_and_keeps_its_checkpoint(tm
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == 1
     (line,) = stderr.strip().splitlines()
-    assert "error:" in line and re.search(r"worlds? (1|0-1) of Corridor-2-v0", line) and "killed by signal 9" in line
+    assert (
+        "error:" in line
+        and re.search(r"worlds? (1|0-1) of Corridor-2-v0", line)
+        and "killed by signal 9" in line
+    )
     assert "--resume" in line and "Traceback" not in stderr
     (run,) = tmp_path.glob("gdq/*")
     assert (run / "checkpoint.zip").is_file()

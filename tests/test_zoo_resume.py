@@ -149,6 +149,44 @@ def test_resume_equals_the_uninterrupted_run(uninterrupted, tmp_path, stop, vec_
     assert train.main(["--resume", str(run), "--verbose", "0"]) == 0
 
 
+def test_overlap_training_with_workers_resumes_to_the_in_process_run(tmp_path) -> None:
+    """``overlap_training`` (learning while the worlds step): every training world goes to a worker, a SIGTERM
+    and ``--resume`` lose nothing, and the result equals the same config trained in process."""
+    argv = [*ARGV, "overlap_training:True"]
+    expected = tmp_path / "in_process"
+    assert train.main([*argv, "-f", str(expected)]) == 0
+    folder = tmp_path / "workers"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "sb3_eps.train", *argv, "-f", str(folder), "--vec-env", "subproc"]
+    )
+    deadline = time.time() + 120
+    while not list(folder.glob("eps_gdq/*/checkpoint.zip")):
+        assert process.poll() is None and time.time() < deadline, "training ended before it could be stopped"
+        time.sleep(0.02)
+    process.send_signal(signal.SIGTERM)
+    assert process.wait(timeout=120) == 0
+    run = run_folder(folder)
+    assert 0 < read_checkpoint_meta(run / "checkpoint.zip")["num_timesteps"] < N_TIMESTEPS
+    assert train.main(["--resume", str(run), "--verbose", "0"]) == 0
+    assert_equal_runs(run, run_folder(expected))
+
+
+def test_the_training_worlds_of_an_overlapping_config_all_go_to_workers() -> None:
+    from sb3_eps.zoo.config import resolve_config
+    from sb3_eps.zoo.exp_manager import build_env
+
+    config = resolve_config("gdq", ENV_ID, hyperparams=["n_envs:3", "overlap_training:True"])
+    venv = build_env(config, seed=0, vec_env="subproc")
+    try:
+        assert venv.main_worlds == 0 and venv.n_workers >= 1
+    finally:
+        venv.close()
+    eval_venv = build_env(
+        config, seed=0, n_envs=2, vec_env="subproc"
+    )  # evaluation worlds: the default layout
+    eval_venv.close()
+
+
 def test_resume_needs_a_checkpoint(tmp_path) -> None:
     (tmp_path / "args.yml").write_text("algo: gdq\nenv: CooperativeNavigation-v0\nn_timesteps: 10\n")
     (tmp_path / "config.yml").write_text("CooperativeNavigation-v0:\n  n_timesteps: 10\n")

@@ -25,7 +25,14 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.save_util import load_from_pkl, load_from_zip_file
-from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, RolloutReturn, Schedule, TrainFreq
+from stable_baselines3.common.type_aliases import (
+    GymEnv,
+    MaybeCallback,
+    RolloutReturn,
+    Schedule,
+    TrainFreq,
+    TrainFrequencyUnit,
+)
 from stable_baselines3.common.utils import LinearSchedule, safe_mean, should_collect_more_steps
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
@@ -100,6 +107,12 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     :param exploration_final_eps: final epsilon (0.02, ALGORITHMS.md section 1)
     :param max_grad_norm: gradient clipping norm
     :param team_reward_mode: team reward of a tick: ``"sum"`` or ``"mean"`` of the alive agents' rewards
+    :param overlap_training: run the gradient steps due after a collection while its last tick's worlds step
+        (between the env's ``step_async`` and ``step_wait``), so that with worlds in worker processes
+        (``make_vec_env(..., vec_env_cls="subproc")``, best with ``main_worlds=0``) learning and simulation run
+        side by side. The only change to training: a tick's own transition joins the replay buffer after the
+        gradient steps of that tick instead of before them. Same seed, same results with worlds in process or in
+        workers. Needs ``train_freq`` in steps
     :param stats_window_size: episodes (worlds, not agents) averaged in the rollout logs
     :param tensorboard_log: TensorBoard log folder (None: no TensorBoard)
     :param policy_kwargs: keyword arguments of the policy (``net_arch``, ``stream_arch``, ``agent_target``...)
@@ -144,6 +157,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         exploration_final_eps: float = 0.02,
         max_grad_norm: float = 10.0,
         team_reward_mode: str = "sum",
+        overlap_training: bool = False,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -202,6 +216,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self.exploration_rate = exploration_initial_eps
         self.max_grad_norm = max_grad_norm
         self.team_reward_mode = team_reward_mode
+        self.overlap_training = bool(overlap_training)
+        self._trained_ahead = False  # overlap_training ran this collection's gradient steps already
         self._collector: NStepJointCollector | None = None
         self._last_state: np.ndarray | None = None
         self.n_refused_updates = 0  # gradient steps refused for a non-finite loss or gradient
@@ -315,6 +331,11 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             self.exploration_initial_eps, self.exploration_final_eps, self.exploration_fraction
         )
         self._convert_train_freq()
+        if self.overlap_training and self.train_freq.unit != TrainFrequencyUnit.STEP:  # type: ignore[union-attr]
+            raise ValueError(
+                "overlap_training needs train_freq in steps (a collection of episodes ends only after its last "
+                f"step, too late to overlap), got {self.train_freq!r}"
+            )
 
     def learn(
         self: SelfMultiAgentOffPolicyAlgorithm,
@@ -422,11 +443,15 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     ) -> RolloutReturn:
         """Step every world ``train_freq`` times, store joint rows, count episodes per world (not agent)."""
         self.policy.set_training_mode(False)
+        self._trained_ahead = False
         n_collected_steps, n_collected_episodes = 0, 0
         callback.on_rollout_start()
         while should_collect_more_steps(train_freq, n_collected_steps, n_collected_episodes):
             actions, _ = self._sample_action(learning_starts, None, env.num_envs)
-            new_obs, rewards, dones, infos = env.step(actions)
+            env.step_async(actions)
+            if self.overlap_training and n_collected_steps + 1 >= train_freq.frequency:
+                self._train_ahead(env.num_envs, n_collected_steps + 1)
+            new_obs, rewards, dones, infos = env.step_wait()
             self.num_timesteps += env.num_envs
             n_collected_steps += 1
             callback.update_locals(locals())
@@ -445,6 +470,17 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                     self.dump_logs()
         callback.on_rollout_end()
         return RolloutReturn(n_collected_steps * env.num_envs, n_collected_episodes, continue_training=True)
+
+    def _train_ahead(self, n_envs: int, n_steps: int) -> None:
+        """``overlap_training``: the gradient steps that SB3's ``learn`` runs after this collection, run now while
+        the worlds step; its own call to :meth:`train` then does nothing (the same condition decides both)."""
+        if self.num_timesteps + n_envs <= self.learning_starts:
+            return
+        gradient_steps = self.gradient_steps if self.gradient_steps >= 0 else n_steps * n_envs
+        if gradient_steps > 0:
+            self.train(gradient_steps, self.batch_size)
+            self._trained_ahead = True
+            self.policy.set_training_mode(False)
 
     def _store_joint_transition(
         self,
@@ -582,6 +618,9 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         """Sample joint rows, minimise the algorithm's loss, update priorities and target networks."""
+        if self._trained_ahead:  # done while the worlds stepped (overlap_training)
+            self._trained_ahead = False
+            return
         assert self.replay_buffer is not None
         if self.replay_buffer.size() == 0:
             return  # n-step rows appear n ticks after their first step: nothing to learn from yet
@@ -671,7 +710,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         super().dump_logs()
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_collector", "_last_state", "_target_lists"]
+        return [*super()._excluded_save_params(), "_collector", "_last_state", "_target_lists", "_trained_ahead"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "policy.optimizer"], []

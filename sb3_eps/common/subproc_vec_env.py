@@ -83,6 +83,10 @@ _DOING = {
 }
 
 
+# What a pickled vec env leaves out: the live processes, their pipes, and the main block's worlds (snapshotted).
+_PROCESS_LOCAL = ("_remotes", "_processes", "_ready", "_closed", "_slices", "_main_slice", "_local", "_step_in_flight")
+
+
 class VecEnvWorkerError(RuntimeError):
     """A worker process of a :class:`SubprocMultiAgentVecEnv` died, or one of its worlds raised."""
 
@@ -119,6 +123,13 @@ def default_layout(n_worlds: int, cores: int | None = None) -> tuple[int, int]:
     if steppers < 2:
         return 0, 1
     return len(split_worlds(n_worlds, steppers)[0]), steppers - 1
+
+
+def overlap_layout(n_worlds: int, cores: int | None = None) -> dict[str, int]:
+    """The layout for an algorithm with ``overlap_training``, as ``vec_env_kwargs``: every world in workers, one
+    per core but the main process's (which learns while they step), at most one per world."""
+    cores = available_cores() if cores is None else cores
+    return {"main_worlds": 0, "n_workers": max(1, min(n_worlds, cores - 1))}
 
 
 def split_worlds(n_worlds: int, n_workers: int) -> list[range]:
@@ -421,6 +432,7 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
     def _start_workers(self, payloads: list[tuple[str, Any]], main_payload: tuple[str, Any] | None) -> None:
         context: Any = mp.get_context(self.start_method)
         self._closed = False
+        self._step_in_flight = False
         self._remotes: list[Connection] = []
         self._processes: list[Any] = []
         self._ready: list[Callable[[], Any]] = []
@@ -532,11 +544,23 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
     def _ask_all(self, command: str, data: Sequence[Any] | None = None, local: Any = None) -> list[Any]:
         """Send ``command`` to every worker (``data[i]`` to worker ``i``), run it on the main process's block
         meanwhile (with ``local`` as its data), then gather the replies in order, the main block's first."""
+        self._send_all(command, data)
+        return self._finish_all(command, local)
+
+    def _send_all(self, command: str, data: Sequence[Any] | None) -> None:
+        if self._step_in_flight:
+            raise RuntimeError(
+                f"cannot {_DOING.get(command, command).replace('its', 'the')} while a step is in flight: call "
+                "step_wait() after step_async() first"
+            )
         for i in range(self.n_workers):
             if command == "step" and data is not None:
                 self._send_step(i, *data[i])
             else:
                 self._send(i, command, None if data is None else data[i])
+
+    def _finish_all(self, command: str, local: Any) -> list[Any]:
+        """The second half of :meth:`_ask_all`: the main block's share, then the workers' replies."""
         doing = _DOING.get(command, command)
         mine = self._while_workers_run(lambda venv: _handle(venv, command, local), doing)
         replies = self._gather(range(self.n_workers), doing)
@@ -578,13 +602,21 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         self.alive = np.ones(self.num_envs, dtype=bool)
         return obs
 
-    def step_wait(self) -> VecEnvStepReturn:
-        """Step every world once (each worker its block, the main process its own, side by side) and return all
-        agents' results."""
+    def step_async(self, actions: np.ndarray) -> None:
+        """Send each worker its block's actions: the workers step their worlds from now on, while the caller does
+        other work (an algorithm with ``overlap_training`` learns meanwhile) until :meth:`step_wait`."""
+        super().step_async(actions)
         actions, want_state = self._actions, self._want_state
-        replies = self._ask_all(
-            "step", [(actions[part], want_state) for part in self._slices], (actions[self._main_slice], want_state)
-        )
+        self._send_all("step", [(actions[part], want_state) for part in self._slices])
+        self._step_in_flight = True
+
+    def step_wait(self) -> VecEnvStepReturn:
+        """Step the main process's block (the workers step theirs meanwhile, since :meth:`step_async`), then
+        return all agents' results."""
+        if not self._step_in_flight:
+            raise RuntimeError("step_wait() needs a step_async() before it")
+        self._step_in_flight = False
+        replies = self._finish_all("step", (self._actions[self._main_slice], self._want_state))
         obs, rewards, dones, alive = (self._join([reply[i] for reply in replies]) for i in (0, 1, 2, 4))
         infos = [info for reply in replies for info in reply[3]]
         self.alive = alive
@@ -612,6 +644,12 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         if self._closed:
             return
         self._closed = True
+        if self._step_in_flight:  # the workers' step replies come before their answers to "close"
+            self._step_in_flight = False
+            try:
+                self._gather(range(self.n_workers), _DOING["step"])
+            except VecEnvWorkerError:
+                pass
         for remote in self._remotes:
             try:
                 remote.send(("close", None))
@@ -646,6 +684,8 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         args: tuple[Any, ...] = (),
         kwargs: dict[str, Any] | None = None,
     ) -> dict[int, Any]:
+        if self._step_in_flight:
+            raise RuntimeError(f"cannot run {kind} {name or ''} while a step is in flight: call step_wait() first")
         wanted = set(worlds)
         asked = []
         for i, block in enumerate(self._blocks):
@@ -681,7 +721,7 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         state = {
             key: value
             for key, value in self.__dict__.items()
-            if key not in ("_remotes", "_processes", "_ready", "_closed", "_slices", "_main_slice", "_local")
+            if key not in _PROCESS_LOCAL
         }
         if self._local is not None:
             state["_main_snapshot"], snapshots = snapshots[0], snapshots[1:]

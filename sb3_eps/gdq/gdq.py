@@ -104,6 +104,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         exploration_final_eps: float = 0.02,
         max_grad_norm: float = 10.0,
         team_reward_mode: str = "mean",
+        overlap_training: bool = False,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,

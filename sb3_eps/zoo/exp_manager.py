@@ -34,9 +34,9 @@ from stable_baselines3.common.save_util import load_from_zip_file
 
 import envs
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
-from sb3_eps.common.subproc_vec_env import VecEnvWorkerError
+from sb3_eps.common.subproc_vec_env import VecEnvWorkerError, overlap_layout
 from sb3_eps.common.utils import describe_space
-from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env
+from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env, vec_env_mode
 from sb3_eps.version import __version__
 from sb3_eps.zoo.callbacks import (
     MONITOR_NAME,
@@ -234,19 +234,22 @@ def build_env(
     vec_env: str | None = None,
 ) -> MultiAgentVecEnv:
     """Make the vector env of a config (``env_id`` / ``n_envs`` override the config's, for evaluation worlds;
-    ``vec_env``, ``"dummy"`` or ``"subproc"``, the config's ``vec_env``).
+    ``vec_env``, ``"dummy"`` or ``"subproc"``, the config's ``vec_env``). The training worlds of a config with
+    ``overlap_training`` in workers all go to workers (:func:`~sb3_eps.common.subproc_vec_env.overlap_layout`).
 
     :raises ConfigError: when the env refuses the config's ``env_kwargs``
     """
     env_id = env_id or config.env_id
+    n_worlds = n_envs or config.entry.get("n_envs", 1)
     try:
+        mode = vec_env_mode(vec_env or config.entry.get("vec_env"))
+        vec_env_kwargs = None
+        if mode == "subproc" and n_envs is None and config.entry.get("overlap_training"):
+            vec_env_kwargs = overlap_layout(n_worlds)  # the training worlds: the main process learns beside them
         return make_vec_env(
-            env_id,
-            n_envs=n_envs or config.entry.get("n_envs", 1),
-            seed=seed,
-            env_kwargs=env_kwargs_of(config),
-            vec_env_cls=vec_env or config.entry.get("vec_env"),
-        )
+            env_id, n_envs=n_worlds, seed=seed, env_kwargs=env_kwargs_of(config), vec_env_cls=mode,
+            vec_env_kwargs=vec_env_kwargs,
+        )  # fmt: skip
     except (TypeError, ValueError) as error:
         raise ConfigError(
             f"{config.source}: env_kwargs {env_kwargs_of(config)} for {env_id}: {error}"

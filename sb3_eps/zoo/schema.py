@@ -158,6 +158,7 @@ ALGORITHM_PARAMS: dict[str, Param] = {
     "exploration_final_eps": Param("float", low=0, high=1),
     "max_grad_norm": Param("float", low=0, open_low=True),
     "team_reward_mode": Param("choice", choices=("sum", "mean")),
+    "overlap_training": Param("bool"),
     "stats_window_size": Param("int", low=1),
 }
 #: Constructor arguments that come from the command line, never from a config.
