@@ -495,66 +495,57 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         :return: the number of worlds whose episode ended at this step
         """
         assert self._collector is not None and self._last_state is not None and self._last_obs is not None
-        n_worlds, n_agents = self.n_worlds, self.n_agents
-        next_obs = np.array(new_obs, dtype=np.float32, copy=True)
-        for index in np.flatnonzero(dones):
-            next_obs[index] = infos[index]["terminal_observation"]
-        alive = np.fromiter((info.get("alive", True) for info in infos), dtype=bool, count=len(infos))
-        truncated = np.fromiter(
-            (info.get("TimeLimit.truncated", False) for info in infos), dtype=bool, count=len(infos)
-        )
-        ended = np.asarray(dones, dtype=bool) & alive
-        terminated = ended & ~truncated
-        world_ended = np.asarray(dones, dtype=bool).reshape(n_worlds, n_agents).all(axis=1)
+        shape = (self.n_worlds, self.n_agents)
+        step = _read_step(new_obs, dones, infos, shape)
         new_state = self._global_state()
-        last_obs = np.asarray(self._last_obs, dtype=np.float32).reshape(n_worlds, n_agents, -1)
-        shape = (n_worlds, n_agents)
-        rewards = np.asarray(rewards)
-        values = next_values = None
-        if self.replay_buffer is not None and self.replay_buffer.store_values:
-            # v and v' as the agent network sees them now (the paper's "stored at collection time").
-            with th.no_grad():
-                both = self.policy.q_net.value(
-                    th.as_tensor(
-                        np.concatenate([last_obs.reshape(-1, last_obs.shape[-1]), next_obs]),
-                        device=self.device,
-                    )
-                )
-            values, next_values = both.cpu().numpy().reshape(2, n_worlds, n_agents)
-        refused = _non_finite_worlds(last_obs, next_obs.reshape((*shape, -1)), rewards.reshape(shape))
-        for world in range(n_worlds):
+        last_obs = np.asarray(self._last_obs, dtype=np.float32).reshape((*shape, -1))
+        next_obs = step.next_observations.reshape((*shape, -1))
+        rewards = np.asarray(rewards, dtype=np.float32).reshape(shape)
+        actions = np.asarray(actions, dtype=np.int64).reshape(shape)
+        values = self._collection_values(last_obs, next_obs)
+        refused = _non_finite_worlds(last_obs, next_obs, rewards)
+        for world in range(self.n_worlds):
             if world in refused:  # never stored; windows across the bad tick are dropped too
                 self._collector.pending[world].clear()
                 warnings.warn(f"{refused[world]}: the tick is not stored", RuntimeWarning, stacklevel=3)
                 continue
             next_state = new_state[world]
-            world_terminated = False
-            if world_ended[world]:
-                if self.uses_global_state:
-                    next_state = infos[world * n_agents].get("terminal_state", next_state)
-                world_terminated = not truncated.reshape(shape)[world][alive.reshape(shape)[world]].any()
-            agents = slice(world * n_agents, (world + 1) * n_agents)
+            if step.world_ended[world] and self.uses_global_state:
+                next_state = infos[world * self.n_agents].get("terminal_state", next_state)
             self._collector.add(
                 world,
                 _Tick(
                     observations=last_obs[world],
-                    actions=np.asarray(actions[agents], dtype=np.int64),
-                    rewards=np.asarray(rewards[agents], dtype=np.float32),
-                    next_observations=next_obs[agents],
-                    terminated=terminated[agents],
-                    ended=ended[agents],
-                    alive=alive[agents],
+                    actions=actions[world],
+                    rewards=rewards[world],
+                    next_observations=next_obs[world],
+                    terminated=step.terminated[world],
+                    ended=step.ended[world],
+                    alive=step.alive[world],
                     state=self._last_state[world],
                     next_state=np.asarray(next_state, dtype=np.float32),
-                    world_ended=bool(world_ended[world]),
-                    world_terminated=world_terminated,
-                    values=None if values is None else values[world],
-                    next_values=None if next_values is None else next_values[world],
+                    world_ended=bool(step.world_ended[world]),
+                    # an episode whose every living agent reached a real end, not the time limit
+                    world_terminated=bool(
+                        step.world_ended[world] and not step.truncated[world][step.alive[world]].any()
+                    ),
+                    values=None if values is None else values[0][world],
+                    next_values=None if values is None else values[1][world],
                 ),
             )
         self._last_obs = new_obs  # type: ignore[assignment]
         self._last_state = new_state
-        return int(world_ended.sum())
+        return int(step.world_ended.sum())
+
+    def _collection_values(
+        self, observations: np.ndarray, next_observations: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Hook: per-agent values to store with each tick, computed at collection time, as ``(v, v')`` arrays of
+        shape ``(n_worlds, n_agents)``; None (the default) stores none. GDQ's ``global_values="stored"`` uses it.
+
+        :param observations: ``(n_worlds, n_agents, obs)`` of the tick; ``next_observations`` the same after it
+        """
+        return None
 
     # ------------------------------------------------------------------ learning
     def _compute_loss(
@@ -746,6 +737,40 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         if policy_name not in self.policy_aliases:
             raise ValueError(f"unknown policy {policy_name!r}; use one of {sorted(self.policy_aliases)}")
         return self.policy_aliases[policy_name]
+
+
+class _Step(NamedTuple):
+    """What one vector step says of each agent, as ``(n_worlds, n_agents)`` arrays (observations flat)."""
+
+    next_observations: np.ndarray  # (n_worlds * n_agents, obs): terminal observations where an episode ended
+    alive: np.ndarray  # the agent acted at this tick
+    truncated: np.ndarray  # its episode was cut by the time limit
+    ended: np.ndarray  # its episode (its life) ended at this tick
+    terminated: np.ndarray  # ended, and not by the time limit
+    world_ended: np.ndarray  # (n_worlds,): every agent of the world is done
+
+
+def _read_step(
+    new_obs: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]], shape: tuple[int, int]
+) -> _Step:
+    """Read the bridge's flags from a step's infos; patch in the terminal observations SB3 moved to the infos."""
+    next_obs = np.array(new_obs, dtype=np.float32, copy=True)
+    for index in np.flatnonzero(dones):
+        next_obs[index] = infos[index]["terminal_observation"]
+    alive = np.fromiter((info.get("alive", True) for info in infos), dtype=bool, count=len(infos))
+    truncated = np.fromiter(
+        (info.get("TimeLimit.truncated", False) for info in infos), dtype=bool, count=len(infos)
+    )
+    dones = np.asarray(dones, dtype=bool)
+    ended = dones & alive
+    return _Step(
+        next_observations=next_obs,
+        alive=alive.reshape(shape),
+        truncated=truncated.reshape(shape),
+        ended=ended.reshape(shape),
+        terminated=(ended & ~truncated).reshape(shape),
+        world_ended=dones.reshape(shape).all(axis=1),
+    )
 
 
 def _non_finite_worlds(

@@ -148,6 +148,24 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             raise ValueError(f"global_values must be one of {GLOBAL_VALUES}, got {mode!r}")
         return mode == "stored"
 
+    def _collection_values(
+        self, observations: np.ndarray, next_observations: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """``global_values="stored"``: v and v' as the agent network sees them at collection time (the paper's
+        way), one forward pass over both."""
+        if self.replay_buffer is None or not self.replay_buffer.store_values:
+            return None
+        n_obs = observations.shape[-1]
+        with th.no_grad():
+            both = self.policy.q_net.value(
+                th.as_tensor(
+                    np.concatenate([observations.reshape(-1, n_obs), next_observations.reshape(-1, n_obs)]),
+                    device=self.device,
+                )
+            )
+        values, next_values = both.cpu().numpy().reshape(2, *observations.shape[:2])
+        return values, next_values
+
     def _compute_loss(
         self, batch: JointReplayBufferSamples
     ) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
