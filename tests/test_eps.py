@@ -373,6 +373,41 @@ def test_it_runs_with_gdq_on_the_robot_worlds() -> None:
     assert callback.eps_ticks == sum(record["ticks_spent"] for record in callback.history) >= lengths.sum()
 
 
+def test_a_team_world_plays_every_robot_with_the_individual_and_counts_world_ticks() -> None:
+    """eval_env_id a multi-agent id: each individual drives all robots of its world (as in training); the same
+    numbers in process and in a worker; an episode's ticks are world ticks."""
+    model = tiny_model(GDQ, env_id="MultiRobotNav-2-v0", n_envs=1, train_freq=4)
+    network = model.policy.q_net
+    population = mutate_population(network_parameters(network), 2, 0.05, th.Generator().manual_seed(0), None)
+    results = []
+    for pool in (
+        InProcessEnvPool("MultiRobotNav-2-v0", {"max_episode_steps": 30}, 3, 2, network),
+        SubprocessEnvPool("MultiRobotNav-2-v0", {"max_episode_steps": 30}, 3, 2, network, n_workers=2),
+    ):
+        try:
+            results.append(evaluate_population(pool, population, [5, 6], timeout=60, fitness="outcome"))
+        finally:
+            pool.close()
+    np.testing.assert_array_equal(results[0].returns, results[1].returns)
+    np.testing.assert_array_equal(results[0].outcomes, results[1].outcomes)
+    assert 0 < results[0].lengths.max() <= 30 and results[0].valid.all()
+
+    callback = EvolutionCallback(
+        eval_env_id="MultiRobotNav-2-v0", eval_env_kwargs={"max_episode_steps": 30}, population_size=2,
+        period=40, n_eval_episodes=1, max_eps_share=None, n_workers=0, seed=0,
+    )  # fmt: skip
+    model.learn(2 * 100, callback=callback)
+    assert callback.n_rounds >= 2
+    lengths = np.array([record["episode_lengths"] for record in callback.history])
+    assert 0 < lengths.max() <= 30
+    assert callback.eps_ticks == sum(record["ticks_spent"] for record in callback.history) >= lengths.sum()
+
+
+def test_a_team_world_must_speak_the_models_language() -> None:
+    with pytest.raises(ValueError, match="observation_space"):
+        tiny_model(IQL).learn(30, callback=tiny_callback(eval_env_id="MultiRobotNav-2-v0"))
+
+
 def test_save_load_of_a_model_trained_with_eps(tmp_path) -> None:
     model = tiny_model(GDQ)
     callback = tiny_callback()
@@ -420,7 +455,6 @@ def test_sb3_dqn_works_too() -> None:
         ({"population_size": 0}, "population_size"),
         ({"mutation": "cauchy"}, "unknown mutation"),
         ({"eval_env_id": "NoSuchWorld-v0"}, "unknown eval_env_id"),
-        ({"eval_env_id": MPE}, "multi-agent"),
         ({"period_unit": "epochs"}, "period_unit"),
         ({"period": 0}, "period"),
         ({"n_eval_episodes": 0}, "n_eval_episodes"),

@@ -316,3 +316,26 @@ def test_gui_visuals_build() -> None:
     world.show_targets(env._targets)  # replaces the markers
     assert len(world._target_ids) == 2
     env.close()
+
+
+def test_a_team_world_as_one_gymnasium_env() -> None:
+    """TeamAsGymnasium (EPS's team worlds): stacked observations, one action per robot, the mean reward, the end of
+    the world's episode (a time limit: truncated, no success) with the team's record."""
+    from sb3_eps.common.parallel_wrappers import TeamAsGymnasium
+
+    env = TeamAsGymnasium(MultiRobotNavEnv(n_robots=2, max_episode_steps=5))
+    try:
+        obs, _ = env.reset(seed=0)
+        assert obs.shape == (2, 30) and env.observation_space.contains(obs)
+        assert env.action_space.nvec.tolist() == [20, 20]
+        with pytest.raises(ValueError, match="one per agent"):
+            env.step(np.zeros(3, dtype=np.int64))
+        for tick in range(5):
+            obs, reward, terminated, truncated, info = env.step(np.zeros(2, dtype=np.int64))  # stand still
+            assert np.isclose(reward, -0.005)
+            if tick < 4:
+                assert not (terminated or truncated) and info == {}
+        assert truncated and not terminated
+        assert info["is_success"] is False and info["team"]["ticks"] == 5
+    finally:
+        env.close()

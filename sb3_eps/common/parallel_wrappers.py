@@ -4,7 +4,8 @@ SuperSuit's ``pettingzoo_env_to_vec_env_v1`` needs every agent in every step, dr
 ``black_death_v3`` is broken in 3.11 (a phantom zero step, dead agents never flagged). :class:`FixedAgentSet` owns
 the end-of-life logic instead; :class:`SingleAgentParallelEnv` turns a gymnasium env into a one-agent world so the
 single-agent ids run through the same bridge (single-robot pre-training); :class:`ParallelEnvAsGymnasium` turns a
-one-agent ParallelEnv into a gymnasium env, the single-agent variant EPS evaluates in.
+one-agent ParallelEnv into a gymnasium env, the single-agent variant EPS evaluates in; :class:`TeamAsGymnasium`
+turns a whole multi-agent world into one gymnasium env whose agents all act with one policy (EPS's team worlds).
 """
 
 from __future__ import annotations
@@ -142,6 +143,88 @@ class ParallelEnvAsGymnasium(gymnasium.Env):
     def close(self) -> None:
         """Close the world."""
         self.env.close()
+
+
+class TeamAsGymnasium(gymnasium.Env):
+    """A multi-agent ParallelEnv seen as one gymnasium env played by a team that shares one policy.
+
+    EPS evaluates an individual in it the way training uses the shared network: every agent acts greedily with the
+    same weights, so fitness sees what a single-agent world cannot (the other robots, robot-robot collisions).
+
+    - Observation: ``(n_agents, *obs_shape)``, the agents' observations in ``possible_agents`` order (an agent
+      whose episode is over keeps its last one, as in training: :class:`FixedAgentSet`).
+    - Action: ``MultiDiscrete`` of one action per agent (those of finished agents are ignored).
+    - Reward: the mean of the agents' rewards of the tick (0 for a finished agent): one robot's scale.
+    - The episode ends when every agent's has ended; it is truncated when an agent was cut by the time limit,
+      else terminated. At its end ``info["is_success"]`` is the team's success (``info["team"]["success"]`` of
+      the agents' infos, where the env reports it) and ``info["team"]`` the team's last record.
+
+    :param env: a ParallelEnv whose agents all exist at reset and share one observation and one action space
+    """
+
+    def __init__(self, env: ParallelEnv) -> None:
+        self.env = FixedAgentSet(env)
+        self.agents = list(env.possible_agents)
+        self.team_size = len(self.agents)
+        self.agent_observation_space = env.observation_space(self.agents[0])
+        self.agent_action_space = env.action_space(self.agents[0])
+        if any(
+            env.observation_space(agent) != self.agent_observation_space
+            or env.action_space(agent) != self.agent_action_space
+            for agent in self.agents
+        ) or not isinstance(self.agent_action_space, spaces.Discrete):
+            raise ValueError(
+                "TeamAsGymnasium needs agents that share one observation space and one Discrete action space"
+            )
+        box = self.agent_observation_space
+        assert isinstance(box, spaces.Box)
+        shape = (self.team_size, *box.shape)
+        self.observation_space = spaces.Box(
+            np.broadcast_to(box.low, shape), np.broadcast_to(box.high, shape), shape, box.dtype
+        )
+        self.action_space = spaces.MultiDiscrete([int(self.agent_action_space.n)] * self.team_size)
+        self.max_episode_steps = getattr(env, "max_episode_steps", None)
+        self.metadata = dict(getattr(env, "metadata", {}))
+        self.render_mode = getattr(env, "render_mode", None)
+
+    def _stack(self, observations: dict[str, Any]) -> np.ndarray:
+        return np.stack([observations[agent] for agent in self.agents]).astype(self.observation_space.dtype)
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Reset the world. :return: the team's observations and the first agent's info."""
+        super().reset(seed=seed)
+        observations, _ = self.env.reset(seed=seed, options=options)
+        return self._stack(observations), dict(self.env.reset_infos.get(self.agents[0], {}))
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        """Step the world with one action per agent. :return: gymnasium's step tuple."""
+        actions = np.asarray(action).reshape(-1)
+        if actions.shape != (self.team_size,):
+            raise ValueError(f"expected {self.team_size} actions (one per agent), got {np.shape(action)}")
+        observations, rewards, _, truncations, _ = self.env.step(
+            {agent: int(a) for agent, a in zip(self.agents, actions)}
+        )
+        reward = float(np.mean([rewards[agent] for agent in self.agents]))
+        info: dict[str, Any] = {}
+        truncated = False
+        if self.env.world_done:
+            truncated = any(truncations.values())
+            team = self.env.terminal_team
+            if team is not None:
+                info["team"] = dict(team)
+                if "success" in team:
+                    info["is_success"] = bool(team["success"])
+        return self._stack(observations), reward, self.env.world_done and not truncated, truncated, info
+
+    def render(self) -> Any:
+        """Render the world."""
+        return self.env.env.render()
+
+    def close(self) -> None:
+        """Close the world."""
+        self.env.env.close()
 
 
 class FixedAgentSet(ParallelEnv):

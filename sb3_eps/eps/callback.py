@@ -23,6 +23,7 @@ from sb3_eps.eps.evaluation import (
     InProcessEnvPool,
     PopulationResult,
     SubprocessEnvPool,
+    agent_space,
     check_eval_env_id,
     evaluate_population,
     make_eval_env,
@@ -97,9 +98,11 @@ class EvolutionCallback(BaseCallback):
     training; rounds come by ticks and only while EPS has spent at most ``max_eps_share`` of the training ticks; the
     evaluation world is the training arena's room with robot-sized pillars.
 
-    :param eval_env_id: the single-agent evaluation world (``"SingleRobotNav-v0"`` for the robots,
-        ``"CooperativeNavigationSingle-v0"`` for Cooperative Navigation; see ``envs.eps_env_id_for``). Its
-        observation and action spaces must equal the model's.
+    :param eval_env_id: the evaluation world: single-agent (``"SingleRobotNav-v0"`` for the robots,
+        ``"CooperativeNavigationSingle-v0"`` for Cooperative Navigation; see ``envs.eps_env_id_for``), or a
+        multi-agent id (a team world, e.g. ``"MultiRobotNav-4-v0"``: every robot acts with the individual's
+        weights, as in training, and fitness sees robot-robot collisions; an episode's ticks are world ticks, the
+        unit of the training ticks). Its (per-agent) observation and action spaces must equal the model's.
     :param population_size: ``m``, the number of mutated copies; ``m + 1`` individuals are evaluated. Default 5
         (paper: 10, the author's earlier evolutionary work)
     :param period: the least number of ``period_unit`` between two rounds (``e_s`` of Algorithm 1). Default 10,000
@@ -746,7 +749,7 @@ class EvolutionCallback(BaseCallback):
         self._episode_limit = int(limit or 0)
         try:
             for kind in ("observation_space", "action_space"):
-                ours, theirs = getattr(env, kind), getattr(self.model, kind)
+                ours, theirs = agent_space(env, kind), getattr(self.model, kind)
                 if ours != theirs:
                     raise ValueError(
                         f"the {kind} of eval_env_id {self.eval_env_id!r} ({ours}) differs from the model's "

@@ -37,6 +37,7 @@ import torch as th
 from torch import nn
 from torch.func import functional_call, vmap
 
+from sb3_eps.common.parallel_wrappers import TeamAsGymnasium
 from sb3_eps.eps.mutations import Parameters, finite_individuals, individual
 
 
@@ -45,37 +46,42 @@ class EvaluationFailed(RuntimeError):
 
 
 def check_eval_env_id(env_id: str) -> None:
-    """Raise ``ValueError`` unless ``env_id`` names a single-agent env (ours or a gymnasium id).
+    """Raise ``ValueError`` unless ``env_id`` names an EPS world: a single-agent env (ours or a gymnasium id), or
+    one of our multi-agent ids (a team world: every robot acts with the individual's weights).
 
     :param env_id: the id of the EPS evaluation world
     """
     import envs  # registers our ids with gymnasium
 
-    if env_id in envs.SINGLE_AGENT_ENV_IDS:
+    if env_id in envs.SINGLE_AGENT_ENV_IDS or env_id in envs.MULTI_AGENT_ENV_IDS:
         return
-    if env_id in envs.MULTI_AGENT_ENV_IDS:
-        raise ValueError(
-            f"eval_env_id {env_id!r} is a multi-agent env; EPS evaluates in a single-agent world: use "
-            f"eval_env_id={envs.eps_env_id_for(env_id)!r}"
-        )
     if env_id not in gymnasium.registry:
         raise ValueError(
-            f"unknown eval_env_id {env_id!r}; use one of {list(envs.SINGLE_AGENT_ENV_IDS)} "
-            "or a registered gymnasium id"
+            f"unknown eval_env_id {env_id!r}; use one of {list(envs.SINGLE_AGENT_ENV_IDS)} (single-agent), "
+            f"{list(envs.MULTI_AGENT_ENV_IDS)} (team worlds) or a registered gymnasium id"
         )
 
 
 def make_eval_env(env_id: str, env_kwargs: dict[str, Any] | None = None) -> gymnasium.Env:
-    """Build one single-agent evaluation env (without gymnasium's checker wrappers for our ids).
+    """Build one evaluation env (without gymnasium's checker wrappers for our ids); a multi-agent id gives its
+    world as one env played by a team (:class:`~sb3_eps.common.parallel_wrappers.TeamAsGymnasium`).
 
-    :param env_id: a single-agent id (see :func:`check_eval_env_id`)
+    :param env_id: an id :func:`check_eval_env_id` accepts
     :param env_kwargs: constructor arguments
     """
     import envs
 
     if env_id in envs.SINGLE_AGENT_ENV_IDS:
         return envs.make_single_env(env_id, **(env_kwargs or {}))
+    if env_id in envs.MULTI_AGENT_ENV_IDS:
+        return TeamAsGymnasium(envs.make_parallel_env(env_id, **(env_kwargs or {})))
     return gymnasium.make(env_id, **(env_kwargs or {}))
+
+
+def agent_space(env: gymnasium.Env, kind: str) -> gymnasium.Space:
+    """The ``kind`` (``"observation_space"`` / ``"action_space"``) one agent of an EPS world sees: the env's own,
+    or in a team world (:class:`~sb3_eps.common.parallel_wrappers.TeamAsGymnasium`) each robot's."""
+    return getattr(env, f"agent_{kind}", getattr(env, kind))
 
 
 class PopulationForward:
@@ -143,6 +149,7 @@ class _Block:
     ) -> None:
         self.n_individuals, self.n_episodes = n_individuals, n_episodes
         self.envs = [make_eval_env(env_id, env_kwargs) for _ in range(n_individuals * n_episodes)]
+        self.team_size = int(getattr(self.envs[0], "team_size", 0))  # 0: a single-agent env
         self.forward = PopulationForward(network, batched)
 
     def evaluate(
@@ -164,20 +171,24 @@ class _Block:
         returns, lengths = np.zeros(shape), np.zeros(shape, dtype=np.int64)
         outcomes = np.zeros(shape, dtype=np.int64)
         active = np.repeat(valid, self.n_episodes)
+        agents = max(self.team_size, 1)  # observations per env: a team world's every agent acts
         obs_shape = self.envs[0].observation_space.shape or ()
         obs = np.zeros((len(self.envs), *obs_shape), dtype=np.float32)
         for index in np.flatnonzero(active):
             obs[index] = self.envs[index].reset(seed=int(seeds[int(index) % self.n_episodes]))[0]
         while active.any():
-            outputs = self.forward(th.as_tensor(obs).reshape(*shape, -1))
+            outputs = self.forward(th.as_tensor(obs).reshape(self.n_individuals, self.n_episodes * agents, -1))
+            outputs = outputs.reshape(len(self.envs), agents, -1)
             # A NaN/inf output disqualifies its individual at once: its envs stop, its fitness becomes -inf.
-            broken = (~th.isfinite(outputs).all(dim=-1).numpy() & active.reshape(shape)).any(axis=1)
+            finite = th.isfinite(outputs).all(dim=-1).all(dim=-1).numpy()
+            broken = (~finite & active).reshape(shape).any(axis=1)
             if broken.any():
                 valid &= ~broken
                 active &= np.repeat(valid, self.n_episodes)
-            actions = outputs.argmax(dim=-1).reshape(-1).numpy()
+            actions = outputs.argmax(dim=-1).numpy()
             for index in np.flatnonzero(active):
-                next_obs, reward, terminated, truncated, info = self.envs[index].step(int(actions[index]))
+                action = actions[index] if self.team_size else int(actions[index, 0])
+                next_obs, reward, terminated, truncated, info = self.envs[index].step(action)
                 obs[index] = next_obs
                 returns.flat[index] += float(reward)
                 lengths.flat[index] += 1

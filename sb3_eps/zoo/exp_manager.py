@@ -298,7 +298,7 @@ def check_callback_worlds(
 
     :raises ConfigError: naming the callback, both worlds and their spaces
     """
-    from sb3_eps.eps.evaluation import make_eval_env
+    from sb3_eps.eps.evaluation import agent_space, make_eval_env
 
     for name, callback in callbacks:
         eval_env_id = getattr(callback, "eval_env_id", None)
@@ -307,7 +307,7 @@ def check_callback_worlds(
         eval_env = make_eval_env(eval_env_id, getattr(callback, "eval_env_kwargs", None))
         try:
             for kind in ("observation_space", "action_space"):
-                theirs, ours = getattr(eval_env, kind), getattr(env, kind)
+                theirs, ours = agent_space(eval_env, kind), getattr(env, kind)
                 if theirs != ours:
                     raise ConfigError(
                         f"{source}: callback {name}: eval_env_id {eval_env_id} has {kind} {describe_space(theirs)}, "
