@@ -63,8 +63,27 @@ def test_run_folder_follows_the_zoo_layout(run_dir) -> None:
 
     frame = load_results(str(run_dir))
     assert len(frame) == len(columns["r"]) and {"r", "l", "t"} <= set(frame.columns)
-    progress = (run_dir / "progress.csv").read_text().splitlines()[0].split(",")
-    assert {"eval/success_rate", "eval/team_return", "rollout/team_return", "time/ticks"} <= set(progress)
+    # SB3's keys (EvalCallback's eval/mean_reward, eval/mean_ep_length), the team ones as extras, no duplicates.
+    from sb3_eps.results import read_progress
+
+    progress = read_progress(run_dir / "progress.csv")
+    sb3_keys = {"eval/mean_reward", "eval/mean_ep_length", "rollout/ep_rew_mean", "rollout/ep_len_mean"}
+    assert sb3_keys | {"eval/success_rate", "eval/std_reward", "time/ticks"} <= set(progress)
+    assert not {"eval/team_return", "eval/length", "rollout/team_return"} & set(progress)
+    rows = np.isfinite(progress["eval/mean_reward"])
+    assert rows.sum() == 3 and np.allclose(progress["eval/mean_reward"][rows], evaluations["results"].mean(axis=1))
+    assert np.allclose(progress["eval/mean_ep_length"][rows], evaluations["ep_lengths"].mean(axis=1))
+
+
+def test_read_progress_gives_old_logs_the_sb3_keys(tmp_path) -> None:
+    """progress.csv files written before the SB3 keys (the committed records) read with both names."""
+    from sb3_eps.results import read_progress
+
+    path = tmp_path / "progress.csv"
+    path.write_text("time/ticks,eval/team_return,eval/length,rollout/team_return\n10,1.5,25,\n20,,,2.0\n")
+    log = read_progress(path)
+    assert log["eval/mean_reward"][0] == 1.5 and log["eval/mean_ep_length"][0] == 25
+    assert log["rollout/ep_rew_mean"][1] == 2.0 and np.isnan(log["eval/mean_reward"][1])
 
 
 def test_evaluate_prints_and_saves_the_team_metrics(run_dir, tmp_path, capsys) -> None:

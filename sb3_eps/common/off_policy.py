@@ -657,10 +657,10 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
 
     # ------------------------------------------------------------------ logging and saving
     def dump_logs(self) -> None:
-        """SB3's logs plus the team metrics; episode statistics are per world (team), never per agent."""
+        """SB3's logs (``rollout/ep_rew_mean`` is the mean team return) plus the team rates; episode statistics are
+        per world (team), never per agent."""
         episodes = list(self.ep_info_buffer or [])
         if episodes:
-            self.logger.record("rollout/team_return", safe_mean([episode["r"] for episode in episodes]))
             if "collision" in episodes[0]:
                 self.logger.record(
                     "rollout/collision_rate", safe_mean([float(e["collision"]) for e in episodes])

@@ -189,9 +189,10 @@ class TeamEvalCallback(BaseCallback):
     """Greedy team evaluation on separate evaluation worlds every ``eval_freq`` timesteps.
 
     Each evaluation plays the same seeded episodes (common random numbers across evaluations), counts episodes
-    per world (team), logs ``eval/success_rate``, ``eval/collision_rate``, ``eval/team_return``,
-    ``eval/length``, ``eval/ticks``, appends to ``evaluations.npz`` and saves ``best_model.zip`` when the success
-    rate improves (team return breaks ties).
+    per world (team), logs SB3's ``EvalCallback`` keys ``eval/mean_reward`` (mean team return) and
+    ``eval/mean_ep_length`` (ticks), then ``eval/std_reward``, ``eval/success_rate``, ``eval/collision_rate``,
+    ``eval/ticks``, ``eval/eps_ticks``; appends to ``evaluations.npz`` and saves ``best_model.zip`` when the
+    success rate improves (team return breaks ties).
 
     :param eval_env: the evaluation worlds (not the training ones)
     :param eval_freq: timesteps (agent-steps) between evaluations; 0 disables
@@ -280,9 +281,10 @@ class TeamEvalCallback(BaseCallback):
 
     def _log(self, summary: dict[str, Any]) -> None:
         logger = self.logger
-        logger.record("eval/team_return", summary["team_return_mean"])
-        logger.record("eval/team_return_std", summary["team_return_std"])
-        logger.record("eval/length", summary["length_mean"])
+        # SB3's EvalCallback keys (per world episode: the team return and the ticks), then the team extras.
+        logger.record("eval/mean_reward", summary["team_return_mean"])
+        logger.record("eval/mean_ep_length", summary["length_mean"])
+        logger.record("eval/std_reward", summary["team_return_std"])
         for key in ("success_rate", "collision_rate"):
             if key in summary:
                 logger.record(f"eval/{key}", summary[key])
