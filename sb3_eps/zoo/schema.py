@@ -21,6 +21,7 @@ import math
 import re
 import types
 import typing
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -30,6 +31,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.utils import LinearSchedule
 from torch import nn
 
+from sb3_eps.common import buffers
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.gdq import GDQ
 from sb3_eps.iql import IQL
@@ -147,7 +149,9 @@ ALGORITHM_PARAMS: dict[str, Param] = {
     "gamma": Param("float", low=0, high=1),
     "train_freq": Param("train_freq"),
     "gradient_steps": Param("int", low=-1),
-    "target_update_interval": Param("int", low=1),
+    "replay_buffer_class": Param("choice", choices=("JointReplayBuffer", "PrioritizedJointReplayBuffer")),
+    "replay_buffer_kwargs": Param("mapping"),
+    "gradient_steps_per_target_update": Param("int", low=1),
     "n_steps": Param("int", low=1),
     "prioritized_replay": Param("bool"),
     "prioritized_replay_alpha": Param("float", low=0),
@@ -160,6 +164,8 @@ ALGORITHM_PARAMS: dict[str, Param] = {
     "team_reward_mode": Param("choice", choices=("sum", "mean")),
     "stats_window_size": Param("int", low=1),
 }
+#: Deprecated keys (one release) -> their new name; an entry with the old key loads with a DeprecationWarning.
+RENAMED_KEYS: dict[str, str] = {"target_update_interval": "gradient_steps_per_target_update"}
 #: Constructor arguments that come from the command line, never from a config.
 COMMAND_LINE_ARGUMENTS = (
     "policy",
@@ -285,6 +291,7 @@ def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, An
         raise ConfigError(
             f"{where}: an entry must be a mapping of keys to values, got {type(entry).__name__}"
         )
+    entry = _renamed_keys(entry, where)
     keys = [*RUN_PARAMS, *ALGORITHM_PARAMS, POLICY_KWARGS_KEY, CALLBACK_KEY]
     for key in entry:
         if key not in keys:
@@ -304,6 +311,21 @@ def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, An
             param = RUN_PARAMS.get(key) or ALGORITHM_PARAMS[key]
             result[key] = normalize_value(value, param, f"{where}: {key}")
     return result
+
+
+def _renamed_keys(entry: Mapping[str, Any], where: str) -> Mapping[str, Any]:
+    """:return: ``entry`` with the deprecated keys of :data:`RENAMED_KEYS` renamed (warning once per key)."""
+    for old, new in RENAMED_KEYS.items():
+        if old in entry:
+            if new in entry:
+                raise ConfigError(f"{where}: {old} and {new} are the same setting; keep {new} alone")
+            warnings.warn(
+                f"{where}: {old} is deprecated and goes in the next release; rename it {new} (same value)",
+                DeprecationWarning,
+                stacklevel=4,
+            )
+            entry = {(new if key == old else key): value for key, value in entry.items()}
+    return entry
 
 
 def check_complete(entry: Mapping[str, Any], spec: AlgorithmSpec, where: str) -> None:
@@ -575,6 +597,8 @@ def algorithm_kwargs(entry: Mapping[str, Any]) -> dict[str, Any]:
             value = LinearSchedule(float(value[4:]), 0.0, 1.0)
         elif key == "train_freq" and isinstance(value, list):
             value = (value[0], value[1])
+        elif key == "replay_buffer_class":
+            value = getattr(buffers, value)
         kwargs[key] = value
     if POLICY_KWARGS_KEY in entry:
         kwargs[POLICY_KWARGS_KEY] = policy_kwargs_objects(entry[POLICY_KWARGS_KEY])
