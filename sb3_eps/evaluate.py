@@ -16,7 +16,7 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-from sb3_eps.zoo.cli import OneLineArgumentParser
+from sb3_eps.zoo.cli import OneLineArgumentParser, add_gym_packages_flag, import_gym_packages
 from sb3_eps.zoo.errors import run_command
 from sb3_eps.zoo.schema import ALGORITHMS
 
@@ -50,11 +50,13 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument("--gif-episodes", type=int, default=1, help="episodes in the GIF")
     parser.add_argument("--output", default=None, help="JSON file of the results")
     parser.add_argument("--device", default="auto")
+    add_gym_packages_flag(parser)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line. :return: the exit status."""
+    import_gym_packages(argv)  # a run's own --gym-packages are imported again by load_run
     args = make_parser().parse_args(argv)
     from sb3_eps.zoo.config import parse_hyperparams
     from sb3_eps.zoo.errors import ConfigError

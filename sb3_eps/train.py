@@ -17,7 +17,7 @@ from __future__ import annotations
 import argparse
 from collections.abc import Sequence
 
-from sb3_eps.zoo.cli import OneLineArgumentParser
+from sb3_eps.zoo.cli import OneLineArgumentParser, add_gym_packages_flag, import_gym_packages
 from sb3_eps.zoo.errors import run_command
 from sb3_eps.zoo.schema import ALGORITHMS
 
@@ -92,6 +92,7 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--resume", default=None, metavar="RUN_DIR", help="continue an interrupted run to its total"
     )
+    add_gym_packages_flag(parser)
     tuning = parser.add_argument_group("tuning (Optuna)")
     tuning.add_argument(
         "-optimize", "--optimize-hyperparameters", action="store_true", help="run a hyper-parameter search"
@@ -115,6 +116,7 @@ def make_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line. :return: the exit status."""
+    import_gym_packages(argv)  # first: the algorithms they register are choices of --algo
     args = make_parser().parse_args(argv)
     from sb3_eps.zoo.exp_manager import TrainOptions, resume, train
 

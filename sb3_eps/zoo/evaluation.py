@@ -15,6 +15,7 @@ from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.vec_env import make_vec_env
 from sb3_eps.zoo.callbacks import BEST_MODEL_NAME
 from sb3_eps.zoo.checkpoint import write_text_atomic
+from sb3_eps.zoo.cli import import_gym_packages
 from sb3_eps.zoo.config import check_env_id, load_yaml
 from sb3_eps.zoo.errors import ConfigError
 from sb3_eps.zoo.exp_manager import ARGS_NAME, describe_space, final_model_name
@@ -100,6 +101,7 @@ def load_run(run_dir: str | Path, which: str = "final", device: str = "auto") ->
             else "it ran without evaluations"
         )
         raise ConfigError(f"{run_dir} has no {name} ({hint})")
+    import_gym_packages([], args.get("gym_packages") or [])  # the run's plug-ins (its world, its algorithm)
     cls = algorithm_spec(str(args["algo"])).algorithm_class
     # buffer_size=1: no replay memory is needed to predict.
     model = cls.load(path, env=None, device=device, buffer_size=1)

@@ -60,6 +60,7 @@ from sb3_eps.zoo.checkpoint import (
     save_model_atomic,
     write_text_atomic,
 )
+from sb3_eps.zoo.cli import import_gym_packages
 from sb3_eps.zoo.config import (
     ResolvedConfig,
     check_env_id,
@@ -115,6 +116,7 @@ class TrainOptions:
     init_from: str | None = None
     vec_env: str | None = None
     run_name: str | None = None
+    gym_packages: list[str] = field(default_factory=list)
 
     @classmethod
     def from_record(cls, record: Any, source: str | Path) -> TrainOptions:
@@ -509,6 +511,7 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
         if not (run_dir / name).is_file():
             raise ConfigError(f"--resume: {run_dir} is not a run folder of sb3_eps.train (no {name})")
     options = TrainOptions.from_record(load_yaml(run_dir / ARGS_NAME), f"--resume: {run_dir / ARGS_NAME}")
+    import_gym_packages([], options.gym_packages)  # the run's plug-ins, before its algorithm and world are named
     spec = algorithm_spec(options.algo)
     check_env_id(options.env, f"--resume: {run_dir / ARGS_NAME}: env")
     options.init_from = None  # the warm-start weights are in the checkpoint already
