@@ -15,10 +15,12 @@ checkpoint and exit 0. See ``docs/usage.md``.
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Sequence
 
 from sb3_eps.zoo.cli import OneLineArgumentParser, add_gym_packages_flag, import_gym_packages
 from sb3_eps.zoo.errors import run_command
+from sb3_eps.zoo.run_folder import command_line
 from sb3_eps.zoo.schema import ALGORITHMS
 
 PROG = "python -m sb3_eps.train"
@@ -126,6 +128,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.verbose is None:
         args.verbose = 1
     options = TrainOptions.from_namespace(args)
+    options.command = command_line(PROG, sys.argv[1:] if argv is None else argv)
     if args.optimize_hyperparameters:
         from sb3_eps.zoo.tuning import TuningOptions, tune
 

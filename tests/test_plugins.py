@@ -124,9 +124,9 @@ def test_a_user_package_is_trained_resumed_and_evaluated_from_the_command_line(t
     assert result.returncode == 0, result.stderr
     run_dir = logs / "scaled_iql" / "LineWorld-2-v0_1"
     assert (run_dir / "LineWorld-2-v0.zip").is_file() and (run_dir / "evaluations.npz").is_file()
-    args = yaml.safe_load((run_dir / "args.yml").read_text())
+    args = yaml.safe_load((run_dir / "LineWorld-2-v0" / "args.yml").read_text())
     assert args["gym_packages"] == ["userpkg"]
-    config = yaml.safe_load((run_dir / "config.yml").read_text())["LineWorld-2-v0"]
+    config = yaml.safe_load((run_dir / "LineWorld-2-v0" / "config.yml").read_text())["LineWorld-2-v0"]
     assert config["loss_scale"] == 0.5 and config["reduction"] == "scaled"  # the algorithm's own options
     counter = yaml.safe_load((tmp_path / "counter.json").read_text())
     assert counter == {"count": 1200 // 2 // 2 // 2, "every": 2, "algo": "ScaledIQL"}  # 300 vector steps, every 2nd

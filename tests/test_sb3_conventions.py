@@ -133,3 +133,37 @@ def test_prioritised_and_uniform_buffers_learn_the_same_as_before() -> None:
     explicit = tiny_model(IQL, prioritized_replay=True, replay_buffer_class=JointReplayBuffer).learn(200)
     for name, tensor in implicit.policy.state_dict().items():
         assert np.array_equal(tensor.numpy(), explicit.policy.state_dict()[name].numpy()), name
+
+
+# ---------------------------------------------------------------------------------------------- moved names
+MOVED = [
+    *[("sb3_eps.zoo.exp_manager", name, "sb3_eps.zoo.run_folder", name)
+      for name in ("ARGS_NAME", "CONFIG_NAME", "FINAL_REPORT_NAME", "final_model_name", "create_run_folder")],
+    *[("sb3_eps.zoo.callbacks", name, "sb3_eps.zoo.run_folder", name)
+      for name in ("MONITOR_NAME", "EVALUATIONS_NAME", "BEST_MODEL_NAME", "PROGRESS_NAME", "read_monitor")],
+    ("sb3_eps.zoo.callbacks", "CheckpointCallback", "sb3_eps.zoo.callbacks", "TrainingStateCallback"),
+    ("sb3_eps.zoo.evaluation", "find_run", "sb3_eps.zoo.run_folder", "find_run"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("old_module", "old", "new_module", "new"), MOVED, ids=[f"{m}.{n}" for m, n, _, _ in MOVED])
+def test_moved_names_keep_a_deprecated_alias(old_module, old, new_module, new) -> None:
+    import importlib
+
+    with pytest.warns(DeprecationWarning, match=f"{old_module}.{old} is now {new_module}.{new}"):
+        value = getattr(importlib.import_module(old_module), old)
+    assert value is getattr(importlib.import_module(new_module), new)
+    with pytest.raises(AttributeError):
+        importlib.import_module(old_module).no_such_name  # noqa: B018
+
+
+def test_check_eval_env_is_a_deprecated_wrapper_of_check_spaces() -> None:
+    from sb3_eps.zoo.errors import ConfigError
+    from sb3_eps.zoo.exp_manager import check_eval_env
+
+    model = tiny_model(IQL)
+    from sb3_eps import make_vec_env
+
+    other = make_vec_env("Corridor-2-v0", n_envs=1)
+    with pytest.warns(DeprecationWarning, match="check_spaces"), pytest.raises(ConfigError, match="--eval-env: Corridor-2-v0 has observation_space"):
+        check_eval_env(model, other)
