@@ -10,12 +10,18 @@ robots' EPS world for every ``MultiRobotNav*`` id, and the single-agent Cooperat
 
 ``Corridor-{n}-v0`` (n = 1 to 4, :data:`DEBUG_ENV_IDS`) are tiny multi-agent sanity worlds with a known optimum
 (:mod:`envs.debug`); they are not tasks of the paper and have no EPS counterpart.
+
+A user package adds its own worlds with :func:`register` (or, for a multi-agent world, PettingZoo's own
+``pettingzoo.register("parallel", env_id, entry_point)``: such ids build through ``pettingzoo.make``); the command
+lines import such packages with ``--gym-packages`` (``docs/usage.md``, "Plug-ins"). :data:`ENV_IDS` and the other id
+tuples list the registered ids at the time they are read.
 """
 
 from __future__ import annotations
 
 import functools
 import importlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -33,7 +39,7 @@ class EnvSpec:
     :param eps_env_id: the single-agent id EPS evaluates in
     """
 
-    entry_point: str
+    entry_point: str | Callable[..., Any]
     fixed_kwargs: dict[str, Any] = field(default_factory=dict)
     eps_env_id: str | None = None
 
@@ -64,12 +70,65 @@ _SINGLE_AGENT_SPECS: dict[str, EnvSpec] = {
     ),
 }
 
-MULTI_AGENT_ENV_IDS: tuple[str, ...] = tuple(_MULTI_AGENT_SPECS)
-SINGLE_AGENT_ENV_IDS: tuple[str, ...] = tuple(_SINGLE_AGENT_SPECS)
 DEBUG_ENV_IDS: tuple[str, ...] = tuple(_DEBUG_SPECS)
-ENV_IDS: tuple[str, ...] = MULTI_AGENT_ENV_IDS + SINGLE_AGENT_ENV_IDS + DEBUG_ENV_IDS
 # Every id that builds a PettingZoo ParallelEnv.
 _PARALLEL_SPECS = {**_MULTI_AGENT_SPECS, **_DEBUG_SPECS}
+
+
+def __getattr__(name: str) -> tuple[str, ...]:
+    """``MULTI_AGENT_ENV_IDS``, ``SINGLE_AGENT_ENV_IDS`` and ``ENV_IDS``, read when asked (plug-ins add ids)."""
+    ids = {
+        "MULTI_AGENT_ENV_IDS": tuple(_MULTI_AGENT_SPECS),
+        "SINGLE_AGENT_ENV_IDS": tuple(_SINGLE_AGENT_SPECS),
+    }
+    if name in ids:
+        return ids[name]
+    if name == "ENV_IDS":
+        return tuple(_MULTI_AGENT_SPECS) + tuple(_SINGLE_AGENT_SPECS) + DEBUG_ENV_IDS
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def register(
+    env_id: str,
+    entry_point: str | Callable[..., Any],
+    *,
+    multi_agent: bool = True,
+    eps_env_id: str | None = None,
+    fixed_kwargs: dict[str, Any] | None = None,
+) -> None:
+    """Register a world of one's own under an env id, for ``make_vec_env``, the configs and the command lines.
+
+    A multi-agent id also enters PettingZoo's registry (``pettingzoo.make("parallel", env_id)``), a single-agent id
+    gymnasium's (``gymnasium.make(env_id)``).
+
+    :param env_id: the new id (``Name-v0``); registering an id again with the same spec is allowed
+    :param entry_point: ``"module:callable"`` or the callable that builds the env (a PettingZoo ParallelEnv when
+        ``multi_agent``, else a gymnasium env)
+    :param multi_agent: whether the id builds a PettingZoo ParallelEnv
+    :param eps_env_id: the single-agent id EPS evaluates in (multi-agent ids; None: EPS cannot run on it)
+    :param fixed_kwargs: constructor arguments the id fixes
+    :raises ValueError: when the id is taken by another world
+    """
+    spec = EnvSpec(entry_point, dict(fixed_kwargs or {}), eps_env_id)
+    table = _MULTI_AGENT_SPECS if multi_agent else _SINGLE_AGENT_SPECS
+    known = _PARALLEL_SPECS.get(env_id) or _SINGLE_AGENT_SPECS.get(env_id)
+    if known is not None and (known != spec or env_id not in table):
+        raise ValueError(f"env id {env_id!r} is registered already (as {known.entry_point!r}); pick another id")
+    table[env_id] = spec
+    if multi_agent:
+        _PARALLEL_SPECS[env_id] = spec
+    _register_with_gymnasium()
+    _register_with_pettingzoo()
+
+
+def is_registered(env_id: str) -> bool:
+    """Whether ``env_id`` builds a world here: one of ours, one added with :func:`register`, or a PettingZoo
+    ``"parallel"`` id of ``pettingzoo.register``."""
+    try:
+        _spec(env_id)
+    except ValueError:
+        return False
+    return True
 
 
 def is_multi_agent(env_id: str) -> bool:
@@ -94,7 +153,7 @@ def make_parallel_env(env_id: str, **kwargs: Any) -> ParallelEnv:
     if env_id in _SINGLE_AGENT_SPECS:
         raise ValueError(
             f"{env_id!r} is a single-agent env: build it with envs.make_single_env({env_id!r}) or "
-            f"gymnasium.make({env_id!r}); make_parallel_env takes {list(MULTI_AGENT_ENV_IDS + DEBUG_ENV_IDS)}"
+            f"gymnasium.make({env_id!r}); make_parallel_env takes {list(_PARALLEL_SPECS)}"
         )
     return _build(env_id, kwargs)
 
@@ -110,7 +169,7 @@ def make_single_env(env_id: str, **kwargs: Any) -> gymnasium.Env:
     if env_id in _PARALLEL_SPECS:
         raise ValueError(
             f"{env_id!r} is a multi-agent env: build it with envs.make_parallel_env({env_id!r}); "
-            f"make_single_env takes {list(SINGLE_AGENT_ENV_IDS)}"
+            f"make_single_env takes {list(_SINGLE_AGENT_SPECS)}"
         )
     return _build(env_id, kwargs)
 
@@ -130,15 +189,20 @@ def eps_env_id_for(env_id: str) -> str:
 
 def _spec(env_id: str) -> EnvSpec:
     spec = _PARALLEL_SPECS.get(env_id) or _SINGLE_AGENT_SPECS.get(env_id)
+    if spec is None and env_id in pettingzoo.parallel_registry:  # registered with pettingzoo.register directly
+        spec = EnvSpec(functools.partial(pettingzoo.make, "parallel", env_id))
+        _PARALLEL_SPECS[env_id] = spec
     if spec is None:
         raise ValueError(
-            f"unknown env id {env_id!r}; multi-agent ids: {list(MULTI_AGENT_ENV_IDS)}, "
-            f"single-agent ids: {list(SINGLE_AGENT_ENV_IDS)}, debug ids: {list(DEBUG_ENV_IDS)}"
+            f"unknown env id {env_id!r}; multi-agent ids: {list(_MULTI_AGENT_SPECS)}, "
+            f"single-agent ids: {list(_SINGLE_AGENT_SPECS)}, debug ids: {list(DEBUG_ENV_IDS)}"
         )
     return spec
 
 
-def _load(entry_point: str) -> Any:
+def _load(entry_point: str | Callable[..., Any]) -> Any:
+    if callable(entry_point):
+        return entry_point
     module_name, _, attr = entry_point.partition(":")
     return getattr(importlib.import_module(module_name), attr)
 
@@ -157,7 +221,7 @@ def _register_with_gymnasium() -> None:
     # Importing this package twice (e.g. importlib.reload) must not make gymnasium warn about overrides.
     for env_id, spec in _SINGLE_AGENT_SPECS.items():
         if env_id not in gymnasium.registry:
-            gymnasium.register(id=env_id, entry_point=spec.entry_point, kwargs=dict(spec.fixed_kwargs))
+            gymnasium.register(id=env_id, entry_point=spec.entry_point, kwargs=dict(spec.fixed_kwargs))  # type: ignore[arg-type]
 
 
 def _register_with_pettingzoo() -> None:
@@ -179,6 +243,8 @@ __all__ = [
     "EnvSpec",
     "eps_env_id_for",
     "is_multi_agent",
+    "is_registered",
     "make_parallel_env",
     "make_single_env",
+    "register",
 ]

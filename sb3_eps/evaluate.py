@@ -16,7 +16,7 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-from sb3_eps.zoo.cli import OneLineArgumentParser
+from sb3_eps.zoo.cli import OneLineArgumentParser, add_gym_packages_flag, import_gym_packages
 from sb3_eps.zoo.errors import run_command
 from sb3_eps.zoo.schema import ALGORITHMS
 
@@ -35,6 +35,11 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument("--exp-id", type=int, default=0, help="run number (0: the latest)")
     parser.add_argument("--load-best", action="store_true", help="the best model of the run's evaluations")
     parser.add_argument(
+        "--load-checkpoint", type=int, default=None, metavar="N",
+        help="the model snapshot at N timesteps (rl_model_N_steps.zip, written every --save-freq)",
+    )  # fmt: skip
+    parser.add_argument("--load-last-checkpoint", action="store_true", help="the latest model snapshot")
+    parser.add_argument(
         "--eval-env", default=None, help="env id to evaluate on (default: the training env id)"
     )
     parser.add_argument("-n", "--n-episodes", type=int, default=100, help="world (team) episodes")
@@ -50,23 +55,19 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument("--gif-episodes", type=int, default=1, help="episodes in the GIF")
     parser.add_argument("--output", default=None, help="JSON file of the results")
     parser.add_argument("--device", default="auto")
+    add_gym_packages_flag(parser)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line. :return: the exit status."""
+    import_gym_packages(argv)  # a run's own --gym-packages are imported again by load_run
     args = make_parser().parse_args(argv)
     from sb3_eps.zoo.config import parse_hyperparams
     from sb3_eps.zoo.errors import ConfigError
-    from sb3_eps.zoo.evaluation import (
-        evaluate_run,
-        find_run,
-        format_summary,
-        load_run,
-        record_gif,
-        save_summary,
-    )
+    from sb3_eps.zoo.evaluation import evaluate_run, format_summary, load_run, record_gif, save_summary
     from sb3_eps.zoo.exp_manager import check_device
+    from sb3_eps.zoo.run_folder import find_run
 
     if args.run is None:
         if args.algo is None or args.env is None:
@@ -77,12 +78,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         if path is not None and not _can_create(Path(path)):
             raise ConfigError(f"{flag}: cannot write {path}: its folder is not writable")
     env_kwargs = {path[0]: value for path, value in parse_hyperparams(args.env_kwargs)}
-    run = load_run(args.run, "best" if args.load_best else "final", args.device)
+    which: str | int = "final"
+    if args.load_best:
+        which = "best"
+    elif args.load_checkpoint is not None:
+        which = args.load_checkpoint
+    elif args.load_last_checkpoint:
+        which = "last"
+    run = load_run(args.run, which, args.device)
     summary = evaluate_run(
         run, args.eval_env, args.n_episodes, args.n_envs, args.seed, not args.stochastic, env_kwargs or None
     )
     print(format_summary(summary))
-    suffix = "_best" if args.load_best else ""
+    suffix = {"final": "", "best": "_best", "last": "_last"}.get(str(which), f"_{which}_steps")
     output = Path(args.output) if args.output else run.run_dir / f"eval_{summary['env_id']}{suffix}.json"
     print(f"Results: {save_summary(summary, output)}")
     if args.gif is not None:

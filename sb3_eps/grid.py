@@ -232,7 +232,7 @@ def run_state(run_dir: Path, env_id: str) -> str:
     """:return: ``"new"`` (no folder), ``"complete"``, ``"interrupted"`` (a checkpoint to resume from) or
     ``"incomplete"`` (stopped before its first checkpoint: nothing to resume)."""
     from sb3_eps.zoo.checkpoint import CHECKPOINT_NAME, read_checkpoint_meta
-    from sb3_eps.zoo.exp_manager import final_model_name
+    from sb3_eps.zoo.run_folder import final_model_name
 
     if not run_dir.is_dir():
         return "new"

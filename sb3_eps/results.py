@@ -184,15 +184,31 @@ def results_table(runs: Iterable[EvaluationRun], key: str = "success_rate") -> l
     return rows
 
 
+#: Keys of older ``progress.csv`` files (the committed records in docs/results keep them) -> the SB3 keys now written.
+LEGACY_PROGRESS_KEYS = {
+    "eval/team_return": "eval/mean_reward",
+    "eval/length": "eval/mean_ep_length",
+    "eval/team_return_std": "eval/std_reward",
+    "rollout/team_return": "rollout/ep_rew_mean",
+}
+
+
 def read_progress(path: str | Path) -> dict[str, np.ndarray]:
     """Read SB3's ``progress.csv`` (columns appear as they are first logged, so earlier rows leave them empty).
+
+    A file written before SB3's evaluation keys were used also gets them, copied from its old keys
+    (:data:`LEGACY_PROGRESS_KEYS`), so one reader serves old and new runs.
 
     :return: ``{column: (rows,) float values}``, NaN where a row has no value
     """
     with Path(path).open(newline="") as file:
         rows = list(csv.DictReader(file))
-    columns = sorted({key for row in rows for key in row if key})
-    return {column: np.array([_to_float(row.get(column)) for row in rows], dtype=float) for column in columns}
+    names = sorted({key for row in rows for key in row if key})
+    columns = {name: np.array([_to_float(row.get(name)) for row in rows], dtype=float) for name in names}
+    for old, new in LEGACY_PROGRESS_KEYS.items():
+        if old in columns and new not in columns:
+            columns[new] = columns[old]
+    return columns
 
 
 def _to_float(text: str | None) -> float:

@@ -15,10 +15,12 @@ checkpoint and exit 0. See ``docs/usage.md``.
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Sequence
 
-from sb3_eps.zoo.cli import OneLineArgumentParser
+from sb3_eps.zoo.cli import OneLineArgumentParser, add_gym_packages_flag, import_gym_packages
 from sb3_eps.zoo.errors import run_command
+from sb3_eps.zoo.run_folder import command_line
 from sb3_eps.zoo.schema import ALGORITHMS
 
 PROG = "python -m sb3_eps.train"
@@ -92,6 +94,7 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--resume", default=None, metavar="RUN_DIR", help="continue an interrupted run to its total"
     )
+    add_gym_packages_flag(parser)
     tuning = parser.add_argument_group("tuning (Optuna)")
     tuning.add_argument(
         "-optimize", "--optimize-hyperparameters", action="store_true", help="run a hyper-parameter search"
@@ -115,6 +118,7 @@ def make_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line. :return: the exit status."""
+    import_gym_packages(argv)  # first: the algorithms they register are choices of --algo
     args = make_parser().parse_args(argv)
     from sb3_eps.zoo.exp_manager import TrainOptions, resume, train
 
@@ -124,6 +128,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.verbose is None:
         args.verbose = 1
     options = TrainOptions.from_namespace(args)
+    options.command = command_line(PROG, sys.argv[1:] if argv is None else argv)
     if args.optimize_hyperparameters:
         from sb3_eps.zoo.tuning import TuningOptions, tune
 

@@ -39,8 +39,9 @@ def test_it_runs_and_logs_team_metrics(algorithm, tmp_path) -> None:
     # Episodes are counted per world (team), never per agent: 25-tick MPE episodes, 2 worlds.
     assert len(model.ep_info_buffer) == 2 * (model.ticks // 2 // 25)
     header = (tmp_path / "progress.csv").read_text().splitlines()[0].split(",")
-    for key in ("rollout/team_return", "rollout/collision_rate", "rollout/success_rate", "time/ticks"):
+    for key in ("rollout/ep_rew_mean", "rollout/collision_rate", "rollout/success_rate", "time/ticks"):
         assert key in header
+    assert "rollout/team_return" not in header  # it repeated rollout/ep_rew_mean
     assert "train/loss" in header
 
 

@@ -27,7 +27,7 @@ from sb3_eps.common.vec_env import MultiAgentVecEnv
 from sb3_eps.eps import SubprocessEnvPool
 from sb3_eps.eps import callback as callback_module
 from sb3_eps.zoo import checkpoint as checkpoint_module
-from sb3_eps.zoo.callbacks import CheckpointCallback
+from sb3_eps.zoo.callbacks import TrainingStateCallback
 from sb3_eps.zoo.checkpoint import (
     CHECKPOINT_NAME,
     PREVIOUS_CHECKPOINT_NAME,
@@ -376,7 +376,7 @@ def test_a_non_finite_loss_or_target_is_refused_and_the_source_named(poison, sou
 def test_a_checkpoint_of_non_finite_weights_is_refused(tmp_path) -> None:
     model = mpe_model()
     model.learn(120)
-    checkpoint = CheckpointCallback(tmp_path / CHECKPOINT_NAME, 0, 1000, {})
+    checkpoint = TrainingStateCallback(tmp_path / CHECKPOINT_NAME, 0, 1000, {})
     checkpoint.init_callback(model)
     assert checkpoint.save() and (tmp_path / CHECKPOINT_NAME).is_file()
     good = (tmp_path / CHECKPOINT_NAME).read_bytes()

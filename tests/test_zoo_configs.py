@@ -31,6 +31,7 @@ from sb3_eps.zoo.schema import (
     EVOLUTION_CALLBACK,
     NAME_SPELLINGS,
     POLICY_KWARGS_KEY,
+    RENAMED_KEYS,
     RUN_PARAMS,
     algorithm_kwargs,
     build_callbacks,
@@ -83,7 +84,9 @@ def test_default_entry_equals_the_package_defaults(algo) -> None:
     default = load_config_entries(config_file(algo), algo)[DEFAULT_KEY]
     signature = inspect.signature(ALGORITHMS[algo].algorithm_class.__init__).parameters
     # A LinearSchedule(x, 0, 1) default is written lin_<x> (RL Zoo's form).
-    assert all(default[name] == config_value(signature[name].default) for name in ALGORITHM_PARAMS)
+    assert all(
+        default.get(name) == config_value(signature[name].default) for name in ALGORITHM_PARAMS
+    )  # a None default (replay_buffer_class) is not written
     assert default["policy_kwargs"]["net_arch"] == DEFAULT_NET_ARCH
     assert default["policy_kwargs"]["stream_arch"] == DEFAULT_STREAM_ARCH
     assert default["n_envs"] == inspect.signature(make_vec_env).parameters["n_envs"].default
@@ -111,7 +114,7 @@ def _parameters(cls: type) -> dict[str, object]:
 def test_schema_covers_every_constructor_argument(algo) -> None:
     spec = ALGORITHMS[algo]
     arguments = set(inspect.signature(spec.algorithm_class.__init__).parameters) - {"self"}
-    assert arguments == set(ALGORITHM_PARAMS) | set(COMMAND_LINE_ARGUMENTS) | {POLICY_KWARGS_KEY}
+    assert arguments == set(ALGORITHM_PARAMS) | set(COMMAND_LINE_ARGUMENTS) | {POLICY_KWARGS_KEY} | set(RENAMED_KEYS)
     policy_class = spec.algorithm_class.policy_aliases["MlpPolicy"]
     internal = {"self", "args", "kwargs", "observation_space", "action_space", "lr_schedule", "n_agents",
                 "state_dim", "features_extractor_class", "features_extractor_kwargs"}  # fmt: skip

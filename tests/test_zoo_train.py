@@ -12,9 +12,9 @@ import yaml
 from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_eps import benchmark, evaluate, plot, train
-from sb3_eps.zoo.callbacks import read_monitor
 from sb3_eps.zoo.config import load_config_entries
 from sb3_eps.zoo.errors import ConfigError
+from sb3_eps.zoo.run_folder import read_monitor
 
 ENV_ID = "CooperativeNavigation-v0"
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -43,14 +43,18 @@ def run_dir(tmp_path_factory):
 def test_run_folder_follows_the_zoo_layout(run_dir) -> None:
     assert run_dir.name == f"{ENV_ID}_1"
     names = {path.name for path in run_dir.iterdir()}
-    expected = {"args.yml", "config.yml", "progress.csv", "monitor.csv", "evaluations.npz", "best_model.zip"}
+    expected = {"progress.csv", "monitor.csv", "evaluations.npz", "best_model.zip", ENV_ID}
     assert expected | {f"{ENV_ID}.zip"} <= names
     assert "checkpoint.zip" not in names  # removed once the run finished
     assert not [name for name in names if name.endswith(".tmp")]
-    args = yaml.safe_load((run_dir / "args.yml").read_text())
+    # RL Zoo's parameter folder <run>/<env id>/: args.yml, config.yml, command.txt.
+    params = run_dir / ENV_ID
+    assert {path.name for path in params.iterdir()} == {"args.yml", "config.yml", "command.txt"}
+    args = yaml.safe_load((params / "args.yml").read_text())
     assert args["algo"] == "gdq" and args["seed"] == 0 and args["n_timesteps"] == 1500
+    assert "--hyperparams" in (params / "command.txt").read_text()
     # config.yml is a ready-to-use entry: -conf reads it back.
-    entry = load_config_entries(run_dir / "config.yml", "gdq")[ENV_ID]
+    entry = load_config_entries(params / "config.yml", "gdq")[ENV_ID]
     assert entry["policy_kwargs"]["net_arch"] == [16] and entry["n_envs"] == 2
     evaluations = np.load(run_dir / "evaluations.npz")
     assert list(evaluations["timesteps"][:3]) == [504, 1002, 1500]
@@ -63,8 +67,96 @@ def test_run_folder_follows_the_zoo_layout(run_dir) -> None:
 
     frame = load_results(str(run_dir))
     assert len(frame) == len(columns["r"]) and {"r", "l", "t"} <= set(frame.columns)
-    progress = (run_dir / "progress.csv").read_text().splitlines()[0].split(",")
-    assert {"eval/success_rate", "eval/team_return", "rollout/team_return", "time/ticks"} <= set(progress)
+    # SB3's keys (EvalCallback's eval/mean_reward, eval/mean_ep_length), the team ones as extras, no duplicates.
+    from sb3_eps.results import read_progress
+
+    progress = read_progress(run_dir / "progress.csv")
+    sb3_keys = {"eval/mean_reward", "eval/mean_ep_length", "rollout/ep_rew_mean", "rollout/ep_len_mean"}
+    assert sb3_keys | {"eval/success_rate", "eval/std_reward", "time/ticks"} <= set(progress)
+    assert not {"eval/team_return", "eval/length", "rollout/team_return"} & set(progress)
+    rows = np.isfinite(progress["eval/mean_reward"])
+    assert rows.sum() == 3 and np.allclose(progress["eval/mean_reward"][rows], evaluations["results"].mean(axis=1))
+    assert np.allclose(progress["eval/mean_ep_length"][rows], evaluations["ep_lengths"].mean(axis=1))
+
+
+def test_numbered_model_snapshots_on_save_freq(run_dir, tmp_path, capsys) -> None:
+    """RL Zoo's rl_model_<timesteps>_steps.zip at every --save-freq (500 here), models that GDQ.load opens and that
+    evaluate's --load-checkpoint / --load-last-checkpoint pick (as rl_zoo3.enjoy's flags)."""
+    from sb3_eps import GDQ
+    from sb3_eps.zoo.run_folder import snapshots
+
+    found = snapshots(run_dir)
+    assert list(found) == [504, 1002]
+    model = GDQ.load(found[1002])
+    assert model.num_timesteps == 1002
+    output = tmp_path / "eval.json"
+    assert evaluate.main(["--run", str(run_dir), "-n", "2", "--n-envs", "1", "--load-checkpoint", "504",
+                          "--output", str(output)]) == 0  # fmt: skip
+    assert json.loads(output.read_text())["model"].endswith("rl_model_504_steps.zip")
+    assert evaluate.main(["--run", str(run_dir), "-n", "2", "--n-envs", "1", "--load-last-checkpoint"]) == 0
+    assert (run_dir / "eval_CooperativeNavigation-v0_last.json").is_file()
+    with pytest.raises(ConfigError, match=r"no rl_model_7_steps.zip \(its snapshots are at timesteps \[504, 1002\]\)"):
+        evaluate.main(["--run", str(run_dir), "--load-checkpoint", "7"])
+
+
+def test_a_run_folder_of_the_older_layout_still_reads(run_dir, tmp_path) -> None:
+    """Runs written before the parameter folder had args.yml / config.yml at their root: evaluate, plot and resume
+    find them there."""
+    import shutil
+
+    from sb3_eps.zoo.plotting import find_run_dirs, load_curve
+
+    old = tmp_path / "gdq" / f"{ENV_ID}_1"
+    shutil.copytree(run_dir, old)
+    for name in ("args.yml", "config.yml"):
+        (old / ENV_ID / name).rename(old / name)
+    shutil.rmtree(old / ENV_ID)
+    assert find_run_dirs([tmp_path]) == [old] and load_curve(old).algo == "gdq"
+    assert evaluate.main(["--run", str(old), "-n", "2", "--n-envs", "1"]) == 0
+    assert train.main(["--resume", str(old)]) == 0  # finished already: says so and exits 0
+
+
+def test_rl_zoo_plot_scripts_read_the_log_folder(run_dir, tmp_path, monkeypatch) -> None:
+    """RL Zoo's own all_plots (evaluations.npz of <folder>/<algo>/<env id>_<n>/) and plot_train (monitor.csv through
+    SB3's load_results) read a log folder of ours."""
+    import pickle
+
+    pytest.importorskip("seaborn")  # all_plots imports it (rl_zoo3's plots extra); the dev extra installs it
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+    from rl_zoo3.plots.all_plots import all_plots
+    from rl_zoo3.plots.plot_train import plot_train
+
+    folder, output = run_dir.parent.parent, tmp_path / "results"
+    for key, ours in (("results", "results"), ("successes", "successes")):
+        monkeypatch.setattr("sys.argv", ["all_plots", "-a", "gdq", "-e", ENV_ID, "-f", str(folder), "--no-display",
+                                         "-o", str(output), "-k", key, "-max", "100000"])  # fmt: skip
+        all_plots()
+        with open(f"{output}.pkl", "rb") as file:
+            (curve,) = pickle.load(file)[ENV_ID].values()
+        evaluations = np.load(run_dir / "evaluations.npz")
+        assert list(curve["timesteps"]) == list(evaluations["timesteps"])
+        assert np.allclose(curve["mean"], evaluations[ours].mean(axis=1))  # one run: the mean over its episodes
+        plt.close("all")
+    monkeypatch.setattr("sys.argv", ["plot_train", "-a", "gdq", "-e", ENV_ID, "-f", str(folder), "-w", "2"])
+    plot_train()
+    (line,) = plt.gcf().axes[0].get_lines()
+    monitor = read_monitor(run_dir / "monitor.csv")[1]
+    assert len(line.get_ydata()) == len(monitor["r"]) - 1  # a rolling mean of 2 over the team returns
+    plt.close("all")
+
+
+def test_read_progress_gives_old_logs_the_sb3_keys(tmp_path) -> None:
+    """progress.csv files written before the SB3 keys (the committed records) read with both names."""
+    from sb3_eps.results import read_progress
+
+    path = tmp_path / "progress.csv"
+    path.write_text("time/ticks,eval/team_return,eval/length,rollout/team_return\n10,1.5,25,\n20,,,2.0\n")
+    log = read_progress(path)
+    assert log["eval/mean_reward"][0] == 1.5 and log["eval/mean_ep_length"][0] == 25
+    assert log["rollout/ep_rew_mean"][1] == 2.0 and np.isnan(log["eval/mean_reward"][1])
 
 
 def test_evaluate_prints_and_saves_the_team_metrics(run_dir, tmp_path, capsys) -> None:

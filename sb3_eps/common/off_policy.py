@@ -94,7 +94,12 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     :param gamma: discount factor
     :param train_freq: train every ``train_freq`` vector-env steps (ticks of every world)
     :param gradient_steps: gradient steps per training call (-1: as many as agent-steps collected)
-    :param target_update_interval: gradient steps between target updates
+    :param replay_buffer_class: a :class:`~sb3_eps.common.buffers.JointReplayBuffer` class or subclass (None: the
+        prioritised one when ``prioritized_replay``, else the uniform one); a given class decides ``prioritized_replay``
+    :param replay_buffer_kwargs: its keyword arguments beyond the ones the algorithm sets (capacity, spaces, agents,
+        device); a prioritised buffer's ``alpha`` defaults to ``prioritized_replay_alpha``
+    :param gradient_steps_per_target_update: gradient steps between two Polyak updates of the target networks (as
+        SB3's SAC counts its ``target_update_interval``; SB3's DQN counts that name in env steps)
     :param n_steps: n of the n-step returns (1 = one-step TD)
     :param prioritized_replay: use proportional prioritised replay
     :param prioritized_replay_alpha: PER priority exponent
@@ -120,6 +125,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     :param seed: random seed
     :param device: torch device
     :param _init_setup_model: build the networks now (False when loading)
+    :param target_update_interval: deprecated alias of ``gradient_steps_per_target_update`` (same count)
     """
 
     policy: MultiAgentQPolicy
@@ -146,7 +152,9 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         gamma: float = 0.99,
         train_freq: int | tuple[int, str] = 1,
         gradient_steps: int = 1,
-        target_update_interval: int = 1,
+        replay_buffer_class: type[JointReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        gradient_steps_per_target_update: int = 1,
         n_steps: int = 3,
         prioritized_replay: bool = True,
         prioritized_replay_alpha: float = 0.6,
@@ -165,13 +173,17 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         seed: int | None = None,
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
+        target_update_interval: int | None = None,
     ) -> None:
+        if target_update_interval is not None:
+            _warn_target_update_interval()
+            gradient_steps_per_target_update = target_update_interval
         if isinstance(env, str):
             raise ValueError(
                 f"pass a vector env, not the id {env!r}: use sb3_eps.make_vec_env({env!r}, n_envs=...)"
             )
         self._check_hyperparameters(
-            tau=tau, gamma=gamma, n_steps=n_steps, target_update_interval=target_update_interval,
+            tau=tau, gamma=gamma, n_steps=n_steps, gradient_steps_per_target_update=gradient_steps_per_target_update,
             team_reward_mode=team_reward_mode, prioritized_replay_alpha=prioritized_replay_alpha,
             buffer_size=buffer_size, batch_size=batch_size, exploration_fraction=exploration_fraction,
             exploration_initial_eps=exploration_initial_eps, exploration_final_eps=exploration_final_eps,
@@ -193,6 +205,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             gamma=gamma,
             train_freq=train_freq,
             gradient_steps=gradient_steps,
+            replay_buffer_class=replay_buffer_class,  # type: ignore[arg-type]
+            replay_buffer_kwargs=replay_buffer_kwargs,
             n_steps=n_steps,
             policy_kwargs=policy_kwargs,
             stats_window_size=stats_window_size,
@@ -205,7 +219,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             sde_support=False,
             supported_action_spaces=(spaces.Discrete,),
         )
-        self.target_update_interval = target_update_interval
+        self.gradient_steps_per_target_update = gradient_steps_per_target_update
         self.prioritized_replay = prioritized_replay
         self.prioritized_replay_alpha = prioritized_replay_alpha
         self.prioritized_replay_beta0 = prioritized_replay_beta0
@@ -233,8 +247,10 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             raise ValueError(f"gamma must be in [0, 1], got {values['gamma']}")
         if values["n_steps"] < 1:
             raise ValueError(f"n_steps must be >= 1, got {values['n_steps']}")
-        if values["target_update_interval"] < 1:
-            raise ValueError(f"target_update_interval must be >= 1, got {values['target_update_interval']}")
+        if values["gradient_steps_per_target_update"] < 1:
+            raise ValueError(
+                f"gradient_steps_per_target_update must be >= 1, got {values['gradient_steps_per_target_update']}"
+            )
         if values["team_reward_mode"] not in ("sum", "mean"):
             raise ValueError(f"team_reward_mode must be 'sum' or 'mean', got {values['team_reward_mode']!r}")
         if values["prioritized_replay_alpha"] < 0:
@@ -313,17 +329,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             raise ValueError(
                 f"{type(self).__name__} needs a policy derived from {expected.__name__}, got {self.policy_class!r}"
             )
-        buffer_class = PrioritizedJointReplayBuffer if self.prioritized_replay else JointReplayBuffer
-        buffer_kwargs = {"alpha": self.prioritized_replay_alpha} if self.prioritized_replay else {}
-        self.replay_buffer = buffer_class(
-            self.buffer_size,
-            self.observation_space,
-            n_agents=self.n_agents,
-            state_dim=self.state_dim if self.uses_global_state else 0,
-            device=self.device,
-            store_values=self._stores_agent_values(),
-            **buffer_kwargs,
-        )
+        self.replay_buffer = self._make_replay_buffer()
         self.policy = self.policy_class(  # type: ignore[assignment]
             self.observation_space, self.action_space, self.lr_schedule, **self._policy_constructor_kwargs()
         ).to(self.device)
@@ -336,6 +342,40 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                 "overlap_training needs train_freq in steps (a collection of episodes ends only after its last "
                 f"step, too late to overlap), got {self.train_freq!r}"
             )
+
+    def _make_replay_buffer(self) -> JointReplayBuffer:
+        """``replay_buffer_class`` (default: by ``prioritized_replay``) with ``replay_buffer_kwargs``; the algorithm
+        sets the capacity, spaces, agents and device. :raises ValueError: for a class that does not store joint rows"""
+        default = PrioritizedJointReplayBuffer if self.prioritized_replay else JointReplayBuffer
+        buffer_class: Any = self.replay_buffer_class or default
+        if not (isinstance(buffer_class, type) and issubclass(buffer_class, JointReplayBuffer)):
+            raise ValueError(
+                f"replay_buffer_class must be JointReplayBuffer, PrioritizedJointReplayBuffer or a subclass "
+                f"(sb3_eps.common.buffers: one row per world tick, all agents), got {buffer_class!r}"
+            )
+        self.prioritized_replay = issubclass(buffer_class, PrioritizedJointReplayBuffer)
+        owned = {
+            "n_agents": self.n_agents,
+            "state_dim": self.state_dim if self.uses_global_state else 0,
+            "device": self.device,
+            "store_values": self._stores_agent_values(),
+        }
+        clash = sorted(set(self.replay_buffer_kwargs) & {*owned, "buffer_size", "observation_space"})
+        if clash:
+            raise ValueError(f"replay_buffer_kwargs cannot set {clash}: the algorithm sets them (buffer_size, env)")
+        defaults = {"alpha": self.prioritized_replay_alpha} if self.prioritized_replay else {}
+        try:
+            return buffer_class(
+                self.buffer_size, self.observation_space, **owned, **{**defaults, **self.replay_buffer_kwargs}
+            )
+        except TypeError as error:
+            raise ValueError(f"replay_buffer_kwargs do not fit {buffer_class.__name__}: {error}") from None
+
+    @property
+    def target_update_interval(self) -> int:
+        """Deprecated alias of ``gradient_steps_per_target_update`` (SB3's DQN counts this name in env steps)."""
+        _warn_target_update_interval()
+        return self.gradient_steps_per_target_update
 
     def learn(
         self: SelfMultiAgentOffPolicyAlgorithm,
@@ -632,7 +672,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             self.policy.optimizer.step()
             self.replay_buffer.update_priorities(batch.indices, td_errors)
             self._n_updates += 1
-            if self._n_updates % self.target_update_interval == 0:
+            if self._n_updates % self.gradient_steps_per_target_update == 0:
                 self._update_targets()
             logs["loss"].append(loss.item())
             for key, value in info.items():
@@ -687,10 +727,10 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
 
     # ------------------------------------------------------------------ logging and saving
     def dump_logs(self) -> None:
-        """SB3's logs plus the team metrics; episode statistics are per world (team), never per agent."""
+        """SB3's logs (``rollout/ep_rew_mean`` is the mean team return) plus the team rates; episode statistics are
+        per world (team), never per agent."""
         episodes = list(self.ep_info_buffer or [])
         if episodes:
-            self.logger.record("rollout/team_return", safe_mean([episode["r"] for episode in episodes]))
             if "collision" in episodes[0]:
                 self.logger.record(
                     "rollout/collision_rate", safe_mean([float(e["collision"]) for e in episodes])
@@ -726,12 +766,16 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         """SB3's ``load``; a file of another algorithm, or an env whose spaces differ from the model's, is one
         ``ValueError`` line that says so (instead of a state-dict dump)."""
         try:
-            return super().load(path, env=env, device=device, **kwargs)
+            model = super().load(path, env=env, device=device, **kwargs)
         except (RuntimeError, ValueError) as error:
             reason = _load_mismatch(cls, path, env)
             if reason is None:
                 raise
             raise ValueError(reason) from error
+        legacy = model.__dict__.pop("target_update_interval", None)  # a model saved before the rename
+        if legacy is not None:
+            model.gradient_steps_per_target_update = legacy
+        return model
 
     def _get_policy_from_name(self, policy_name: str) -> type[MultiAgentQPolicy]:  # type: ignore[override]
         if policy_name not in self.policy_aliases:
@@ -770,6 +814,15 @@ def _read_step(
         ended=ended.reshape(shape),
         terminated=(ended & ~truncated).reshape(shape),
         world_ended=dones.reshape(shape).all(axis=1),
+    )
+
+
+def _warn_target_update_interval() -> None:
+    warnings.warn(
+        "target_update_interval is deprecated and goes in the next release: use gradient_steps_per_target_update (the "
+        "same count of gradient steps; SB3's DQN counts target_update_interval in env steps)",
+        DeprecationWarning,
+        stacklevel=3,
     )
 
 

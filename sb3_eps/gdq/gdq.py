@@ -9,7 +9,7 @@ import torch as th
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import LinearSchedule
 
-from sb3_eps.common.buffers import JointReplayBufferSamples
+from sb3_eps.common.buffers import JointReplayBuffer, JointReplayBufferSamples
 from sb3_eps.common.losses import masked_huber, row_priority, weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm, TDTerms
 from sb3_eps.common.policies import MultiAgentQPolicy
@@ -93,7 +93,9 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         gamma: float = 0.99,
         train_freq: int | tuple[int, str] = 1,
         gradient_steps: int = 1,
-        target_update_interval: int = 1,
+        replay_buffer_class: type[JointReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        gradient_steps_per_target_update: int = 1,
         n_steps: int = 30,
         prioritized_replay: bool = True,
         prioritized_replay_alpha: float = 0.6,
@@ -112,6 +114,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         seed: int | None = None,
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
+        target_update_interval: int | None = None,
     ) -> None:
         # GDQ's own defaults differ from the base's in n_steps (30: an agent's own rewards reach its target
         # directly for 1.5 s, where V_G' passes them on with weight g_i ~ 1/n), team_reward_mode ("mean":

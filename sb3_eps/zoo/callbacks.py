@@ -4,10 +4,11 @@
   EPS at its end: the data of the learning curves.
 - :class:`TeamEvalCallback` evaluates the greedy policy on separate evaluation worlds every ``eval_freq``
   timesteps (team success, collision, return, length), writes ``evaluations.npz`` and ``best_model.zip``.
-- :class:`CheckpointCallback` writes a checkpoint (:mod:`sb3_eps.zoo.checkpoint`) every ``save_freq`` timesteps
-  and when SIGINT / SIGTERM arrive, at the next rollout start; after a signal it stops training by raising
-  :class:`TrainingInterrupted`. When resuming it restores the callbacks' states and the random states once
-  every callback is initialised.
+- :class:`TrainingStateCallback` writes a checkpoint (:mod:`sb3_eps.zoo.checkpoint`) every ``save_freq`` timesteps
+  (with a model snapshot ``rl_model_<timesteps>_steps.zip``, as RL Zoo's) and when SIGINT / SIGTERM arrive, at the
+  next rollout start; after a signal it stops training by raising :class:`TrainingInterrupted`. When resuming it
+  restores the callbacks' states and the random states once every callback is initialised. (It was called
+  ``CheckpointCallback``, the name of SB3's model-only callback: the old name is a deprecated alias.)
 """
 
 from __future__ import annotations
@@ -29,13 +30,11 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import CSVOutputFormat
 
 from sb3_eps.common.evaluation import evaluate_team
+from sb3_eps.common.utils import moved_names
 from sb3_eps.common.vec_env import MultiAgentVecEnv
+from sb3_eps.zoo import run_folder
 from sb3_eps.zoo.checkpoint import save_checkpoint, save_model_atomic, set_rng_states, write_bytes_atomic
 
-MONITOR_NAME = "monitor.csv"
-EVALUATIONS_NAME = "evaluations.npz"
-BEST_MODEL_NAME = "best_model.zip"
-PROGRESS_NAME = "progress.csv"
 #: Columns every monitor row has; the env's team metrics (``success``, ``collision``...) follow.
 MONITOR_COLUMNS = ("r", "l", "t", "ticks", "eps_ticks", "world")
 
@@ -72,7 +71,7 @@ def final_against_best(records: dict[str, list[Any]], run_dir: str | Path, drop:
     )
     if top["success_rate"] - last["success_rate"] >= drop - 1e-9:
         line += (
-            f". WARNING: learning fell after its best evaluation; the best model is {Path(run_dir) / BEST_MODEL_NAME}: "
+            f". WARNING: learning fell after its best evaluation; the best model is {Path(run_dir) / run_folder.BEST_MODEL_NAME}: "
             f"python -m sb3_eps.evaluate --run {run_dir} --load-best"
         )
     return line
@@ -164,34 +163,15 @@ def _is_scalar(value: Any) -> bool:
     return isinstance(value, bool | int | float | str | np.integer | np.floating | np.bool_)
 
 
-def read_monitor(path: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    """Read a ``monitor.csv``.
-
-    :return: ``(header, columns)``; columns as float arrays (booleans as 0/1)
-    """
-    path = Path(path)
-    with path.open() as file:
-        first = file.readline()
-        header = json.loads(first[1:]) if first.startswith("#") else {}
-        rows = list(csv.DictReader(file))
-    columns: dict[str, np.ndarray] = {}
-    if rows:
-        for key in rows[0]:
-            try:
-                columns[key] = np.array([float(row[key]) if row[key] != "" else np.nan for row in rows])
-            except ValueError:
-                continue
-    return header, columns
-
-
 # ---------------------------------------------------------------------------------------------- evaluation
 class TeamEvalCallback(BaseCallback):
     """Greedy team evaluation on separate evaluation worlds every ``eval_freq`` timesteps.
 
     Each evaluation plays the same seeded episodes (common random numbers across evaluations), counts episodes
-    per world (team), logs ``eval/success_rate``, ``eval/collision_rate``, ``eval/team_return``,
-    ``eval/length``, ``eval/ticks``, appends to ``evaluations.npz`` and saves ``best_model.zip`` when the success
-    rate improves (team return breaks ties).
+    per world (team), logs SB3's ``EvalCallback`` keys ``eval/mean_reward`` (mean team return) and
+    ``eval/mean_ep_length`` (ticks), then ``eval/std_reward``, ``eval/success_rate``, ``eval/collision_rate``,
+    ``eval/ticks``, ``eval/eps_ticks``; appends to ``evaluations.npz`` and saves ``best_model.zip`` when the
+    success rate improves (team return breaks ties).
 
     :param eval_env: the evaluation worlds (not the training ones)
     :param eval_freq: timesteps (agent-steps) between evaluations; 0 disables
@@ -259,7 +239,7 @@ class TeamEvalCallback(BaseCallback):
         if self.best_score is None or score > self.best_score:
             self.best_score = score
             if self.folder is not None:
-                save_model_atomic(self.model, self.folder / BEST_MODEL_NAME)
+                save_model_atomic(self.model, self.folder / run_folder.BEST_MODEL_NAME)
         return summary
 
     def _record(self, summary: dict[str, Any], episodes: list[dict[str, Any]]) -> None:
@@ -276,13 +256,14 @@ class TeamEvalCallback(BaseCallback):
     def _write_records(self) -> None:
         if self.folder is not None and self.records["timesteps"]:
             arrays = {key: np.array(value) for key, value in self.records.items()}
-            write_bytes_atomic(self.folder / EVALUATIONS_NAME, _npz_bytes(arrays))
+            write_bytes_atomic(self.folder / run_folder.EVALUATIONS_NAME, _npz_bytes(arrays))
 
     def _log(self, summary: dict[str, Any]) -> None:
         logger = self.logger
-        logger.record("eval/team_return", summary["team_return_mean"])
-        logger.record("eval/team_return_std", summary["team_return_std"])
-        logger.record("eval/length", summary["length_mean"])
+        # SB3's EvalCallback keys (per world episode: the team return and the ticks), then the team extras.
+        logger.record("eval/mean_reward", summary["team_return_mean"])
+        logger.record("eval/mean_ep_length", summary["length_mean"])
+        logger.record("eval/std_reward", summary["team_return_std"])
         for key in ("success_rate", "collision_rate"):
             if key in summary:
                 logger.record(f"eval/{key}", summary[key])
@@ -312,8 +293,10 @@ def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
 
 
 # ---------------------------------------------------------------------------------------------- checkpoints
-class CheckpointCallback(BaseCallback):
-    """Writes the full training state every ``save_freq`` timesteps and when a signal asks to stop.
+class TrainingStateCallback(BaseCallback):
+    """Writes the full training state every ``save_freq`` timesteps and when a signal asks to stop; with
+    ``snapshot_dir``, each periodic checkpoint also writes the model alone, ``rl_model_<timesteps>_steps.zip``, as
+    RL Zoo's (SB3's ``CheckpointCallback``'s) numbered snapshots, which ``Algorithm.load`` opens.
 
     Checkpoints are taken at rollout starts only (between two iterations of ``learn``), where every piece of
     state can be restored exactly. After SIGINT / SIGTERM (see :func:`stop_on_signals`) the next rollout start
@@ -327,6 +310,7 @@ class CheckpointCallback(BaseCallback):
         start of training (after every callback's initialisation, which may draw random numbers or reset
         counters)
     :param verbose: 1 prints a line per checkpoint
+    :param snapshot_dir: where the numbered model snapshots go (None: none)
     """
 
     def __init__(
@@ -337,9 +321,11 @@ class CheckpointCallback(BaseCallback):
         stateful_callbacks: dict[str, BaseCallback],
         restore: dict[str, Any] | None = None,
         verbose: int = 0,
+        snapshot_dir: str | Path | None = None,
     ) -> None:
         super().__init__(verbose=verbose)
         self.path = Path(path)
+        self.snapshot_dir = None if snapshot_dir is None else Path(snapshot_dir)
         self.save_freq = int(save_freq)
         self.total_timesteps = int(total_timesteps)
         self.stateful_callbacks = stateful_callbacks
@@ -366,7 +352,8 @@ class CheckpointCallback(BaseCallback):
             return
         if self.save_freq > 0:
             self.next_save = (self.num_timesteps // self.save_freq + 1) * self.save_freq
-        self.save()
+        if self.save() and due and self.snapshot_dir is not None:
+            save_model_atomic(self.model, self.snapshot_dir / run_folder.snapshot_name(self.model.num_timesteps))
         if self.stop_requested:
             raise TrainingInterrupted(self.stop_requested)
 
@@ -420,7 +407,7 @@ def non_finite_parameters(model: Any) -> list[str]:
 
 
 @contextmanager
-def stop_on_signals(callback: CheckpointCallback) -> Iterator[None]:
+def stop_on_signals(callback: TrainingStateCallback) -> Iterator[None]:
     """While the block runs, SIGINT and SIGTERM ask ``callback`` to checkpoint and stop at the next rollout start;
     a second signal stops at once (``KeyboardInterrupt``). Handlers are put back afterwards.
     """
@@ -490,3 +477,13 @@ def _row_timesteps(keys: list[str], row: list[str]) -> float:
         return float(row[keys.index("time/total_timesteps")])
     except (ValueError, IndexError):
         return -1.0  # rows without the count (none are written that way) are kept
+
+
+__getattr__ = moved_names(
+    __name__,
+    {
+        "CheckpointCallback": "sb3_eps.zoo.callbacks:TrainingStateCallback",
+        **{name: f"sb3_eps.zoo.run_folder:{name}" for name in (
+            "MONITOR_NAME", "EVALUATIONS_NAME", "BEST_MODEL_NAME", "PROGRESS_NAME", "read_monitor")},
+    },
+)  # fmt: skip

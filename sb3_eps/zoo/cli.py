@@ -1,8 +1,12 @@
-"""Shared pieces of the command lines: an argparse parser whose errors are one-line :class:`ConfigError` s."""
+"""Shared pieces of the command lines: an argparse parser whose errors are one-line :class:`ConfigError` s, and the
+``--gym-packages`` plug-in hook."""
 
 from __future__ import annotations
 
 import argparse
+import importlib
+import sys
+from collections.abc import Sequence
 from typing import NoReturn
 
 from sb3_eps.zoo.errors import ConfigError
@@ -23,3 +27,37 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be an int >= 1, got {value}")
     return value
+
+
+GYM_PACKAGES_HELP = (
+    "modules to import first (RL Zoo's flag): they register their own worlds (envs.register or pettingzoo.register), "
+    "algorithms (sb3_eps.zoo.register_algorithm) and callbacks (sb3_eps.zoo.register_callback)"
+)
+
+
+def add_gym_packages_flag(parser: argparse.ArgumentParser) -> None:
+    """Add ``--gym-packages MODULE ...`` to a command line."""
+    parser.add_argument("--gym-packages", nargs="+", default=[], metavar="MODULE", help=GYM_PACKAGES_HELP)
+
+
+def import_gym_packages(argv: Sequence[str] | None = None, packages: Sequence[str] = ()) -> list[str]:
+    """Import the modules of ``--gym-packages`` (read from ``argv`` before the real parser is built, so that the
+    algorithms they register are choices of ``--algo``) and ``packages``.
+
+    :return: the module names, in order
+    :raises ConfigError: when one cannot be imported or fails while registering
+    """
+    pre = argparse.ArgumentParser(add_help=False)
+    add_gym_packages_flag(pre)
+    known, _ = pre.parse_known_args(list(sys.argv[1:] if argv is None else argv))
+    names = list(dict.fromkeys([*packages, *known.gym_packages]))
+    for name in names:
+        try:
+            importlib.import_module(name)
+        except ImportError as error:
+            raise ConfigError(
+                f"--gym-packages: cannot import {name!r} ({error}); put its folder on PYTHONPATH or pip install it"
+            ) from None
+        except Exception as error:  # the module's own registration failed: say which module and why
+            raise ConfigError(f"--gym-packages: importing {name!r} failed: {type(error).__name__}: {error}") from None
+    return names

@@ -132,11 +132,14 @@ def load_config_entries(path: str | Path, algo: str) -> dict[str, dict[str, Any]
         raise ConfigError(
             f"{path}: the file must map env ids (and 'default') to entries, got {type(data).__name__}"
         )
-    keys = [DEFAULT_KEY, *envs.ENV_IDS]
     entries: dict[str, dict[str, Any]] = {}
     for env_id, entry in data.items():
-        if env_id not in keys:
-            raise ConfigError(f"{path}: unknown env id {env_id!r}; allowed keys: {allowed(keys)}")
+        if env_id != DEFAULT_KEY and not (isinstance(env_id, str) and envs.is_registered(env_id)):
+            keys = [DEFAULT_KEY, *envs.ENV_IDS]
+            raise ConfigError(
+                f"{path}: unknown env id {env_id!r}; allowed keys: {allowed(keys)} (or an id that a --gym-packages "
+                "module registers)"
+            )
         entries[env_id] = normalize_entry(entry, spec, f"{path}: entry {env_id!r}")
     return entries
 
@@ -187,8 +190,11 @@ def resolve_config(
 
 def check_env_id(env_id: str, flag: str = "--env") -> None:
     """:raises ConfigError: when ``env_id`` is not registered (listing the ids)."""
-    if env_id not in envs.ENV_IDS:
-        raise ConfigError(f"{flag}: unknown env id {env_id!r}; allowed: {allowed(envs.ENV_IDS)}")
+    if not envs.is_registered(env_id):
+        raise ConfigError(
+            f"{flag}: unknown env id {env_id!r}; allowed: {allowed(envs.ENV_IDS)} (or an id that a --gym-packages "
+            "module registers)"
+        )
 
 
 def parse_hyperparams(items: Sequence[str]) -> list[tuple[tuple[str, ...], Any]]:

@@ -120,7 +120,11 @@ def package_default_entry(algo: str) -> dict[str, Any]:
         "policy": "MlpPolicy",
         "n_envs": _signature_defaults(make_vec_env)["n_envs"],
     }
-    entry.update((name, config_value(algorithm_defaults[name])) for name in ALGORITHM_PARAMS)
+    entry.update(
+        (name, config_value(algorithm_defaults[name]))
+        for name in ALGORITHM_PARAMS
+        if algorithm_defaults[name] is not None  # replay_buffer_class / _kwargs: none unless a config sets them
+    )
     entry[POLICY_KWARGS_KEY] = package_policy_kwargs(algo)
     if spec.eps:
         parameters = callback_parameters(callback_class(EVOLUTION_CALLBACK))

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -12,12 +11,13 @@ import numpy as np
 
 from sb3_eps.common.evaluation import evaluate_team, record_frames
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
+from sb3_eps.common.utils import describe_space, moved_names
 from sb3_eps.common.vec_env import make_vec_env
-from sb3_eps.zoo.callbacks import BEST_MODEL_NAME
+from sb3_eps.zoo import run_folder
 from sb3_eps.zoo.checkpoint import write_text_atomic
-from sb3_eps.zoo.config import check_env_id, load_yaml
+from sb3_eps.zoo.cli import import_gym_packages
+from sb3_eps.zoo.config import check_env_id
 from sb3_eps.zoo.errors import ConfigError
-from sb3_eps.zoo.exp_manager import ARGS_NAME, describe_space, final_model_name
 from sb3_eps.zoo.schema import algorithm_spec
 
 #: Metrics of an evaluation: summary key stem -> (label, unit, scale for printing).
@@ -57,49 +57,31 @@ class LoadedRun:
         return str(self.args["env"])
 
 
-def find_run(folder: str | Path, algo: str, env_id: str, exp_id: int = 0) -> Path:
-    """RL Zoo's lookup: ``<folder>/<algo>/<env id>_<exp_id>``, the latest run when ``exp_id`` is 0.
-
-    :raises ConfigError: when there is no such run
-    """
-    parent = Path(folder) / algo
-    pattern = re.compile(rf"^{re.escape(env_id)}_(\d+)$")
-    numbers = (
-        sorted(int(m.group(1)) for p in parent.glob("*") if (m := pattern.match(p.name)))
-        if parent.is_dir()
-        else []
-    )
-    if not numbers:
-        raise ConfigError(f"no run of {algo} on {env_id} in {parent}; train one with python -m sb3_eps.train")
-    number = numbers[-1] if exp_id == 0 else exp_id
-    if number not in numbers:
-        raise ConfigError(f"--exp-id {exp_id}: no run {env_id}_{exp_id} in {parent}; runs: {numbers}")
-    return parent / f"{env_id}_{number}"
-
-
-def load_run(run_dir: str | Path, which: str = "final", device: str = "auto") -> LoadedRun:
-    """Load the final (or best) model of a run folder.
+def load_run(run_dir: str | Path, which: str | int = "final", device: str = "auto") -> LoadedRun:
+    """Load the final, best or a numbered snapshot's model of a run folder.
 
     :param run_dir: a folder written by ``python -m sb3_eps.train``
-    :param which: ``"final"`` (``<env id>.zip``) or ``"best"`` (``best_model.zip``)
+    :param which: ``"final"`` (``<env id>.zip``), ``"best"`` (``best_model.zip``), or the timesteps of a snapshot
+        (``rl_model_<timesteps>_steps.zip``, RL Zoo's ``--load-checkpoint``); ``"last"``: the latest snapshot
     :param device: torch device
     :raises ConfigError: when the folder or the model is missing
     """
     run_dir = Path(run_dir)
-    if not (run_dir / ARGS_NAME).is_file():
-        raise ConfigError(f"{run_dir} is not a run folder of sb3_eps.train (no {ARGS_NAME})")
-    args = load_yaml(run_dir / ARGS_NAME)
-    if not isinstance(args, dict) or "algo" not in args or "env" not in args:
-        raise ConfigError(f"{run_dir / ARGS_NAME} does not name the run's algo and env")
-    name = BEST_MODEL_NAME if which == "best" else final_model_name(str(args["env"]))
+    args = run_folder.read_args(run_dir)
+    snapshots = run_folder.snapshots(run_dir)
+    if which == "last" and snapshots:
+        which = list(snapshots)[-1]
+    names = {"best": run_folder.BEST_MODEL_NAME, "final": run_folder.final_model_name(str(args["env"]))}
+    name = names.get(str(which)) or run_folder.snapshot_name(int(which) if str(which).isdigit() else 0)
     path = run_dir / name
     if not path.is_file():
-        hint = (
-            "it has not finished: resume it, or use --load-best"
-            if which == "final"
-            else "it ran without evaluations"
-        )
+        hints = {
+            "final": "it has not finished: resume it, or use --load-best",
+            "best": "it ran without evaluations",
+        }
+        hint = hints.get(str(which), f"its snapshots are at timesteps {list(snapshots) or 'none'}")
         raise ConfigError(f"{run_dir} has no {name} ({hint})")
+    import_gym_packages([], args.get("gym_packages") or [])  # the run's plug-ins (its world, its algorithm)
     cls = algorithm_spec(str(args["algo"])).algorithm_class
     # buffer_size=1: no replay memory is needed to predict.
     model = cls.load(path, env=None, device=device, buffer_size=1)
@@ -129,7 +111,7 @@ def evaluate_run(
     except (TypeError, ValueError) as error:
         raise ConfigError(f"--env-kwargs {env_kwargs}: {error}") from None
     try:
-        check_spaces(run, venv, env_id)
+        check_spaces(run.model, venv, env_id, f"the model of {run.run_dir}")
         summary = evaluate_team(run.model, venv, n_episodes, seed=seed, deterministic=deterministic)
         n_agents = venv.n_agents
     finally:
@@ -145,13 +127,14 @@ def evaluate_run(
     return summary
 
 
-def check_spaces(run: LoadedRun, venv: Any, env_id: str) -> None:
-    """:raises ConfigError: when the env's observation or action space differs from the model's."""
+def check_spaces(model: Any, venv: Any, env_id: str, whose: str = "the model", flag: str = "") -> None:
+    """:raises ConfigError: when the env's observation or action space differs from the model's (evaluation
+    worlds, warm starts)."""
     for kind in ("observation_space", "action_space"):
-        if getattr(venv, kind) != getattr(run.model, kind):
+        if getattr(venv, kind) != getattr(model, kind):
             raise ConfigError(
-                f"{env_id} has {kind} {describe_space(getattr(venv, kind))} but the model of {run.run_dir} expects "
-                f"{describe_space(getattr(run.model, kind))}; evaluate on a world of the same kind as {run.env_id}"
+                f"{flag}{env_id} has {kind} {describe_space(getattr(venv, kind))} but {whose} expects "
+                f"{describe_space(getattr(model, kind))}; pick a world of the same kind (robots with robots, MPE with MPE)"
             )
 
 
@@ -207,8 +190,11 @@ def record_gif(
         env_id, n_envs=1, seed=seed, env_kwargs={**(env_kwargs or {}), "render_mode": "rgb_array"}
     )
     try:
-        check_spaces(run, venv, env_id)
+        check_spaces(run.model, venv, env_id, f"the model of {run.run_dir}")
         frames, _ = record_frames(run.model, venv, n_episodes, max_frames=max_frames)
     finally:
         venv.close()
     return save_gif(frames, path, fps=fps)
+
+
+__getattr__ = moved_names(__name__, {"find_run": "sb3_eps.zoo.run_folder:find_run"})

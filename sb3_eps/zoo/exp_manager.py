@@ -1,13 +1,11 @@
 """The experiment manager behind ``python -m sb3_eps.train``: config -> envs, model, callbacks -> run folder -> learn.
 
 Everything a run needs is built and checked before anything is written, so a mistake leaves no run folder. The run
-folder follows RL Zoo's layout, ``<folder>/<algo>/<env id>_<run>/``:
-
-- ``args.yml`` (the command line, resolved: seed, total timesteps...), ``config.yml`` (the canonical entry, readable
-  back with ``-conf``);
-- ``progress.csv`` (SB3's logs), ``monitor.csv`` (one row per world episode), ``evaluations.npz``,
-  ``best_model.zip``, ``<env id>.zip`` (the final model), ``checkpoint.zip`` (the training state, while the run
-  is unfinished or with ``--keep-checkpoint``).
+folder follows RL Zoo's layout, ``<folder>/<algo>/<env id>_<run>/`` (:mod:`sb3_eps.zoo.run_folder`): the parameter
+folder ``<env id>/`` (``args.yml``, the options resolved; ``config.yml``, the canonical entry, readable back with
+``-conf``; ``command.txt``), ``progress.csv``, ``monitor.csv``, ``evaluations.npz``, ``best_model.zip``,
+``<env id>.zip`` (the final model), ``rl_model_<timesteps>_steps.zip`` (model snapshots) and ``checkpoint.zip``
+(the training state, while the run is unfinished or with ``--keep-checkpoint``).
 
 ``--resume <run folder>`` rebuilds the run from ``args.yml``, ``config.yml`` and the checkpoint and continues to
 the same total; the result equals an uninterrupted run with the same seed (see :mod:`sb3_eps.zoo.checkpoint`).
@@ -18,9 +16,9 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import random
-import re
 import sys
 import time
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,17 +33,16 @@ from stable_baselines3.common.save_util import load_from_zip_file
 import envs
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.subproc_vec_env import VecEnvWorkerError, overlap_layout
-from sb3_eps.common.utils import describe_space
+from sb3_eps.common.utils import describe_space, moved_names
 from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env, vec_env_mode
 from sb3_eps.version import __version__
+from sb3_eps.zoo import run_folder
 from sb3_eps.zoo.callbacks import (
-    MONITOR_NAME,
-    PROGRESS_NAME,
-    CheckpointCallback,
     ResumableCSVOutputFormat,
     TeamEvalCallback,
     TeamMonitor,
     TrainingInterrupted,
+    TrainingStateCallback,
     callback_state,
     final_against_best,
     stop_on_signals,
@@ -60,6 +57,7 @@ from sb3_eps.zoo.checkpoint import (
     save_model_atomic,
     write_text_atomic,
 )
+from sb3_eps.zoo.cli import import_gym_packages
 from sb3_eps.zoo.config import (
     ResolvedConfig,
     check_env_id,
@@ -70,18 +68,11 @@ from sb3_eps.zoo.config import (
     resolve_config,
 )
 from sb3_eps.zoo.errors import ConfigError, RunFailed
+from sb3_eps.zoo.evaluation import check_spaces
 from sb3_eps.zoo.schema import algorithm_kwargs, algorithm_spec, build_callbacks, check_complete
 
-ARGS_NAME = "args.yml"
-CONFIG_NAME = "config.yml"
-FINAL_REPORT_NAME = "final_vs_best.txt"
 #: The evaluation worlds are seeded ``seed + EVAL_SEED_OFFSET``: other worlds than the training ones.
 EVAL_SEED_OFFSET = 10_000
-
-
-def final_model_name(env_id: str) -> str:
-    """:return: the file name of a run's final model (RL Zoo's ``<env id>.zip``)."""
-    return f"{env_id}.zip"
 
 
 # ---------------------------------------------------------------------------------------------- options
@@ -115,6 +106,8 @@ class TrainOptions:
     init_from: str | None = None
     vec_env: str | None = None
     run_name: str | None = None
+    gym_packages: list[str] = field(default_factory=list)
+    command: str | None = None  # the command line as typed (RL Zoo's command.txt)
 
     @classmethod
     def from_record(cls, record: Any, source: str | Path) -> TrainOptions:
@@ -198,7 +191,7 @@ def check_optional_features(progress: bool = False, tensorboard: bool = False) -
 #: Types of the options whose default is None (the others must have the type of their default).
 _OPTION_TYPES: dict[str, tuple[type, ...]] = {
     "conf_file": (str,), "eval_env": (str,), "tensorboard_log": (str,), "init_from": (str,),
-    "n_timesteps": (int,), "seed": (int,), "vec_env": (str,), "run_name": (str,),
+    "n_timesteps": (int,), "seed": (int,), "vec_env": (str,), "run_name": (str,), "command": (str,),
 }  # fmt: skip
 
 
@@ -275,18 +268,6 @@ def build_model(
         )
     except (TypeError, ValueError) as error:
         raise ConfigError(f"{config.source}: building {cls.__name__}: {error}") from None
-
-
-def check_eval_env(
-    model: MultiAgentOffPolicyAlgorithm, eval_env: MultiAgentVecEnv, flag: str = "--eval-env"
-) -> None:
-    """:raises ConfigError: when the evaluation worlds do not share the model's spaces."""
-    for kind in ("observation_space", "action_space"):
-        if getattr(eval_env, kind) != getattr(model, kind):
-            raise ConfigError(
-                f"{flag}: {eval_env.env_id} has {kind} {describe_space(getattr(eval_env, kind))}, the model "
-                f"{describe_space(getattr(model, kind))}; pick a world of the same kind (robots with robots, MPE with MPE)"
-            )
 
 
 def check_callback_worlds(
@@ -392,7 +373,7 @@ def prepare_run(
                 config, options.seed + EVAL_SEED_OFFSET, eval_env_id, options.n_eval_envs, options.vec_env
             )
             if model is not None:
-                check_eval_env(model, eval_env)
+                check_spaces(model, eval_env, eval_env_id, "the model", "--eval-env: ")
         user_callbacks = build_callbacks(config.entry, config.env_id, options.verbose, config.source)
         check_callback_worlds(user_callbacks, env, config.source)
         for name, callback in user_callbacks:
@@ -411,35 +392,6 @@ def prepare_run(
 
 
 # ---------------------------------------------------------------------------------------------- run folders
-def create_run_folder(folder: str | Path, algo: str, env_id: str, name: str | None = None) -> Path:
-    """Create ``<folder>/<algo>/<env id>_<n>`` with the next free ``n`` (safe when processes race), or
-    ``<folder>/<algo>/<name>`` when a name is given.
-
-    :raises ConfigError: when the named folder exists already
-    """
-    parent = Path(folder) / algo
-    parent.mkdir(parents=True, exist_ok=True)
-    if name is not None:
-        path = parent / name
-        try:
-            path.mkdir()
-        except FileExistsError:
-            raise ConfigError(
-                f"--run-name: {path} exists already; continue it with --resume {path}, or pick another name"
-            ) from None
-        return path
-    pattern = re.compile(rf"^{re.escape(env_id)}_(\d+)$")
-    taken = [int(match.group(1)) for path in parent.iterdir() if (match := pattern.match(path.name))]
-    number = max(taken, default=0) + 1
-    while True:
-        path = parent / f"{env_id}_{number}"
-        try:
-            path.mkdir()
-            return path
-        except FileExistsError:
-            number += 1
-
-
 def make_logger(
     run_dir: Path, tensorboard_dir: str | None, verbose: int, resume_timesteps: int | None
 ) -> Logger:
@@ -447,7 +399,7 @@ def make_logger(
     formats: list[KVWriter] = []
     if verbose >= 1:
         formats.append(HumanOutputFormat(sys.stdout))
-    formats.append(ResumableCSVOutputFormat(run_dir / PROGRESS_NAME, resume_timesteps))
+    formats.append(ResumableCSVOutputFormat(run_dir / run_folder.PROGRESS_NAME, resume_timesteps))
     if tensorboard_dir is not None:
         formats.append(TensorBoardOutputFormat(tensorboard_dir))
     return Logger(folder=str(run_dir), output_formats=formats)
@@ -484,16 +436,16 @@ def train(options: TrainOptions, extra_callbacks: Sequence[BaseCallback] = ()) -
     """
     prepared = prepare_run(options)
     try:
-        run_dir = create_run_folder(
-            options.folder, options.algo, prepared.config.env_id, options.run_name
-        )
+        env_id = prepared.config.env_id
+        run_dir = run_folder.create_run_folder(options.folder, options.algo, env_id, options.run_name)
         options_record = {**vars(options), "version": __version__, "run_dir": str(run_dir)}
         options_record["n_timesteps"] = prepared.config.entry["n_timesteps"]
-        write_text_atomic(run_dir / ARGS_NAME, yaml.safe_dump(options_record, sort_keys=False))
+        params = run_folder.params_dir(run_dir, env_id)  # RL Zoo's <run>/<env id>/
+        params.mkdir()
+        write_text_atomic(params / run_folder.ARGS_NAME, yaml.safe_dump(options_record, sort_keys=False))
         header = f"resolved from {prepared.config.source}\nrerun: python -m sb3_eps.train --algo {options.algo} -conf <this file> ..."
-        write_text_atomic(
-            run_dir / CONFIG_NAME, entry_yaml(prepared.config.env_id, prepared.config.entry, header)
-        )
+        write_text_atomic(params / run_folder.CONFIG_NAME, entry_yaml(env_id, prepared.config.entry, header))
+        write_text_atomic(params / run_folder.COMMAND_NAME, (options.command or run_folder.command_line()) + "\n")
         return _run(prepared, run_dir, restore=None, extra_callbacks=extra_callbacks)
     finally:
         prepared.close()
@@ -508,18 +460,20 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
     :raises ConfigError: when the folder holds no resumable run
     """
     run_dir = Path(run_dir)
-    for name in (ARGS_NAME, CONFIG_NAME):
-        if not (run_dir / name).is_file():
-            raise ConfigError(f"--resume: {run_dir} is not a run folder of sb3_eps.train (no {name})")
-    options = TrainOptions.from_record(load_yaml(run_dir / ARGS_NAME), f"--resume: {run_dir / ARGS_NAME}")
+    args_path, config_path = (run_folder.run_file(run_dir, name) for name in (run_folder.ARGS_NAME, run_folder.CONFIG_NAME))
+    for path in (args_path, config_path):
+        if not path.is_file():
+            raise ConfigError(f"--resume: {run_dir} is not a run folder of sb3_eps.train (no {path.name})")
+    options = TrainOptions.from_record(load_yaml(args_path), f"--resume: {args_path}")
+    import_gym_packages([], options.gym_packages)  # the run's plug-ins, before its algorithm and world are named
     spec = algorithm_spec(options.algo)
-    check_env_id(options.env, f"--resume: {run_dir / ARGS_NAME}: env")
+    check_env_id(options.env, f"--resume: {args_path}: env")
     options.init_from = None  # the warm-start weights are in the checkpoint already
     if progress is not None:
         options.progress = progress
     if verbose is not None:
         options.verbose = verbose
-    final_model = run_dir / final_model_name(options.env)
+    final_model = run_dir / run_folder.final_model_name(options.env)
     try:
         checkpoint_path, meta, skipped = latest_good_checkpoint(run_dir / CHECKPOINT_NAME)
     except FileNotFoundError:
@@ -540,17 +494,13 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
     if meta.get("complete"):
         print(f"{run_dir} has finished already: its final model is {final_model}")
         return TrainResult(run_dir, "already complete", int(options.n_timesteps or 0))
-    entry = merged_entry(
-        load_config_entries(run_dir / CONFIG_NAME, options.algo), options.env, run_dir / CONFIG_NAME
-    )
-    config = ResolvedConfig(
-        options.algo, options.env, entry, f"{run_dir / CONFIG_NAME}: entry {options.env!r}"
-    )
+    entry = merged_entry(load_config_entries(config_path, options.algo), options.env, config_path)
+    config = ResolvedConfig(options.algo, options.env, entry, f"{config_path}: entry {options.env!r}")
     check_complete(entry, spec, config.source)
     saved_algorithm = meta.get("algorithm", spec.algorithm_class.__name__)
     if saved_algorithm != spec.algorithm_class.__name__:
         raise ConfigError(
-            f"--resume: {checkpoint_path} holds a {saved_algorithm} model, but {run_dir / ARGS_NAME} says "
+            f"--resume: {checkpoint_path} holds a {saved_algorithm} model, but {args_path} says "
             f"--algo {options.algo} ({spec.algorithm_class.__name__}): the run folder was mixed with another one"
         )
     prepared = prepare_run(options, config, build_model_now=False)
@@ -590,7 +540,7 @@ def _run(
     total = int(config.entry["n_timesteps"])
     resume_timesteps = None if restore is None else int(restore["num_timesteps"])
     if restore is not None:
-        TeamMonitor.truncate_after(run_dir / MONITOR_NAME, int(restore["ticks"]))
+        TeamMonitor.truncate_after(run_dir / run_folder.MONITOR_NAME, int(restore["ticks"]))
     model.set_logger(
         make_logger(run_dir, tensorboard_dir_of(options, run_dir), options.verbose, resume_timesteps)
     )
@@ -602,7 +552,7 @@ def _run(
         "n_envs": model.n_worlds,
         "seed": options.seed,
     }
-    callbacks: list[BaseCallback] = [TeamMonitor(run_dir / MONITOR_NAME, header, eps_callbacks)]
+    callbacks: list[BaseCallback] = [TeamMonitor(run_dir / run_folder.MONITOR_NAME, header, eps_callbacks)]
     stateful: dict[str, BaseCallback] = {}
     eval_callback = None
     if prepared.eval_env is not None:
@@ -615,8 +565,8 @@ def _run(
     for index, (name, callback) in enumerate(prepared.user_callbacks):
         callbacks.append(callback)
         stateful[f"{index}:{name}"] = callback
-    checkpoint = CheckpointCallback(
-        run_dir / CHECKPOINT_NAME, options.save_freq, total, stateful, restore, verbose=options.verbose
+    checkpoint = TrainingStateCallback(
+        run_dir / CHECKPOINT_NAME, options.save_freq, total, stateful, restore, options.verbose, snapshot_dir=run_dir
     )
     if options.progress:
         callbacks.append(ProgressBarCallback())
@@ -662,20 +612,36 @@ def _run(
             return TrainResult(run_dir, "interrupted", int(model.num_timesteps))
         if eval_callback is not None and eval_callback.records["timesteps"][-1:] != [model.num_timesteps]:
             eval_callback.evaluate()
-        save_model_atomic(model, run_dir / final_model_name(config.env_id))
+        save_model_atomic(model, run_dir / run_folder.final_model_name(config.env_id))
         if options.keep_checkpoint:
             checkpoint.save(complete=True)
         else:
             remove_checkpoints(run_dir / CHECKPOINT_NAME)
     report = None if eval_callback is None else final_against_best(eval_callback.records, run_dir)
     if report is not None:
-        (run_dir / FINAL_REPORT_NAME).write_text(report + "\n")
+        (run_dir / run_folder.FINAL_REPORT_NAME).write_text(report + "\n")
         if options.verbose >= 1 or "WARNING" in report:
             print(report, flush=True)
     if options.verbose >= 1:
         minutes = (time.time() - start) / 60
         print(
-            f"Done in {minutes:.1f} min: {model.num_timesteps} timesteps ({model.ticks} ticks); final model {run_dir / final_model_name(config.env_id)}",
+            f"Done in {minutes:.1f} min: {model.num_timesteps} timesteps ({model.ticks} ticks); final model {run_dir / run_folder.final_model_name(config.env_id)}",
             flush=True,
         )
     return TrainResult(run_dir, "complete", int(model.num_timesteps))
+
+
+def check_eval_env(model: MultiAgentOffPolicyAlgorithm, eval_env: MultiAgentVecEnv, flag: str = "--eval-env") -> None:
+    """Deprecated, goes in the next release: :func:`sb3_eps.zoo.evaluation.check_spaces` (one check for evaluation
+    worlds of a run and of a loaded model)."""
+    warnings.warn(
+        "check_eval_env is deprecated: use sb3_eps.zoo.evaluation.check_spaces", DeprecationWarning, stacklevel=2
+    )
+    check_spaces(model, eval_env, str(eval_env.env_id), "the model", f"{flag}: ")
+
+
+__getattr__ = moved_names(
+    __name__,
+    {name: f"sb3_eps.zoo.run_folder:{name}" for name in (
+        "ARGS_NAME", "CONFIG_NAME", "FINAL_REPORT_NAME", "final_model_name", "create_run_folder")},
+)  # fmt: skip

@@ -20,10 +20,8 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter
 
-from sb3_eps.zoo.callbacks import EVALUATIONS_NAME, MONITOR_NAME, read_monitor
-from sb3_eps.zoo.config import load_yaml
 from sb3_eps.zoo.errors import ConfigError
-from sb3_eps.zoo.exp_manager import ARGS_NAME
+from sb3_eps.zoo.run_folder import EVALUATIONS_NAME, MONITOR_NAME, is_run_folder, read_args, read_monitor
 from sb3_eps.zoo.schema import ALGORITHMS
 
 PANELS = {"r": "team return", "success": "success rate"}
@@ -48,7 +46,7 @@ class RunCurve:
 
 
 def find_run_dirs(paths: list[str | Path]) -> list[Path]:
-    """:return: the run folders (holding ``monitor.csv`` and ``args.yml``) at or below ``paths``, sorted.
+    """:return: the run folders (holding ``monitor.csv`` and an ``args.yml``) at or below ``paths``, sorted.
 
     :raises ConfigError: when a path does not exist or none holds a run
     """
@@ -59,17 +57,15 @@ def find_run_dirs(paths: list[str | Path]) -> list[Path]:
         candidates = (
             [path] if (path / MONITOR_NAME).is_file() else [p.parent for p in path.rglob(MONITOR_NAME)]
         )
-        found.update(c for c in candidates if (c / ARGS_NAME).is_file())
+        found.update(c for c in candidates if is_run_folder(c))
     if not found:
-        raise ConfigError(
-            f"no run folder (with {MONITOR_NAME} and {ARGS_NAME}) in {', '.join(map(str, paths))}"
-        )
+        raise ConfigError(f"no run folder (with {MONITOR_NAME} and args.yml) in {', '.join(map(str, paths))}")
     return sorted(found)
 
 
 def load_curve(run_dir: Path) -> RunCurve:
     """Read a run's ``monitor.csv``: x = ``ticks + eps_ticks`` at each episode's end."""
-    args = load_yaml(run_dir / ARGS_NAME)
+    args = read_args(run_dir)
     _, columns = read_monitor(run_dir / MONITOR_NAME)
     if "ticks" not in columns:
         columns = {"ticks": np.zeros(0), "eps_ticks": np.zeros(0), "r": np.zeros(0)}
@@ -296,7 +292,7 @@ def evaluation_curves(run_dirs: list[Path]) -> list[RunCurve]:
         path = run_dir / EVALUATIONS_NAME
         if not path.is_file():
             continue
-        args = load_yaml(run_dir / ARGS_NAME)
+        args = read_args(run_dir)
         data = np.load(path)
         values = {"r": data["results"].mean(axis=1)}
         if not np.isnan(data["successes"]).all():

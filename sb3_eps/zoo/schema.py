@@ -15,13 +15,15 @@ and callback objects.
 
 from __future__ import annotations
 
+import functools
 import importlib
 import inspect
 import math
 import re
 import types
 import typing
-from collections.abc import Callable, Mapping
+import warnings
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -30,6 +32,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.utils import LinearSchedule
 from torch import nn
 
+from sb3_eps.common import buffers
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.gdq import GDQ
 from sb3_eps.iql import IQL
@@ -147,7 +150,9 @@ ALGORITHM_PARAMS: dict[str, Param] = {
     "gamma": Param("float", low=0, high=1),
     "train_freq": Param("train_freq"),
     "gradient_steps": Param("int", low=-1),
-    "target_update_interval": Param("int", low=1),
+    "replay_buffer_class": Param("choice", choices=("JointReplayBuffer", "PrioritizedJointReplayBuffer")),
+    "replay_buffer_kwargs": Param("mapping"),
+    "gradient_steps_per_target_update": Param("int", low=1),
     "n_steps": Param("int", low=1),
     "prioritized_replay": Param("bool"),
     "prioritized_replay_alpha": Param("float", low=0),
@@ -161,6 +166,8 @@ ALGORITHM_PARAMS: dict[str, Param] = {
     "overlap_training": Param("bool"),
     "stats_window_size": Param("int", low=1),
 }
+#: Deprecated keys (one release) -> their new name; an entry with the old key loads with a DeprecationWarning.
+RENAMED_KEYS: dict[str, str] = {"target_update_interval": "gradient_steps_per_target_update"}
 #: Constructor arguments that come from the command line, never from a config.
 COMMAND_LINE_ARGUMENTS = (
     "policy",
@@ -205,6 +212,7 @@ class AlgorithmSpec:
     :param policy_params: the ``policy_kwargs`` keys it accepts
     :param eps: an ``eps_*`` name: the base algorithm plus an ``EvolutionCallback`` from the config
     :param label: the name in plots and tables (the paper's)
+    :param extra_params: constructor arguments of its own beyond :data:`ALGORITHM_PARAMS` (plug-in algorithms)
     """
 
     name: str
@@ -212,6 +220,12 @@ class AlgorithmSpec:
     policy_params: dict[str, Param]
     eps: bool
     label: str
+    extra_params: dict[str, Param] = field(default_factory=dict)
+
+    @property
+    def params(self) -> dict[str, Param]:
+        """Every constructor argument a config may set (``policy_kwargs`` apart)."""
+        return {**ALGORITHM_PARAMS, **self.extra_params}
 
 
 ALGORITHMS: dict[str, AlgorithmSpec] = {
@@ -225,6 +239,84 @@ ALGORITHMS: dict[str, AlgorithmSpec] = {
         AlgorithmSpec("eps_gdq", GDQ, GDQ_POLICY_PARAMS, True, "EPS-GDQ"),
     )
 }
+
+
+def register_algorithm(
+    name: str,
+    algorithm_class: type[MultiAgentOffPolicyAlgorithm],
+    *,
+    label: str | None = None,
+    eps: bool = False,
+) -> AlgorithmSpec:
+    """Make an algorithm of one's own a name of the configs and command lines (``--algo <name>``); a module that
+    ``--gym-packages`` imports calls it. Its config keys come from its signatures: the base's arguments, its own
+    constructor arguments and its policy's, each typed ``bool``, ``int``, ``float``, ``str``, ``Literal[...]``,
+    ``list[int]`` or ``dict`` (:func:`params_from_signature`).
+
+    :param name: the name (lower case, digits and ``_``); its config file is ``<name>.yml``
+    :param algorithm_class: a subclass of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`
+    :param label: its name in plots and tables (default: the class name)
+    :param eps: it runs with an ``EvolutionCallback`` from its config (as ``eps_gdq``)
+    :return: the spec
+    :raises ValueError: for a bad name, a name taken by another algorithm, or a class of another kind
+    """
+    if not isinstance(name, str) or not re.fullmatch(r"[a-z][a-z0-9_]*", name):
+        raise ValueError(f"an algorithm name is lower case letters, digits and _, got {name!r}")
+    if not (isinstance(algorithm_class, type) and issubclass(algorithm_class, MultiAgentOffPolicyAlgorithm)):
+        raise ValueError(
+            f"{algorithm_class!r} is not a subclass of sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm"
+        )
+    known = ALGORITHMS.get(name)
+    if known is not None and known.algorithm_class is not algorithm_class:
+        raise ValueError(f"algorithm name {name!r} is taken by {known.algorithm_class.__name__}; pick another")
+    skip = (*ALGORITHM_PARAMS, *COMMAND_LINE_ARGUMENTS, *RENAMED_KEYS, POLICY_KWARGS_KEY)
+    own = params_from_signature(algorithm_class.__init__, skip)
+    policy_init = algorithm_class.policy_aliases["MlpPolicy"].__init__
+    policy_params = {
+        **COMMON_POLICY_PARAMS,
+        **params_from_signature(policy_init, (*_POLICY_INTERNALS, *COMMON_POLICY_PARAMS)),
+    }
+    spec = AlgorithmSpec(name, algorithm_class, policy_params, eps, label or algorithm_class.__name__, own)
+    ALGORITHMS[name] = spec
+    return spec
+
+
+#: Policy constructor arguments the algorithm sets itself.
+_POLICY_INTERNALS = (
+    "observation_space", "action_space", "lr_schedule", "n_agents", "state_dim", "features_extractor_class",
+    "features_extractor_kwargs",
+)  # fmt: skip
+
+
+def params_from_signature(function: Callable[..., Any], skip: Sequence[str] = ()) -> dict[str, Param]:
+    """:return: ``{argument: Param}`` of the keyword arguments of ``function`` whose type hint a config can hold
+    (``bool``, ``int``, ``float``, ``str``, ``Literal[...]``, ``list[int]``, a mapping; ``None`` allowed beside
+    them); the others are left out."""
+    hints = typing.get_type_hints(function)
+    params: dict[str, Param] = {}
+    for name in inspect.signature(function).parameters:
+        if name in skip or name == "self" or name not in hints:
+            continue
+        param = _param_of_hint(hints[name])
+        if param is not None:
+            params[name] = param
+    return params
+
+
+def _param_of_hint(hint: Any) -> Param | None:
+    members = [member for member in _hint_members(hint) if member is not type(None)]
+    if len(members) != 1:
+        return None
+    member = members[0]
+    origin, arguments = typing.get_origin(member), typing.get_args(member)
+    if origin is typing.Literal:
+        return Param("choice", choices=tuple(str(argument) for argument in arguments))
+    kinds = {bool: "bool", int: "int", float: "float", str: "str", dict: "mapping"}
+    if member in kinds or origin is dict:
+        return Param(kinds[origin or member])
+    if origin in (list, tuple) and arguments[:1] == (int,):
+        return Param("int_list")
+    return None
 
 
 def algorithm_spec(name: str) -> AlgorithmSpec:
@@ -245,6 +337,33 @@ _CALLBACK_SPELLINGS: dict[str, str] = {
 }
 
 
+def register_callback(callback_class: type[BaseCallback], name: str | None = None) -> str:
+    """Make a callback of one's own a name that configs may list (``callback: mypkg.MyCallback``); a module that
+    ``--gym-packages`` imports calls it. Its arguments are checked against its constructor's type hints.
+
+    :param callback_class: an SB3 ``BaseCallback`` subclass with ``state_dict()`` / ``load_state_dict()`` (a run's
+        checkpoint keeps its state; return ``{}`` when it keeps none)
+    :param name: its name in configs (default ``<module>.<class name>``; the bare class name is accepted too)
+    :return: the name
+    :raises ValueError: for another kind of class, one without a state, or a name taken by another callback
+    """
+    if not (isinstance(callback_class, type) and issubclass(callback_class, BaseCallback)):
+        raise ValueError(f"{callback_class!r} is not a stable_baselines3 BaseCallback subclass")
+    if not all(hasattr(callback_class, method) for method in ("state_dict", "load_state_dict")):
+        raise ValueError(
+            f"{callback_class.__name__} needs state_dict() and load_state_dict() so that a checkpoint resumes it "
+            "(return {} when it keeps no state)"
+        )
+    target = f"{callback_class.__module__}:{callback_class.__qualname__}"
+    canonical = name or f"{callback_class.__module__}.{callback_class.__qualname__}"
+    if CALLBACKS.get(canonical, target) != target:
+        raise ValueError(f"callback name {canonical!r} is taken by {CALLBACKS[canonical]}; pick another")
+    CALLBACKS[canonical] = target
+    for spelling in (canonical, callback_class.__name__):
+        _CALLBACK_SPELLINGS.setdefault(spelling, canonical)
+    return canonical
+
+
 def callback_class(name: str, where: str = "callback") -> type[BaseCallback]:
     """Import an allowed callback class.
 
@@ -257,7 +376,7 @@ def callback_class(name: str, where: str = "callback") -> type[BaseCallback]:
         raise ConfigError(f"{where}: unknown callback {name!r}; allowed: {allowed(CALLBACKS)}")
     module_name, _, attribute = CALLBACKS[canonical].partition(":")
     try:
-        return getattr(importlib.import_module(module_name), attribute)
+        return functools.reduce(getattr, attribute.split("."), importlib.import_module(module_name))  # type: ignore[arg-type]
     except (ImportError, AttributeError) as error:
         raise ConfigError(f"{where}: callback {canonical} cannot be imported here ({error})") from None
 
@@ -286,7 +405,8 @@ def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, An
         raise ConfigError(
             f"{where}: an entry must be a mapping of keys to values, got {type(entry).__name__}"
         )
-    keys = [*RUN_PARAMS, *ALGORITHM_PARAMS, POLICY_KWARGS_KEY, CALLBACK_KEY]
+    entry = _renamed_keys(entry, where)
+    keys = [*RUN_PARAMS, *spec.params, POLICY_KWARGS_KEY, CALLBACK_KEY]
     for key in entry:
         if key not in keys:
             raise ConfigError(f"{where}: unknown key {key!r}; allowed keys: {allowed(keys)}")
@@ -302,9 +422,24 @@ def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, An
         elif key == POLICY_KWARGS_KEY:
             result[key] = normalize_policy_kwargs(value, spec, f"{where}: policy_kwargs")
         else:
-            param = RUN_PARAMS.get(key) or ALGORITHM_PARAMS[key]
+            param = RUN_PARAMS.get(key) or spec.params[key]
             result[key] = normalize_value(value, param, f"{where}: {key}")
     return result
+
+
+def _renamed_keys(entry: Mapping[str, Any], where: str) -> Mapping[str, Any]:
+    """:return: ``entry`` with the deprecated keys of :data:`RENAMED_KEYS` renamed (warning once per key)."""
+    for old, new in RENAMED_KEYS.items():
+        if old in entry:
+            if new in entry:
+                raise ConfigError(f"{where}: {old} and {new} are the same setting; keep {new} alone")
+            warnings.warn(
+                f"{where}: {old} is deprecated and goes in the next release; rename it {new} (same value)",
+                DeprecationWarning,
+                stacklevel=4,
+            )
+            entry = {(new if key == old else key): value for key, value in entry.items()}
+    return entry
 
 
 def check_complete(entry: Mapping[str, Any], spec: AlgorithmSpec, where: str) -> None:
@@ -567,15 +702,16 @@ def algorithm_kwargs(entry: Mapping[str, Any]) -> dict[str, Any]:
     :param entry: a canonical entry (:func:`normalize_entry`)
     """
     kwargs: dict[str, Any] = {}
-    for key in ALGORITHM_PARAMS:
-        if key not in entry:
+    for key, value in entry.items():
+        if key in RUN_PARAMS or key in (POLICY_KWARGS_KEY, CALLBACK_KEY):
             continue
-        value = entry[key]
         if key == "learning_rate" and isinstance(value, str):
             # RL Zoo's lin_<x>: x at the start, decreasing linearly to 0 at the end of training.
             value = LinearSchedule(float(value[4:]), 0.0, 1.0)
         elif key == "train_freq" and isinstance(value, list):
             value = (value[0], value[1])
+        elif key == "replay_buffer_class":
+            value = getattr(buffers, value)
         kwargs[key] = value
     if POLICY_KWARGS_KEY in entry:
         kwargs[POLICY_KWARGS_KEY] = policy_kwargs_objects(entry[POLICY_KWARGS_KEY])

@@ -26,16 +26,8 @@ from sb3_eps.zoo.callbacks import TeamEvalCallback
 from sb3_eps.zoo.checkpoint import write_text_atomic
 from sb3_eps.zoo.config import ResolvedConfig, check_env_id, entry_yaml, resolve_config
 from sb3_eps.zoo.errors import ConfigError
-from sb3_eps.zoo.exp_manager import (
-    ARGS_NAME,
-    CONFIG_NAME,
-    EVAL_SEED_OFFSET,
-    TrainOptions,
-    build_env,
-    build_model,
-    create_run_folder,
-    prepare_run,
-)
+from sb3_eps.zoo.exp_manager import EVAL_SEED_OFFSET, TrainOptions, build_env, build_model, prepare_run
+from sb3_eps.zoo.run_folder import ARGS_NAME, CONFIG_NAME, create_run_folder
 from sb3_eps.zoo.schema import (
     CALLBACK_KEY,
     EVOLUTION_CALLBACK,
