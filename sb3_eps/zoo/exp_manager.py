@@ -13,7 +13,6 @@ the same total; the result equals an uninterrupted run with the same seed (see :
 
 from __future__ import annotations
 
-import argparse
 import importlib.util
 import random
 import sys
@@ -57,7 +56,7 @@ from sb3_eps.zoo.checkpoint import (
     save_model_atomic,
     write_text_atomic,
 )
-from sb3_eps.zoo.cli import import_gym_packages
+from sb3_eps.zoo.cli import NamespaceOptions, import_gym_packages
 from sb3_eps.zoo.config import (
     ResolvedConfig,
     check_env_id,
@@ -77,7 +76,7 @@ EVAL_SEED_OFFSET = 10_000
 
 # ---------------------------------------------------------------------------------------------- options
 @dataclass
-class TrainOptions:
+class TrainOptions(NamespaceOptions):
     """The options of a training run (``python -m sb3_eps.train``; ``args.yml`` holds them resolved).
 
     Counts (``n_timesteps``, ``eval_freq``, ``save_freq``) are SB3 timesteps = agent-steps, as in RL Zoo.
@@ -125,12 +124,6 @@ class TrainOptions:
                     f"{source}: {key} is {value!r}, not a {kinds[0].__name__}: not a run of sb3_eps.train"
                 )
         return options
-
-    @classmethod
-    def from_namespace(cls, namespace: argparse.Namespace) -> TrainOptions:
-        """:return: the options of a parsed command line (unknown attributes ignored)."""
-        names = cls.__dataclass_fields__
-        return cls(**{key: value for key, value in vars(namespace).items() if key in names})
 
     def check(self) -> None:
         """:raises ConfigError: for a count or flag out of range."""
