@@ -18,7 +18,6 @@ from typing import Any
 
 from sb3_eps.zoo.config import DEFAULT_KEY, config_file, entry_yaml, load_config_entries
 from sb3_eps.zoo.schema import (
-    ALGORITHM_PARAMS,
     ALGORITHMS,
     CALLBACK_KEY,
     EVOLUTION_CALLBACK,
@@ -62,7 +61,7 @@ def _signature_defaults(function: Any) -> dict[str, Any]:
     }
 
 
-GDQ_EXTRA_POLICY_DEFAULTS = ("global_init", "global_bootstrap", "global_values")
+GDQ_EXTRA_POLICY_DEFAULTS = ("global_init",)
 
 
 def package_policy_kwargs(algo: str) -> dict[str, Any]:
@@ -122,7 +121,7 @@ def package_default_entry(algo: str) -> dict[str, Any]:
     }
     entry.update(
         (name, config_value(algorithm_defaults[name]))
-        for name in ALGORITHM_PARAMS
+        for name in spec.params
         if algorithm_defaults[name] is not None  # replay_buffer_class / _kwargs: none unless a config sets them
     )
     entry[POLICY_KWARGS_KEY] = package_policy_kwargs(algo)

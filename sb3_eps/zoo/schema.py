@@ -187,20 +187,6 @@ COMMON_POLICY_PARAMS: dict[str, Param] = {
     "agent_target": Param("bool"),
     "normalize_images": Param("bool"),
 }
-GDQ_POLICY_PARAMS: dict[str, Param] = {
-    **COMMON_POLICY_PARAMS,
-    "global_net_arch": Param("int_list", low=1),
-    "global_init": Param("choice", choices=("random", "sum", "mean")),
-    "global_bootstrap": Param("float", low=0, high=1),
-    "global_values": Param("choice", choices=("recomputed", "stored", "target")),
-}
-QMIX_POLICY_PARAMS: dict[str, Param] = {
-    **COMMON_POLICY_PARAMS,
-    "mixing_embed_dim": Param("int", low=1),
-    "hypernet_hidden_dim": Param("int", low=1),
-}
-
-
 # ---------------------------------------------------------------------------------------------- algorithms
 @dataclass(frozen=True)
 class AlgorithmSpec:
@@ -227,17 +213,8 @@ class AlgorithmSpec:
         return {**ALGORITHM_PARAMS, **self.extra_params}
 
 
-ALGORITHMS: dict[str, AlgorithmSpec] = {
-    spec.name: spec
-    for spec in (
-        AlgorithmSpec("iql", IQL, COMMON_POLICY_PARAMS, False, "IL"),
-        AlgorithmSpec("gdq", GDQ, GDQ_POLICY_PARAMS, False, "GDQ"),
-        AlgorithmSpec("qmix", QMIX, QMIX_POLICY_PARAMS, False, "QMIX"),
-        AlgorithmSpec("vdn", VDN, COMMON_POLICY_PARAMS, False, "VDN"),
-        AlgorithmSpec("eps_iql", IQL, COMMON_POLICY_PARAMS, True, "EPS-IL"),
-        AlgorithmSpec("eps_gdq", GDQ, GDQ_POLICY_PARAMS, True, "EPS-GDQ"),
-    )
-}
+#: The algorithm names of the configs and command lines; plug-ins add theirs with :func:`register_algorithm`.
+ALGORITHMS: dict[str, AlgorithmSpec] = {}
 
 
 def register_algorithm(
@@ -268,13 +245,13 @@ def register_algorithm(
     known = ALGORITHMS.get(name)
     if known is not None and known.algorithm_class is not algorithm_class:
         raise ValueError(f"algorithm name {name!r} is taken by {known.algorithm_class.__name__}; pick another")
+    # The keys of its own: its constructor's and its policy's arguments beyond the base's, typed in the signatures.
     skip = (*ALGORITHM_PARAMS, *COMMAND_LINE_ARGUMENTS, *RENAMED_KEYS, POLICY_KWARGS_KEY)
     own = params_from_signature(algorithm_class.__init__, skip)
-    policy_init = algorithm_class.policy_aliases["MlpPolicy"].__init__
-    policy_params = {
-        **COMMON_POLICY_PARAMS,
-        **params_from_signature(policy_init, (*_POLICY_INTERNALS, *COMMON_POLICY_PARAMS)),
-    }
+    policy_class = algorithm_class.policy_aliases["MlpPolicy"]
+    policy_params = dict(COMMON_POLICY_PARAMS)
+    if "__init__" in vars(policy_class):  # a policy that only inherits its constructor adds no keys (VDN's)
+        policy_params.update(params_from_signature(policy_class.__init__, (*_POLICY_INTERNALS, *COMMON_POLICY_PARAMS)))
     spec = AlgorithmSpec(name, algorithm_class, policy_params, eps, label or algorithm_class.__name__, own)
     ALGORITHMS[name] = spec
     return spec
@@ -404,7 +381,7 @@ def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, An
         raise ConfigError(
             f"{where}: an entry must be a mapping of keys to values, got {type(entry).__name__}"
         )
-    entry = _renamed_keys(entry, where)
+    entry = _lift_algorithm_options(_renamed_keys(entry, where), spec, where)
     keys = [*RUN_PARAMS, *spec.params, POLICY_KWARGS_KEY, CALLBACK_KEY]
     for key in entry:
         if key not in keys:
@@ -439,6 +416,30 @@ def _renamed_keys(entry: Mapping[str, Any], where: str) -> Mapping[str, Any]:
             )
             entry = {(new if key == old else key): value for key, value in entry.items()}
     return entry
+
+
+def _lift_algorithm_options(entry: Mapping[str, Any], spec: AlgorithmSpec, where: str) -> Mapping[str, Any]:
+    """:return: ``entry`` with the algorithm's own arguments that ``policy_kwargs`` holds (GDQ's ``global_values``,
+    ``global_bootstrap`` before they were GDQ's) moved to the entry, with a DeprecationWarning."""
+    policy_kwargs = entry.get(POLICY_KWARGS_KEY)
+    if isinstance(policy_kwargs, str):
+        policy_kwargs = parse_literal(policy_kwargs, NAME_SPELLINGS, f"{where}: {POLICY_KWARGS_KEY}")
+    if not isinstance(policy_kwargs, Mapping):
+        return entry
+    moved = [key for key in policy_kwargs if key in spec.extra_params and key not in spec.policy_params]
+    if not moved:
+        return entry
+    for key in moved:
+        if key in entry:
+            raise ConfigError(f"{where}: {key} is given twice, in policy_kwargs and in the entry; keep the entry's")
+    warnings.warn(
+        f"{where}: {', '.join(moved)} in policy_kwargs is deprecated and goes in the next release: they are arguments "
+        f"of {spec.algorithm_class.__name__}, give them as keys of the entry",
+        DeprecationWarning,
+        stacklevel=4,
+    )
+    rest = {key: value for key, value in policy_kwargs.items() if key not in moved}
+    return {**entry, POLICY_KWARGS_KEY: rest, **{key: policy_kwargs[key] for key in moved}}
 
 
 def check_complete(entry: Mapping[str, Any], spec: AlgorithmSpec, where: str) -> None:
@@ -751,3 +752,10 @@ def build_callbacks(
         except (TypeError, ValueError) as error:
             raise ConfigError(f"{where}: callback {name}: {error}") from None
     return callbacks
+
+
+# The package's own algorithms, registered as a plug-in's would be (their config keys read from the signatures).
+for _name, _class, _label in (("iql", IQL, "IL"), ("gdq", GDQ, "GDQ"), ("qmix", QMIX, "QMIX"), ("vdn", VDN, "VDN")):
+    register_algorithm(_name, _class, label=_label)
+for _name, _class, _label in (("eps_iql", IQL, "EPS-IL"), ("eps_gdq", GDQ, "EPS-GDQ")):
+    register_algorithm(_name, _class, label=_label, eps=True)

@@ -112,7 +112,7 @@ def sample_hyperparams(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dic
         ]
         policy_kwargs["agent_target"] = trial.suggest_categorical("agent_target", [True, False])
         if not policy_kwargs["agent_target"]:  # v' cannot come from a target network that does not exist
-            policy_kwargs["global_values"] = "recomputed"
+            params["global_values"] = "recomputed"
         params["team_reward_mode"] = trial.suggest_categorical("team_reward_mode", ["sum", "mean"])
     if "mixing_embed_dim" in spec.policy_params:
         policy_kwargs["mixing_embed_dim"] = trial.suggest_categorical("mixing_embed_dim", [16, 32, 64])
