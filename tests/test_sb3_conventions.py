@@ -178,6 +178,6 @@ def test_a_config_with_gdq_options_in_policy_kwargs_loads_with_a_warning(tmp_pat
     with pytest.warns(DeprecationWarning, match="global_values, global_bootstrap in policy_kwargs is deprecated"):
         entry = resolve_config("gdq", "CooperativeNavigation-v0", conf_file=path).entry
     assert entry["global_values"] == "stored" and entry["global_bootstrap"] == 0.5
-    assert entry["policy_kwargs"] == {"net_arch": [16]}
+    assert entry["policy_kwargs"]["net_arch"] == [16] and not {"global_values", "global_bootstrap"} & set(entry["policy_kwargs"])
     with pytest.raises(Exception, match="global_values must be one of recomputed, stored, target"):
         resolve_config("gdq", "CooperativeNavigation-v0", hyperparams=["global_values:cached"])

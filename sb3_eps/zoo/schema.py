@@ -20,6 +20,7 @@ import importlib
 import inspect
 import math
 import re
+import sys
 import types
 import typing
 import warnings
@@ -693,6 +694,64 @@ def _describe_hint(hint: Any) -> str:
         names.get(typing.get_origin(m) or m, getattr(m, "__name__", str(m))) for m in _hint_members(hint)
     ]
     return " or ".join(word if word not in ("dict", "Mapping") else "a mapping" for word in words)
+
+
+# ---------------------------------------------------------------------------------------------- defaults
+def package_defaults(spec: AlgorithmSpec) -> dict[str, Any]:
+    """The constructors' defaults as a canonical entry (the algorithm's arguments and its ``policy_kwargs``, read
+    from the signatures): what an entry that sets nothing trains with. :func:`~sb3_eps.zoo.config.resolve_config`
+    puts them under every entry, so the config files list only what differs and a run's ``config.yml`` still
+    holds every value it trained with. A None default stands for the ``DEFAULT_<NAME>`` constant of the class's
+    module when there is one (``DEFAULT_NET_ARCH``), as the constructors read it; other None defaults are left out.
+    """
+    algorithm = _signature_defaults(spec.algorithm_class.__init__)
+    entry = {name: _config_value(algorithm[name]) for name in spec.params if algorithm.get(name) is not None}
+    policy_class = spec.algorithm_class.policy_aliases["MlpPolicy"]
+    policy: dict[str, Any] = {}
+    for cls in reversed(policy_class.__mro__):  # the base's defaults first, each subclass's over them
+        if "__init__" in vars(cls):
+            module = sys.modules[cls.__module__]
+            policy.update(
+                (name, getattr(module, f"DEFAULT_{name.upper()}", None) if value is None else value)
+                for name, value in _signature_defaults(cls.__init__).items()
+            )
+    policy["agent_target"] = spec.algorithm_class.default_agent_target
+    entry[POLICY_KWARGS_KEY] = {
+        name: _config_value(policy[name]) for name in spec.policy_params if policy.get(name) is not None
+    }
+    return entry
+
+
+def with_package_defaults(entry: Mapping[str, Any], spec: AlgorithmSpec) -> dict[str, Any]:
+    """:return: ``entry`` over :func:`package_defaults` (``policy_kwargs`` merged key by key), in schema order."""
+    defaults = package_defaults(spec)
+    merged = {**defaults, **entry}
+    merged[POLICY_KWARGS_KEY] = {**defaults[POLICY_KWARGS_KEY], **entry.get(POLICY_KWARGS_KEY, {})}
+    order = [*RUN_PARAMS, *spec.params, POLICY_KWARGS_KEY, CALLBACK_KEY]
+    return {key: merged[key] for key in order if key in merged}
+
+
+def _signature_defaults(function: Callable[..., Any]) -> dict[str, Any]:
+    return {
+        name: parameter.default
+        for name, parameter in inspect.signature(function).parameters.items()
+        if parameter.default is not inspect.Parameter.empty
+    }
+
+
+def _config_value(value: Any) -> Any:
+    """A constructor default as a config value: SB3's ``LinearSchedule(x, 0, 1)`` is RL Zoo's ``lin_<x>``; classes
+    are their config names (``nn.ReLU``, ``th.optim.Adam``, ``JointReplayBuffer``)."""
+    if isinstance(value, LinearSchedule):
+        if value.end != 0.0 or value.end_fraction != 1.0:
+            raise ValueError(f"a default {value!r} has no config form: only lin_<x> (x -> 0 over training) has")
+        return f"lin_{value.start}"
+    if isinstance(value, type):
+        names = {cls: name for name, cls in {**ACTIVATIONS, **OPTIMIZERS}.items()}
+        return names.get(value, value.__name__)
+    if isinstance(value, tuple):
+        return list(value)
+    return value
 
 
 # ---------------------------------------------------------------------------------------------- building
