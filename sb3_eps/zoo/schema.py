@@ -73,12 +73,13 @@ class Param:
     """What one key may hold.
 
     :param kind: ``int``, ``float``, ``bool``, ``str``, ``choice``, ``schedule``, ``train_freq``, ``int_list``,
-        ``mapping``, ``activation``, ``optimizer``
+        ``list`` (of plain data), ``mapping``, ``activation``, ``optimizer``, ``any`` (plain data)
     :param low: smallest allowed number (``int`` / ``float`` / ``int_list`` items)
     :param high: largest allowed number
     :param open_low: ``low`` itself is excluded
     :param open_high: ``high`` itself is excluded
     :param choices: the allowed strings of a ``choice``
+    :param nullable: ``null`` (None) is allowed too
     """
 
     kind: str
@@ -87,6 +88,7 @@ class Param:
     open_low: bool = False
     open_high: bool = False
     choices: tuple[str, ...] = field(default_factory=tuple)
+    nullable: bool = False
 
     def describe(self) -> str:
         """:return: what the key may hold, in words (for error messages)."""
@@ -100,11 +102,13 @@ class Param:
             "schedule": f"a number{bounds} or a linear schedule 'lin_<initial value>' (e.g. lin_1e-3)",
             "train_freq": "an int >= 1 or a list [int >= 1, 'step' or 'episode']",
             "int_list": f"a list of ints{bounds}",
+            "list": "a list",
+            "any": "plain data (numbers, strings, lists, mappings)",
             "mapping": "a mapping of names to values (or a 'dict(...)' string)",
             "activation": f"one of {allowed(ACTIVATIONS)}",
             "optimizer": f"one of {allowed(OPTIMIZERS)}",
         }
-        return words[self.kind]
+        return words[self.kind] + (" or null" if self.nullable else "")
 
     def _bounds(self) -> str:
         parts = []
@@ -271,8 +275,9 @@ def params_from_signature(function: Callable[..., Any], skip: Sequence[str] = ()
     them); the others are left out."""
     hints = typing.get_type_hints(function)
     params: dict[str, Param] = {}
-    for name in inspect.signature(function).parameters:
-        if name in skip or name == "self" or name not in hints:
+    for name, parameter in inspect.signature(function).parameters.items():
+        variadic = parameter.kind in (parameter.VAR_POSITIONAL, parameter.VAR_KEYWORD)
+        if variadic or name in skip or name == "self" or name not in hints:
             continue
         param = _param_of_hint(hints[name])
         if param is not None:
@@ -282,18 +287,25 @@ def params_from_signature(function: Callable[..., Any], skip: Sequence[str] = ()
 
 def _param_of_hint(hint: Any) -> Param | None:
     members = [member for member in _hint_members(hint) if member is not type(None)]
+    nullable = len(members) < len(_hint_members(hint))
     if len(members) != 1:
         return None
     member = members[0]
     origin, arguments = typing.get_origin(member), typing.get_args(member)
     if origin is typing.Literal:
-        return Param("choice", choices=tuple(str(argument) for argument in arguments))
-    kinds = {bool: "bool", int: "int", float: "float", str: "str", dict: "mapping"}
+        return Param("choice", choices=tuple(str(argument) for argument in arguments), nullable=nullable)
+    kinds = {bool: "bool", int: "int", float: "float", str: "str", dict: "mapping", Any: "any"}
     if member in kinds or origin is dict:
-        return Param(kinds[origin or member])
-    if origin in (list, tuple) and arguments[:1] == (int,):
-        return Param("int_list")
+        return Param(kinds[origin or member], nullable=nullable)
+    if origin in (list, tuple):
+        return Param("int_list" if arguments[:1] == (int,) else "list", nullable=nullable)
     return None
+
+
+def _hint_members(hint: Any) -> tuple[Any, ...]:
+    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
+        return typing.get_args(hint)
+    return (hint,)
 
 
 def algorithm_spec(name: str) -> AlgorithmSpec:
@@ -469,6 +481,8 @@ def normalize_value(value: Any, param: Param, where: str) -> Any:
 
     :raises ConfigError: naming ``where`` and what is allowed
     """
+    if value is None and param.nullable:
+        return None
     if param.kind == "mapping" and isinstance(value, str):
         value = parse_literal(value, {}, where)  # RL Zoo's "dict(...)" string
     result = _CHECKERS[param.kind](value, param)
@@ -563,6 +577,8 @@ _CHECKERS: dict[str, Callable[[Any, Param], Any]] = {
     "train_freq": _check_train_freq,
     "int_list": _check_int_list,
     "mapping": _check_mapping,
+    "list": lambda value, param: list(value) if isinstance(value, list | tuple) and _is_plain_data(value) else _INVALID,
+    "any": lambda value, param: value if _is_plain_data(value) else _INVALID,
     "activation": _check_name(ACTIVATIONS),
     "optimizer": _check_name(OPTIMIZERS),
 }
@@ -640,60 +656,13 @@ def _check_callback_kwargs(cls: type[BaseCallback], kwargs: Any, where: str) -> 
     if not isinstance(kwargs, Mapping):
         raise ConfigError(f"{where}: the arguments must be a mapping, got {kwargs!r}")
     parameters = callback_parameters(cls)
-    hints = typing.get_type_hints(cls.__init__)
+    params = params_from_signature(cls.__init__)
     result: dict[str, Any] = {}
     for key, value in kwargs.items():
         if key not in parameters:
             raise ConfigError(f"{where}: unknown argument {key!r}; allowed: {allowed(parameters)}")
-        value = _as_number(value) if isinstance(value, str) and _accepts(hints.get(key), float) else value
-        if not _matches_hint(value, hints.get(key, Any)):
-            raise ConfigError(f"{where}: {key} must be {_describe_hint(hints.get(key, Any))}, got {value!r}")
-        result[key] = float(value) if _is_float_hint(hints.get(key)) and isinstance(value, int) else value
+        result[key] = normalize_value(value, params.get(key, Param("any")), f"{where}: {key}")
     return result
-
-
-def _hint_members(hint: Any) -> tuple[Any, ...]:
-    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
-        return typing.get_args(hint)
-    return (hint,)
-
-
-def _accepts(hint: Any, kind: type) -> bool:
-    return any(member is kind for member in _hint_members(hint))
-
-
-def _is_float_hint(hint: Any) -> bool:
-    return _accepts(hint, float) and not _accepts(hint, int)
-
-
-def _matches_hint(value: Any, hint: Any) -> bool:
-    for member in _hint_members(hint):
-        origin = typing.get_origin(member) or member
-        if member is Any:
-            return _is_plain_data(value)
-        if member is type(None) and value is None:
-            return True
-        if origin is bool and isinstance(value, bool):
-            return True
-        if origin is int and isinstance(value, int) and not isinstance(value, bool):
-            return True
-        if origin is float and isinstance(value, int | float) and not isinstance(value, bool):
-            return True
-        if origin is str and isinstance(value, str):
-            return True
-        if origin in (dict, Mapping) and isinstance(value, Mapping) and _is_plain_data(value):
-            return True
-        if origin in (list, tuple) and isinstance(value, list | tuple) and _is_plain_data(value):
-            return True
-    return False
-
-
-def _describe_hint(hint: Any) -> str:
-    names = {bool: "true/false", int: "an int", float: "a number", str: "a string", type(None): "null"}
-    words = [
-        names.get(typing.get_origin(m) or m, getattr(m, "__name__", str(m))) for m in _hint_members(hint)
-    ]
-    return " or ".join(word if word not in ("dict", "Mapping") else "a mapping" for word in words)
 
 
 # ---------------------------------------------------------------------------------------------- defaults
