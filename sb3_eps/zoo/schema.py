@@ -673,17 +673,9 @@ def package_defaults(spec: AlgorithmSpec) -> dict[str, Any]:
     holds every value it trained with. A None default stands for the ``DEFAULT_<NAME>`` constant of the class's
     module when there is one (``DEFAULT_NET_ARCH``), as the constructors read it; other None defaults are left out.
     """
-    algorithm = _signature_defaults(spec.algorithm_class.__init__)
+    algorithm = _constructor_defaults(spec.algorithm_class)
     entry = {name: _config_value(algorithm[name]) for name in spec.params if algorithm.get(name) is not None}
-    policy_class = spec.algorithm_class.policy_aliases["MlpPolicy"]
-    policy: dict[str, Any] = {}
-    for cls in reversed(policy_class.__mro__):  # the base's defaults first, each subclass's over them
-        if "__init__" in vars(cls):
-            module = sys.modules[cls.__module__]
-            policy.update(
-                (name, getattr(module, f"DEFAULT_{name.upper()}", None) if value is None else value)
-                for name, value in _signature_defaults(cls.__init__).items()
-            )
+    policy = _constructor_defaults(spec.algorithm_class.policy_aliases["MlpPolicy"])
     policy["agent_target"] = spec.algorithm_class.default_agent_target
     entry[POLICY_KWARGS_KEY] = {
         name: _config_value(policy[name]) for name in spec.policy_params if policy.get(name) is not None
@@ -700,12 +692,20 @@ def with_package_defaults(entry: Mapping[str, Any], spec: AlgorithmSpec) -> dict
     return {key: merged[key] for key in order if key in merged}
 
 
-def _signature_defaults(function: Callable[..., Any]) -> dict[str, Any]:
-    return {
-        name: parameter.default
-        for name, parameter in inspect.signature(function).parameters.items()
-        if parameter.default is not inspect.Parameter.empty
-    }
+def _constructor_defaults(cls: type) -> dict[str, Any]:
+    """:return: the keyword defaults of every ``__init__`` along ``cls``'s MRO, the base's first and each subclass's
+    over them (a subclass that passes ``**kwargs`` on keeps its base's); a None default becomes the
+    ``DEFAULT_<NAME>`` constant of the class's module where there is one."""
+    defaults: dict[str, Any] = {}
+    for owner in reversed(cls.__mro__):
+        if "__init__" not in vars(owner) or owner is object:
+            continue
+        module = sys.modules[owner.__module__]
+        for name, parameter in inspect.signature(owner.__init__).parameters.items():
+            if parameter.default is not inspect.Parameter.empty:
+                value = parameter.default
+                defaults[name] = getattr(module, f"DEFAULT_{name.upper()}", None) if value is None else value
+    return defaults
 
 
 def _config_value(value: Any) -> Any:
