@@ -143,6 +143,8 @@ MOVED = [
       for name in ("MONITOR_NAME", "EVALUATIONS_NAME", "BEST_MODEL_NAME", "PROGRESS_NAME", "read_monitor")],
     ("sb3_eps.zoo.callbacks", "CheckpointCallback", "sb3_eps.zoo.callbacks", "TrainingStateCallback"),
     ("sb3_eps.zoo.evaluation", "find_run", "sb3_eps.zoo.run_folder", "find_run"),
+    ("sb3_eps.gdq.policies", "GLOBAL_VALUES", "sb3_eps.gdq.gdq", "GLOBAL_VALUES"),
+    ("sb3_eps.gdq.policies", "DEFAULT_GLOBAL_VALUES", "sb3_eps.gdq.gdq", "DEFAULT_GLOBAL_VALUES"),
 ]  # fmt: skip
 
 

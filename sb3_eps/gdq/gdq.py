@@ -21,6 +21,7 @@ from sb3_eps.gdq.policies import GDQPolicy, MlpPolicy
 #: Where ``v`` and ``v'`` (the inputs of ``V_G`` and ``V_G'``) come from (``GDQ(global_values=...)``).
 GlobalValues = Literal["recomputed", "stored", "target"]
 GLOBAL_VALUES: tuple[str, ...] = typing.get_args(GlobalValues)
+DEFAULT_GLOBAL_VALUES: GlobalValues = "target"
 #: GDQ's own options, given in ``policy_kwargs`` before they were arguments of ``GDQ`` (deprecated there).
 _FORMER_POLICY_OPTIONS = ("global_values", "global_bootstrap")
 
@@ -131,7 +132,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
         target_update_interval: int | None = None,
-        global_values: GlobalValues = "target",
+        global_values: GlobalValues = DEFAULT_GLOBAL_VALUES,
         global_bootstrap: float = 1.0,
     ) -> None:
         # GDQ's own defaults differ from the base's in n_steps (30: an agent's own rewards reach its target

@@ -10,6 +10,7 @@ from stable_baselines3.common.torch_layers import create_mlp
 from torch import nn
 
 from sb3_eps.common.policies import MultiAgentQPolicy
+from sb3_eps.common.utils import moved_names
 
 DEFAULT_GLOBAL_NET_ARCH = [64, 64]
 GlobalInit = Literal["random", "sum", "mean"]
@@ -133,3 +134,8 @@ class GDQPolicy(MultiAgentQPolicy):
 
 
 MlpPolicy = GDQPolicy
+
+# GDQ's learning options moved to the algorithm (its constructor's arguments) with their choices.
+__getattr__ = moved_names(
+    __name__, {name: f"sb3_eps.gdq.gdq:{name}" for name in ("GLOBAL_VALUES", "DEFAULT_GLOBAL_VALUES")}
+)
