@@ -21,6 +21,7 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import torch as th
@@ -304,12 +305,8 @@ def load_agent_weights(model: MultiAgentOffPolicyAlgorithm, path: str | Path) ->
         raise ConfigError(f"--init-from: cannot read {path}: {error}") from None
     if data is None or params is None or "policy" not in params:
         raise ConfigError(f"--init-from: {path} holds no policy weights")
-    for kind in ("observation_space", "action_space"):
-        if data.get(kind) != getattr(model, kind):
-            raise ConfigError(
-                f"--init-from: {path} was trained with {kind} {describe_space(data.get(kind))}, this model has "
-                f"{describe_space(getattr(model, kind))}"
-            )
+    trained_on = SimpleNamespace(**{kind: data.get(kind) for kind in ("observation_space", "action_space")})
+    check_spaces(model, trained_on, f"the model in {path}", "the new model", "--init-from: ")
     policy: dict[str, Any] = params["policy"]  # type: ignore[assignment]
     online = {key[len("q_net.") :]: value for key, value in policy.items() if key.startswith("q_net.")}
     target = {
