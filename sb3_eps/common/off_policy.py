@@ -30,10 +30,12 @@ from stable_baselines3.common.utils import LinearSchedule, safe_mean, should_col
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from sb3_eps.common.buffers import (
+    TEAM_REWARD_MODES,
     JointReplayBuffer,
     JointReplayBufferSamples,
     NStepJointCollector,
     PrioritizedJointReplayBuffer,
+    TeamRewardMode,
     _Tick,
 )
 from sb3_eps.common.policies import MultiAgentQPolicy
@@ -151,7 +153,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         exploration_initial_eps: float = 1.0,
         exploration_final_eps: float = 0.02,
         max_grad_norm: float = 10.0,
-        team_reward_mode: str = "sum",
+        team_reward_mode: TeamRewardMode = "sum",
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -235,8 +237,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             raise ValueError(
                 f"gradient_steps_per_target_update must be >= 1, got {values['gradient_steps_per_target_update']}"
             )
-        if values["team_reward_mode"] not in ("sum", "mean"):
-            raise ValueError(f"team_reward_mode must be 'sum' or 'mean', got {values['team_reward_mode']!r}")
+        if values["team_reward_mode"] not in TEAM_REWARD_MODES:
+            raise ValueError(f"team_reward_mode must be one of {TEAM_REWARD_MODES}, got {values['team_reward_mode']!r}")
         if values["prioritized_replay_alpha"] < 0:
             raise ValueError(
                 f"prioritized_replay_alpha must be >= 0, got {values['prioritized_replay_alpha']}"

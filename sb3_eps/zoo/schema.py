@@ -129,6 +129,12 @@ class Param:
         )
 
 
+#: The joint replay buffers a config may name (``replay_buffer_class``): those of :mod:`sb3_eps.common.buffers`.
+REPLAY_BUFFER_CLASSES: dict[str, type[buffers.JointReplayBuffer]] = {
+    name: cls
+    for name, cls in vars(buffers).items()
+    if isinstance(cls, type) and issubclass(cls, buffers.JointReplayBuffer)
+}
 #: Run keys of an entry (not algorithm arguments). ``policy`` and ``callback`` are checked separately.
 RUN_PARAMS: dict[str, Param] = {
     "tuned": Param("bool"),
@@ -155,7 +161,7 @@ ALGORITHM_PARAMS: dict[str, Param] = {
     "gamma": Param("float", low=0, high=1),
     "train_freq": Param("train_freq"),
     "gradient_steps": Param("int", low=-1),
-    "replay_buffer_class": Param("choice", choices=("JointReplayBuffer", "PrioritizedJointReplayBuffer")),
+    "replay_buffer_class": Param("choice", choices=tuple(REPLAY_BUFFER_CLASSES)),
     "replay_buffer_kwargs": Param("mapping"),
     "gradient_steps_per_target_update": Param("int", low=1),
     "n_steps": Param("int", low=1),
@@ -167,7 +173,7 @@ ALGORITHM_PARAMS: dict[str, Param] = {
     "exploration_initial_eps": Param("float", low=0, high=1),
     "exploration_final_eps": Param("float", low=0, high=1),
     "max_grad_norm": Param("float", low=0, open_low=True),
-    "team_reward_mode": Param("choice", choices=("sum", "mean")),
+    "team_reward_mode": Param("choice", choices=buffers.TEAM_REWARD_MODES),
     "stats_window_size": Param("int", low=1),
 }
 #: Deprecated keys (one release) -> their new name; an entry with the old key loads with a DeprecationWarning.
@@ -739,7 +745,7 @@ def algorithm_kwargs(entry: Mapping[str, Any]) -> dict[str, Any]:
         elif key == "train_freq" and isinstance(value, list):
             value = (value[0], value[1])
         elif key == "replay_buffer_class":
-            value = getattr(buffers, value)
+            value = REPLAY_BUFFER_CLASSES[value]
         kwargs[key] = value
     if POLICY_KWARGS_KEY in entry:
         kwargs[POLICY_KWARGS_KEY] = policy_kwargs_objects(entry[POLICY_KWARGS_KEY])
