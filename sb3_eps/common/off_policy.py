@@ -335,7 +335,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                 f"(sb3_eps.common.buffers: one row per world tick, all agents), got {buffer_class!r}"
             )
         self.prioritized_replay = issubclass(buffer_class, PrioritizedJointReplayBuffer)
-        owned = {
+        owned: dict[str, Any] = {
             "n_agents": self.n_agents,
             "state_dim": self.state_dim if self.uses_global_state else 0,
             "device": self.device,

@@ -143,7 +143,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         arguments = dict(locals())
         for name in ("self", "__class__", "policy", "env", *_FORMER_POLICY_OPTIONS):
             arguments.pop(name, None)
-        options = {"global_values": global_values, "global_bootstrap": global_bootstrap}
+        options: dict[str, Any] = {"global_values": global_values, "global_bootstrap": global_bootstrap}
         if any(name in (policy_kwargs or {}) for name in _FORMER_POLICY_OPTIONS):
             warnings.warn(
                 "global_values and global_bootstrap are arguments of GDQ now: GDQ(..., global_values=...), not "
@@ -159,7 +159,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             raise ValueError(f"global_values must be one of {GLOBAL_VALUES}, got {options['global_values']!r}")
         if not 0.0 <= options["global_bootstrap"] <= 1.0:
             raise ValueError(f"global_bootstrap must be in [0, 1], got {options['global_bootstrap']}")
-        self.global_values: GlobalValues = options["global_values"]  # type: ignore[assignment]
+        self.global_values: GlobalValues = options["global_values"]
         self.global_bootstrap = float(options["global_bootstrap"])
         super().__init__(policy, env, **arguments)
 

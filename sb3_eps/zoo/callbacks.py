@@ -462,7 +462,7 @@ class ResumableCSVOutputFormat(CSVOutputFormat):
         super().__init__(str(path))
         for row in rows:
             values = {key: _number(value) for key, value in row.items() if key and value not in ("", None)}
-            self.write(values, dict.fromkeys(values))
+            self.write(values, dict.fromkeys(values, ()))  # nothing excluded
 
 
 def _row_timesteps(row: dict[str, str]) -> float:

@@ -371,7 +371,8 @@ def callback_class(name: str, where: str = "callback") -> type[BaseCallback]:
         raise ConfigError(f"{where}: unknown callback {name!r}; allowed: {allowed(CALLBACKS)}")
     module_name, _, attribute = CALLBACKS[canonical].partition(":")
     try:
-        return functools.reduce(getattr, attribute.split("."), importlib.import_module(module_name))  # type: ignore[arg-type]
+        found: Any = functools.reduce(getattr, attribute.split("."), importlib.import_module(module_name))
+        return found
     except (ImportError, AttributeError) as error:
         raise ConfigError(f"{where}: callback {canonical} cannot be imported here ({error})") from None
 
@@ -707,7 +708,7 @@ def _constructor_defaults(cls: type) -> dict[str, Any]:
         if "__init__" not in vars(owner) or owner is object:
             continue
         module = sys.modules[owner.__module__]
-        for name, parameter in inspect.signature(owner.__init__).parameters.items():
+        for name, parameter in inspect.signature(vars(owner)["__init__"]).parameters.items():
             if parameter.default is not inspect.Parameter.empty:
                 value = parameter.default
                 defaults[name] = getattr(module, f"DEFAULT_{name.upper()}", None) if value is None else value
