@@ -17,6 +17,8 @@ import importlib.util
 import random
 import sys
 import time
+import types
+import typing
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -118,9 +120,11 @@ class TrainOptions(NamespaceOptions):
         if not isinstance(record, dict):
             raise ConfigError(f"{source} is not a mapping of options: not a run folder of sb3_eps.train")
         options = cls(**{key: value for key, value in record.items() if key in cls.__dataclass_fields__})
-        for key, default in vars(cls()).items():
-            value, kinds = getattr(options, key), _OPTION_TYPES.get(key, (type(default),))
-            if not ((value is None and default is None) or isinstance(value, kinds)):
+        for key, hint in typing.get_type_hints(cls).items():  # the fields' own annotations say what each holds
+            value = getattr(options, key)
+            members = typing.get_args(hint) if isinstance(hint, types.UnionType) else (hint,)
+            kinds = tuple(typing.get_origin(kind) or kind for kind in members)
+            if not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds):
                 raise ConfigError(
                     f"{source}: {key} is {value!r}, not a {kinds[0].__name__}: not a run of sb3_eps.train"
                 )
@@ -180,13 +184,6 @@ def check_optional_features(progress: bool = False, tensorboard: bool = False) -
                 f"{flag} needs {' and '.join(missing)}, which this environment lacks (they are part of the base "
                 f"install): pip install 'sb3-eps' or pip install {' '.join(missing)}; or drop {flag}"
             )
-
-
-#: Types of the options whose default is None (the others must have the type of their default).
-_OPTION_TYPES: dict[str, tuple[type, ...]] = {
-    "conf_file": (str,), "eval_env": (str,), "tensorboard_log": (str,), "init_from": (str,),
-    "n_timesteps": (int,), "seed": (int,), "vec_env": (str,), "run_name": (str,), "command": (str,),
-}  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------- building
