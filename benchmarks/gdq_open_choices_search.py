@@ -40,11 +40,11 @@ def suggest(trial: optuna.Trial, space: str) -> tuple[dict, dict]:
             "team_reward_mode": trial.suggest_categorical("team", ["sum", "mean"]),
             "batch_size": trial.suggest_categorical("batch", [64, 128]),
             "tau": trial.suggest_categorical("tau", [0.005, 0.01, 0.05]),
+            "global_values": trial.suggest_categorical("global_values", ["recomputed", "stored"]),
         }
         policy_kwargs = {
             "agent_target": trial.suggest_categorical("agent_target", [False, True]),
             "global_init": trial.suggest_categorical("global_init", ["random", "sum", "mean"]),
-            "global_values": trial.suggest_categorical("global_values", ["recomputed", "stored"]),
         }
         return params, policy_kwargs
     lr = trial.suggest_categorical("lr", ["1e-4", "3e-4", "lin_3e-4", "lin_1e-3"])

@@ -221,7 +221,7 @@ def _register_with_gymnasium() -> None:
     # Importing this package twice (e.g. importlib.reload) must not make gymnasium warn about overrides.
     for env_id, spec in _SINGLE_AGENT_SPECS.items():
         if env_id not in gymnasium.registry:
-            gymnasium.register(id=env_id, entry_point=spec.entry_point, kwargs=dict(spec.fixed_kwargs))  # type: ignore[arg-type]
+            gymnasium.register(id=env_id, entry_point=spec.entry_point, kwargs=dict(spec.fixed_kwargs))
 
 
 def _register_with_pettingzoo() -> None:

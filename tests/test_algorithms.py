@@ -101,7 +101,7 @@ def test_learns_the_corridor_optimum(algorithm) -> None:
     assert _corridor_team_return(model) == pytest.approx(optimum)
 
 
-def _corridor_model(algorithm, policy_kwargs=None):
+def _corridor_model(algorithm, policy_kwargs=None, **options):
     venv = make_vec_env("Corridor-2-v0", n_envs=2, seed=0)
     return algorithm(
         "MlpPolicy",
@@ -114,6 +114,7 @@ def _corridor_model(algorithm, policy_kwargs=None):
         train_freq=1,
         gamma=0.95,
         seed=0,
+        **options,
     )
 
 
@@ -205,9 +206,14 @@ def test_runs_on_the_robot_world(algorithm) -> None:
     assert actions.shape == (5,) and ((actions >= 0) & (actions < 20)).all()
 
 
-def _gdq_with(tmp_path=None, **policy_kwargs):
+GDQ_OPTIONS = ("global_values", "global_bootstrap")  # GDQ's own arguments; the others are policy_kwargs
+
+
+def _gdq_with(tmp_path=None, **options):
     venv = make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=0)
     kwargs = {"learning_starts": 60, "batch_size": 16, "buffer_size": 2_000, "train_freq": 2, "seed": 0}
+    kwargs.update((key, value) for key, value in options.items() if key in GDQ_OPTIONS)
+    policy_kwargs = {key: value for key, value in options.items() if key not in GDQ_OPTIONS}
     return GDQ("MlpPolicy", venv, policy_kwargs={**TINY, "global_net_arch": [16], **policy_kwargs}, **kwargs)
 
 
@@ -230,13 +236,13 @@ def test_gdq_stored_values_are_the_networks_values_at_collection_time(tmp_path) 
     assert batch.values is not None and batch.values.shape == (8, 3)
     model.save(tmp_path / "model")
     loaded = GDQ.load(tmp_path / "model", env=make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=1))
-    assert loaded.policy.global_values == "stored" and loaded.replay_buffer.store_values
+    assert loaded.global_values == "stored" and loaded.replay_buffer.store_values
 
 
 def test_gdq_target_values_are_the_default_and_not_stored() -> None:
     model = _gdq_with()
     model.learn(200)
-    assert model.policy.global_values == "target" and model.policy.agent_target
+    assert model.global_values == "target" and model.policy.agent_target
     assert not model.replay_buffer.store_values
     assert model.replay_buffer.sample(4).values is None
 
@@ -264,7 +270,8 @@ def test_gdq_rejects_bad_options(policy_kwargs, match) -> None:
     ids=["stored-values", "gdq-lambda", "target-values"],
 )
 def test_gdq_variants_learn_the_corridor_optimum(policy_kwargs) -> None:
-    model = _corridor_model(GDQ, policy_kwargs)
+    options = {key: policy_kwargs.pop(key) for key in GDQ_OPTIONS if key in policy_kwargs}
+    model = _corridor_model(GDQ, policy_kwargs, **options)
     model.learn(4_000)
     assert _corridor_team_return(model) == pytest.approx(envs.make_parallel_env("Corridor-2-v0").optimal_team_return())
 
@@ -303,6 +310,23 @@ def test_gdq_target_values_feed_the_global_target_head_from_the_agent_target_net
         next_obs = batch.next_observations.reshape(-1, batch.next_observations.shape[-1])
         expected = model.policy.q_net_target.value(next_obs).reshape(8, 3) * batch.next_alive
     th.testing.assert_close(seen[0], expected)
+
+
+def test_gdq_options_in_policy_kwargs_still_work_with_a_deprecation_warning(tmp_path) -> None:
+    """Before they were GDQ's arguments, global_values / global_bootstrap were policy_kwargs: code and saved models
+    of that time still work."""
+    venv = make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=0)
+    with pytest.warns(DeprecationWarning, match="arguments of GDQ now"):
+        model = GDQ("MlpPolicy", venv, policy_kwargs={**TINY, "global_values": "stored", "global_bootstrap": 0.5})
+    assert (model.global_values, model.global_bootstrap) == ("stored", 0.5) and model.replay_buffer.store_values
+    assert "global_values" not in model.policy_kwargs
+    # A model file of that time: the options inside its policy_kwargs.
+    model.policy_kwargs = {**model.policy_kwargs, "global_values": "recomputed", "global_bootstrap": 0.25}
+    del model.__dict__["global_values"], model.__dict__["global_bootstrap"]
+    model.save(tmp_path / "old")
+    loaded = GDQ.load(tmp_path / "old", env=venv)
+    assert (loaded.global_values, loaded.global_bootstrap) == ("recomputed", 0.25)
+    assert "global_values" not in loaded.policy_kwargs
 
 
 def test_gdq_target_values_need_an_agent_target_network() -> None:

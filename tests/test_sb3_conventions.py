@@ -143,6 +143,8 @@ MOVED = [
       for name in ("MONITOR_NAME", "EVALUATIONS_NAME", "BEST_MODEL_NAME", "PROGRESS_NAME", "read_monitor")],
     ("sb3_eps.zoo.callbacks", "CheckpointCallback", "sb3_eps.zoo.callbacks", "TrainingStateCallback"),
     ("sb3_eps.zoo.evaluation", "find_run", "sb3_eps.zoo.run_folder", "find_run"),
+    ("sb3_eps.gdq.policies", "GLOBAL_VALUES", "sb3_eps.gdq.gdq", "GLOBAL_VALUES"),
+    ("sb3_eps.gdq.policies", "DEFAULT_GLOBAL_VALUES", "sb3_eps.gdq.gdq", "DEFAULT_GLOBAL_VALUES"),
 ]  # fmt: skip
 
 
@@ -167,3 +169,17 @@ def test_check_eval_env_is_a_deprecated_wrapper_of_check_spaces() -> None:
     other = make_vec_env("Corridor-2-v0", n_envs=1)
     with pytest.warns(DeprecationWarning, match="check_spaces"), pytest.raises(ConfigError, match="--eval-env: Corridor-2-v0 has observation_space"):
         check_eval_env(model, other)
+
+
+def test_a_config_with_gdq_options_in_policy_kwargs_loads_with_a_warning(tmp_path) -> None:
+    path = tmp_path / "gdq.yml"
+    path.write_text(
+        "default:\n  n_timesteps: 1000\n  policy_kwargs: \"dict(net_arch=[16], global_values='stored', "
+        "global_bootstrap=0.5)\"\n"
+    )
+    with pytest.warns(DeprecationWarning, match="global_values, global_bootstrap in policy_kwargs is deprecated"):
+        entry = resolve_config("gdq", "CooperativeNavigation-v0", conf_file=path).entry
+    assert entry["global_values"] == "stored" and entry["global_bootstrap"] == 0.5
+    assert entry["policy_kwargs"]["net_arch"] == [16] and not {"global_values", "global_bootstrap"} & set(entry["policy_kwargs"])
+    with pytest.raises(Exception, match="global_values must be one of recomputed, stored, target"):
+        resolve_config("gdq", "CooperativeNavigation-v0", hyperparams=["global_values:cached"])

@@ -1,4 +1,4 @@
-"""The shipped configs: every entry loads and builds its model; package defaults and YAML agree; the schema,
+"""The shipped configs: every entry loads and builds its model; constructor defaults fill what they leave out; the schema,
 the restricted literal parser and the ``--hyperparams`` overrides."""
 
 from __future__ import annotations
@@ -9,7 +9,6 @@ import pytest
 import yaml
 
 import envs
-from sb3_eps import make_vec_env
 from sb3_eps.common.policies import DEFAULT_NET_ARCH, DEFAULT_STREAM_ARCH, MultiAgentQPolicy
 from sb3_eps.zoo.config import (
     DEFAULT_KEY,
@@ -20,7 +19,6 @@ from sb3_eps.zoo.config import (
     merged_entry,
     resolve_config,
 )
-from sb3_eps.zoo.defaults import config_value, differences, rewrite_default
 from sb3_eps.zoo.errors import ConfigError
 from sb3_eps.zoo.exp_manager import build_env, build_model
 from sb3_eps.zoo.literal import parse_literal
@@ -37,6 +35,7 @@ from sb3_eps.zoo.schema import (
     build_callbacks,
     callback_class,
     callback_parameters,
+    package_defaults,
 )
 
 WORLD_ENV_IDS = [env_id for env_id in envs.ENV_IDS if env_id not in getattr(envs, "DEBUG_ENV_IDS", ())]
@@ -78,32 +77,38 @@ def test_every_entry_builds_its_model(algo, env_id) -> None:
 
 
 @pytest.mark.parametrize("algo", list(ALGORITHMS))
-def test_default_entry_equals_the_package_defaults(algo) -> None:
-    """A difference means a constructor default changed: run ``python -m sb3_eps.zoo.defaults`` to sync."""
-    assert differences(algo) == []
-    default = load_config_entries(config_file(algo), algo)[DEFAULT_KEY]
-    signature = inspect.signature(ALGORITHMS[algo].algorithm_class.__init__).parameters
-    # A LinearSchedule(x, 0, 1) default is written lin_<x> (RL Zoo's form).
-    assert all(
-        default.get(name) == config_value(signature[name].default) for name in ALGORITHM_PARAMS
-    )  # a None default (replay_buffer_class) is not written
-    assert default["policy_kwargs"]["net_arch"] == DEFAULT_NET_ARCH
-    assert default["policy_kwargs"]["stream_arch"] == DEFAULT_STREAM_ARCH
-    assert default["n_envs"] == inspect.signature(make_vec_env).parameters["n_envs"].default
-    if ALGORITHMS[algo].eps:
+def test_a_resolved_entry_holds_every_constructor_default(algo) -> None:
+    """Config files list only what differs from the constructors; resolving fills in the rest from the signatures,
+    so a run's config.yml lists every value (an entry that sets nothing builds the package-default model)."""
+    spec = ALGORITHMS[algo]
+    entry = resolve_config(algo, "MultiRobotNav-4-v0").entry
+    signature = inspect.signature(spec.algorithm_class.__init__).parameters
+    written = load_config_entries(config_file(algo), algo)
+    set_by_file = {**written[DEFAULT_KEY], **written["MultiRobotNav-4-v0"]}
+    for name in spec.params:
+        default = signature[name].default
+        if name not in set_by_file and default is not None:
+            value = algorithm_kwargs(entry)[name]
+            assert value == default or (callable(default) and value(0.5) == default(0.5)), name  # lin_x: a schedule
+    policy_kwargs = entry["policy_kwargs"]
+    assert policy_kwargs["net_arch"] == DEFAULT_NET_ARCH and policy_kwargs["stream_arch"] == DEFAULT_STREAM_ARCH
+    assert policy_kwargs["activation_fn"] == "nn.ReLU" and policy_kwargs["optimizer_class"] == "th.optim.Adam"
+    assert policy_kwargs["agent_target"] is spec.algorithm_class.default_agent_target
+    defaults = package_defaults(spec)["policy_kwargs"]
+    assert all(policy_kwargs[key] == value for key, value in defaults.items() if key not in set_by_file.get("policy_kwargs", {}))
+    if spec.eps:  # the EPS arguments the files list are the callback's defaults
         parameters = callback_parameters(callback_class(EVOLUTION_CALLBACK))
-        (item,) = default["callback"]
+        (item,) = written[DEFAULT_KEY]["callback"]
         assert all(value == parameters[name].default for name, value in item[EVOLUTION_CALLBACK].items())
 
 
-def test_defaults_tool_rewrites_a_stale_default_block(tmp_path) -> None:
-    stale = config_file("gdq").read_text().replace("gamma: 0.99", "gamma: 0.5", 1)
+def test_a_file_value_wins_over_the_constructor_default(tmp_path) -> None:
     path = tmp_path / "gdq.yml"
-    path.write_text(stale)
-    assert differences("gdq", path) != []
-    assert rewrite_default("gdq", path)
-    assert differences("gdq", path) == []
-    assert "MultiRobotNav-4-v0:" in path.read_text() and path.read_text().startswith("# GDQ")
+    path.write_text("default:\n  n_timesteps: 100\n  gamma: 0.5\n  policy_kwargs: {net_arch: [8]}\n")
+    entry = resolve_config("gdq", "MultiRobotNav-4-v0", conf_file=path).entry
+    assert entry["gamma"] == 0.5 and entry["n_steps"] == 30 and entry["learning_rate"] == "lin_0.0003"
+    assert entry["policy_kwargs"]["net_arch"] == [8] and entry["policy_kwargs"]["global_net_arch"] == [64, 64]
+    assert list(entry)[:2] == ["n_timesteps", "learning_rate"]  # schema order, as config.yml writes it
 
 
 def _parameters(cls: type) -> dict[str, object]:
@@ -114,7 +119,7 @@ def _parameters(cls: type) -> dict[str, object]:
 def test_schema_covers_every_constructor_argument(algo) -> None:
     spec = ALGORITHMS[algo]
     arguments = set(inspect.signature(spec.algorithm_class.__init__).parameters) - {"self"}
-    assert arguments == set(ALGORITHM_PARAMS) | set(COMMAND_LINE_ARGUMENTS) | {POLICY_KWARGS_KEY} | set(RENAMED_KEYS)
+    assert arguments == set(spec.params) | set(COMMAND_LINE_ARGUMENTS) | {POLICY_KWARGS_KEY} | set(RENAMED_KEYS)
     policy_class = spec.algorithm_class.policy_aliases["MlpPolicy"]
     internal = {"self", "args", "kwargs", "observation_space", "action_space", "lr_schedule", "n_agents",
                 "state_dim", "features_extractor_class", "features_extractor_kwargs"}  # fmt: skip

@@ -12,12 +12,17 @@ and writes a row once its window is full or the world's episode ended.
 
 from __future__ import annotations
 
+import typing
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import torch as th
 from gymnasium import spaces
+
+#: The team reward of a tick: the ``"sum"`` or the ``"mean"`` of the alive agents' rewards (``team_reward_mode``).
+TeamRewardMode = Literal["sum", "mean"]
+TEAM_REWARD_MODES: tuple[str, ...] = typing.get_args(TeamRewardMode)
 
 
 class JointReplayBufferSamples(NamedTuple):
@@ -443,12 +448,12 @@ class NStepJointCollector:
         n_worlds: int,
         n_steps: int = 1,
         gamma: float = 0.99,
-        team_reward_mode: str = "sum",
+        team_reward_mode: TeamRewardMode = "sum",
     ) -> None:
         if n_steps < 1:
             raise ValueError(f"n_steps must be >= 1, got {n_steps}")
-        if team_reward_mode not in ("sum", "mean"):
-            raise ValueError(f"team_reward_mode must be 'sum' or 'mean', got {team_reward_mode!r}")
+        if team_reward_mode not in TEAM_REWARD_MODES:
+            raise ValueError(f"team_reward_mode must be one of {TEAM_REWARD_MODES}, got {team_reward_mode!r}")
         self.buffer = buffer
         self.n_steps = int(n_steps)
         self.gamma = float(gamma)

@@ -37,10 +37,12 @@ from stable_baselines3.common.utils import LinearSchedule, safe_mean, should_col
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from sb3_eps.common.buffers import (
+    TEAM_REWARD_MODES,
     JointReplayBuffer,
     JointReplayBufferSamples,
     NStepJointCollector,
     PrioritizedJointReplayBuffer,
+    TeamRewardMode,
     _Tick,
 )
 from sb3_eps.common.policies import MultiAgentQPolicy
@@ -164,7 +166,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         exploration_initial_eps: float = 1.0,
         exploration_final_eps: float = 0.02,
         max_grad_norm: float = 10.0,
-        team_reward_mode: str = "sum",
+        team_reward_mode: TeamRewardMode = "sum",
         overlap_training: bool = False,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
@@ -251,8 +253,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             raise ValueError(
                 f"gradient_steps_per_target_update must be >= 1, got {values['gradient_steps_per_target_update']}"
             )
-        if values["team_reward_mode"] not in ("sum", "mean"):
-            raise ValueError(f"team_reward_mode must be 'sum' or 'mean', got {values['team_reward_mode']!r}")
+        if values["team_reward_mode"] not in TEAM_REWARD_MODES:
+            raise ValueError(f"team_reward_mode must be one of {TEAM_REWARD_MODES}, got {values['team_reward_mode']!r}")
         if values["prioritized_replay_alpha"] < 0:
             raise ValueError(
                 f"prioritized_replay_alpha must be >= 0, got {values['prioritized_replay_alpha']}"
@@ -354,7 +356,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                 f"(sb3_eps.common.buffers: one row per world tick, all agents), got {buffer_class!r}"
             )
         self.prioritized_replay = issubclass(buffer_class, PrioritizedJointReplayBuffer)
-        owned = {
+        owned: dict[str, Any] = {
             "n_agents": self.n_agents,
             "state_dim": self.state_dim if self.uses_global_state else 0,
             "device": self.device,

@@ -2,19 +2,28 @@
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+import typing
+import warnings
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 import torch as th
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import LinearSchedule
 
-from sb3_eps.common.buffers import JointReplayBuffer, JointReplayBufferSamples
+from sb3_eps.common.buffers import JointReplayBuffer, JointReplayBufferSamples, TeamRewardMode
 from sb3_eps.common.losses import masked_huber, row_priority, weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm, TDTerms
 from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.common.utils import input_gain, td_target
-from sb3_eps.gdq.policies import DEFAULT_GLOBAL_VALUES, GLOBAL_VALUES, GDQPolicy, MlpPolicy
+from sb3_eps.gdq.policies import GDQPolicy, MlpPolicy
+
+#: Where ``v`` and ``v'`` (the inputs of ``V_G`` and ``V_G'``) come from (``GDQ(global_values=...)``).
+GlobalValues = Literal["recomputed", "stored", "target"]
+GLOBAL_VALUES: tuple[str, ...] = typing.get_args(GlobalValues)
+DEFAULT_GLOBAL_VALUES: GlobalValues = "target"
+#: GDQ's own options, given in ``policy_kwargs`` before they were arguments of ``GDQ`` (deprecated there).
+_FORMER_POLICY_OPTIONS = ("global_values", "global_bootstrap")
 
 
 def gdq_agent_targets(
@@ -70,8 +79,17 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     target network [True; the paper had none]; ``global_values`` where ``v'`` comes from: the agent target
     network, recomputed online, or stored at collection time [target]; ``global_init`` of ``V_G`` [mean];
     ``global_net_arch`` [64, 64]; and our GDQ-lambda variant ``global_bootstrap`` [1, the paper's target]
-    (:class:`~sb3_eps.gdq.policies.GDQPolicy`). Diagnostics (``g_i``, the greedy action's margin) are logged
-    under ``train/``. Other arguments are those of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`.
+    (``global_init`` and ``global_net_arch`` are ``policy_kwargs`` of :class:`~sb3_eps.gdq.policies.GDQPolicy`).
+    Diagnostics (``g_i``, the greedy action's margin) are logged under ``train/``. Other arguments are those of
+    :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`.
+
+    :param global_values: where ``v`` and ``v'`` come from: ``"target"``, ``v'`` from the agent target network
+        (needs ``policy_kwargs=dict(agent_target=True)``, the default), so that every bootstrap input moves slowly;
+        ``"recomputed"`` at update time by the current agent network from the stored observations; ``"stored"`` in
+        the replay rows at collection time, as the paper did
+    :param global_bootstrap: ``lambda`` of the agents' bootstrap value ``lambda V_G'(v') + (1 - lambda) V_i(s'_i)``:
+        1 is the paper's GDQ, 0 independent learning with a global head trained beside it (``docs/modules/gdq.md``,
+        "GDQ-lambda")
     """
 
     policy: GDQPolicy
@@ -105,7 +123,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         exploration_initial_eps: float = 1.0,
         exploration_final_eps: float = 0.02,
         max_grad_norm: float = 10.0,
-        team_reward_mode: str = "mean",
+        team_reward_mode: TeamRewardMode = "mean",
         overlap_training: bool = False,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
@@ -115,6 +133,8 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
         target_update_interval: int | None = None,
+        global_values: GlobalValues = DEFAULT_GLOBAL_VALUES,
+        global_bootstrap: float = 1.0,
     ) -> None:
         # GDQ's own defaults differ from the base's in n_steps (30: an agent's own rewards reach its target
         # directly for 1.5 s, where V_G' passes them on with weight g_i ~ 1/n), team_reward_mode ("mean":
@@ -122,8 +142,26 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         # decaying linearly to 0 over the call's budget, RL Zoo's lin_3e-4: the greedy policy stops churning
         # as the budget ends); docs/results/baselines.md.
         arguments = dict(locals())
-        for name in ("self", "__class__", "policy", "env"):
+        for name in ("self", "__class__", "policy", "env", *_FORMER_POLICY_OPTIONS):
             arguments.pop(name, None)
+        options: dict[str, Any] = {"global_values": global_values, "global_bootstrap": global_bootstrap}
+        if any(name in (policy_kwargs or {}) for name in _FORMER_POLICY_OPTIONS):
+            warnings.warn(
+                "global_values and global_bootstrap are arguments of GDQ now: GDQ(..., global_values=...), not "
+                "policy_kwargs (they are read from policy_kwargs for one more release)",
+                DeprecationWarning,
+                stacklevel=2,
+            )
+            options.update((name, value) for name, value in policy_kwargs.items() if name in _FORMER_POLICY_OPTIONS)  # type: ignore[union-attr]
+            arguments["policy_kwargs"] = {
+                key: value for key, value in policy_kwargs.items() if key not in _FORMER_POLICY_OPTIONS  # type: ignore[union-attr]
+            }
+        if options["global_values"] not in GLOBAL_VALUES:
+            raise ValueError(f"global_values must be one of {GLOBAL_VALUES}, got {options['global_values']!r}")
+        if not 0.0 <= options["global_bootstrap"] <= 1.0:
+            raise ValueError(f"global_bootstrap must be in [0, 1], got {options['global_bootstrap']}")
+        self.global_values: GlobalValues = options["global_values"]
+        self.global_bootstrap = float(options["global_bootstrap"])
         super().__init__(policy, env, **arguments)
 
     def _diagnostics(self, inputs: th.Tensor, terms: TDTerms, batch: JointReplayBufferSamples) -> dict[str, float]:
@@ -145,11 +183,20 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             "agent_value_std": float(values.std()),
         }
 
+    def _setup_model(self) -> None:
+        # A model saved before these options were GDQ's kept them in its policy_kwargs: move them over.
+        for name in _FORMER_POLICY_OPTIONS:
+            if name in self.policy_kwargs:
+                setattr(self, name, self.policy_kwargs.pop(name))
+        super()._setup_model()
+        if self.global_values == "target" and self.policy.q_net_target is None:
+            raise ValueError(
+                "global_values='target' (the default) reads v' from the agent target network: with "
+                "agent_target=False set global_values='recomputed' or 'stored'"
+            )
+
     def _stores_agent_values(self) -> bool:
-        mode = (self.policy_kwargs or {}).get("global_values", DEFAULT_GLOBAL_VALUES)
-        if mode not in GLOBAL_VALUES:
-            raise ValueError(f"global_values must be one of {GLOBAL_VALUES}, got {mode!r}")
-        return mode == "stored"
+        return self.global_values == "stored"
 
     def _collection_values(
         self, observations: np.ndarray, next_observations: np.ndarray
@@ -173,7 +220,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         self, batch: JointReplayBufferSamples
     ) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         stored = batch.values is not None and batch.next_values is not None
-        from_target = self.policy.global_values == "target"
+        from_target = self.global_values == "target"
         terms = self._td_terms(batch, need_online_next_values=not (stored or from_target))
         values, q_taken, own_next, next_advantages = (
             terms.values,
@@ -199,7 +246,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
                 global_next,
                 next_advantages,
                 own_next,
-                self.policy.global_bootstrap,
+                self.global_bootstrap,
             )
             global_targets = td_target(
                 batch.team_rewards, batch.team_discounts, batch.team_dones, global_next

@@ -2,18 +2,19 @@
 
 from __future__ import annotations
 
-from typing import Any
+import typing
+from typing import Any, Literal
 
 import torch as th
 from stable_baselines3.common.torch_layers import create_mlp
 from torch import nn
 
 from sb3_eps.common.policies import MultiAgentQPolicy
+from sb3_eps.common.utils import moved_names
 
 DEFAULT_GLOBAL_NET_ARCH = [64, 64]
-GLOBAL_INITS = ("random", "sum", "mean")
-GLOBAL_VALUES = ("recomputed", "stored", "target")
-DEFAULT_GLOBAL_VALUES = "target"
+GlobalInit = Literal["random", "sum", "mean"]
+GLOBAL_INITS: tuple[str, ...] = typing.get_args(GlobalInit)
 
 
 @th.no_grad()
@@ -54,7 +55,7 @@ class GlobalValueNetwork(nn.Module):
         n_agents: int,
         net_arch: list[int] | None = None,
         activation_fn: type[nn.Module] = nn.ReLU,
-        init: str = "random",
+        init: GlobalInit = "random",
     ):
         super().__init__()
         arch = list(DEFAULT_GLOBAL_NET_ARCH if net_arch is None else net_arch)
@@ -90,15 +91,9 @@ class GDQPolicy(MultiAgentQPolicy):
 
     :param global_net_arch: hidden sizes of the global value head (default ``[64, 64]``)
     :param global_init: initialisation of the global value head, see :class:`GlobalValueNetwork`
-    :param global_bootstrap: ``lambda`` of the agents' bootstrap value ``lambda V_G'(v') + (1 - lambda) V_i(s'_i)``:
-        1 is the paper's GDQ (default), 0 is independent learning with a global head trained beside it
-        (``docs/modules/gdq.md``, "GDQ-lambda")
-    :param global_values: where ``v`` and ``v'`` (the inputs of ``V_G`` and ``V_G'``) come from:
-        ``"recomputed"`` at update time by the current agent network from the stored observations (default), or
-        ``"stored"`` in the replay rows at collection time, as the paper did, or ``"target"``: ``v'`` from the agent
-        target network (needs ``agent_target=True``), so that every bootstrap input moves slowly
-        (the algorithm reads this option)
     :param kwargs: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`
+
+    GDQ's learning options (``global_values``, ``global_bootstrap``) are arguments of :class:`~sb3_eps.gdq.GDQ`.
     """
 
     global_value_net: GlobalValueNetwork
@@ -108,22 +103,9 @@ class GDQPolicy(MultiAgentQPolicy):
         self,
         *args: Any,
         global_net_arch: list[int] | None = None,
-        global_init: str = "mean",
-        global_bootstrap: float = 1.0,
-        global_values: str = DEFAULT_GLOBAL_VALUES,
+        global_init: GlobalInit = "mean",
         **kwargs: Any,
     ) -> None:
-        if global_values not in GLOBAL_VALUES:
-            raise ValueError(f"global_values must be one of {GLOBAL_VALUES}, got {global_values!r}")
-        if global_values == "target" and not kwargs.get("agent_target", True):
-            raise ValueError(
-                "global_values='target' (the default) reads v' from the agent target network: with "
-                "agent_target=False set global_values='recomputed' or 'stored'"
-            )
-        self.global_values = global_values
-        if not 0.0 <= global_bootstrap <= 1.0:
-            raise ValueError(f"global_bootstrap must be in [0, 1], got {global_bootstrap}")
-        self.global_bootstrap = float(global_bootstrap)
         self.global_net_arch = list(global_net_arch or DEFAULT_GLOBAL_NET_ARCH)
         self.global_init = global_init
         super().__init__(*args, **kwargs)
@@ -147,10 +129,13 @@ class GDQPolicy(MultiAgentQPolicy):
         data.update(
             global_net_arch=self.global_net_arch,
             global_init=self.global_init,
-            global_bootstrap=self.global_bootstrap,
-            global_values=self.global_values,
         )
         return data
 
 
 MlpPolicy = GDQPolicy
+
+# GDQ's learning options moved to the algorithm (its constructor's arguments) with their choices.
+__getattr__ = moved_names(
+    __name__, {name: f"sb3_eps.gdq.gdq:{name}" for name in ("GLOBAL_VALUES", "DEFAULT_GLOBAL_VALUES")}
+)

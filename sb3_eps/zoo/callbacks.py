@@ -446,7 +446,8 @@ def set_callback_state(callback: BaseCallback, state: Any) -> None:
 # ---------------------------------------------------------------------------------------------- logs
 class ResumableCSVOutputFormat(CSVOutputFormat):
     """SB3's CSV log that continues an existing file: rows logged after ``max_timesteps`` (after the checkpoint
-    being resumed) are dropped, the header is kept, and new rows are appended.
+    being resumed) are dropped, the others kept, and new rows appended. SB3's own constructor starts the file and
+    the kept rows go back through SB3's own ``write`` (no private field is set by hand).
 
     :param filename: the CSV file
     :param max_timesteps: keep rows whose ``time/total_timesteps`` is at most this; None starts a new file
@@ -454,29 +455,31 @@ class ResumableCSVOutputFormat(CSVOutputFormat):
 
     def __init__(self, filename: str | Path, max_timesteps: int | None = None) -> None:
         path = Path(filename)
-        if max_timesteps is None or not path.exists() or path.stat().st_size == 0:
-            super().__init__(str(path))
-            return
-        with path.open(newline="") as file:
-            reader = csv.reader(file)
-            keys = next(reader, [])
-            rows = [row for row in reader if _row_timesteps(keys, row) <= max_timesteps]
-        with path.open("w", newline="") as file:
-            writer = csv.writer(file, lineterminator="\n")
-            writer.writerow(keys)
-            writer.writerows(rows)
-        self.file = path.open("r+")
-        self.file.seek(0, 2)
-        self.keys = keys
-        self.separator = ","
-        self.quotechar = '"'
+        rows = []
+        if max_timesteps is not None and path.is_file():
+            with path.open(newline="") as file:
+                rows = [row for row in csv.DictReader(file) if _row_timesteps(row) <= max_timesteps]
+        super().__init__(str(path))
+        for row in rows:
+            values = {key: _number(value) for key, value in row.items() if key and value not in ("", None)}
+            self.write(values, dict.fromkeys(values, ()))  # nothing excluded
 
 
-def _row_timesteps(keys: list[str], row: list[str]) -> float:
+def _row_timesteps(row: dict[str, str]) -> float:
     try:
-        return float(row[keys.index("time/total_timesteps")])
-    except (ValueError, IndexError):
+        return float(row.get("time/total_timesteps") or "")
+    except ValueError:
         return -1.0  # rows without the count (none are written that way) are kept
+
+
+def _number(text: str) -> int | float | str:
+    """A CSV field as SB3 logged it: ints and floats written with ``str()`` read back exactly."""
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            continue
+    return text
 
 
 __getattr__ = moved_names(

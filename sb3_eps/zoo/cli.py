@@ -4,10 +4,11 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib
 import sys
 from collections.abc import Sequence
-from typing import NoReturn
+from typing import Any, NoReturn, TypeVar
 
 from sb3_eps.zoo.errors import ConfigError
 
@@ -19,6 +20,20 @@ class OneLineArgumentParser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         raise ConfigError(f"{message} (see --help)")
+
+
+SelfOptions = TypeVar("SelfOptions", bound="NamespaceOptions")
+
+
+class NamespaceOptions:
+    """Base of the option dataclasses of the command lines (training, tuning)."""
+
+    @classmethod
+    def from_namespace(cls: type[SelfOptions], namespace: argparse.Namespace) -> SelfOptions:
+        """:return: the options of a parsed command line: the flags named as fields (the others ignored)."""
+        names = {field.name for field in dataclasses.fields(cls)}  # type: ignore[arg-type]
+        options: Any = cls(**{key: value for key, value in vars(namespace).items() if key in names})
+        return options
 
 
 def positive_int(text: str) -> int:

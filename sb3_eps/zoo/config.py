@@ -1,7 +1,8 @@
 """Loading ``zoo_configs/<algo>.yml`` files safely and resolving the entry of one env id.
 
 A file maps env ids (and ``default``) to entries (schema: :mod:`sb3_eps.zoo.schema`). The entry of an env id is
-its ``default`` entry updated key by key (a shallow merge) with the env id's own entry, then with the command line's
+the constructors' defaults (:func:`~sb3_eps.zoo.schema.package_defaults`), then its ``default`` entry updated key by
+key (a shallow merge) with the env id's own entry, then with the command line's
 ``--hyperparams key:value`` overrides (``policy_kwargs.net_arch:[64]``, ``env_kwargs.<arg>:...`` and
 ``callback.<arg>:...`` update one item of a mapping) and ``-n``. YAML is read with a safe loader that also refuses
 duplicate keys; nothing is executed.
@@ -26,6 +27,7 @@ from sb3_eps.zoo.schema import (
     algorithm_spec,
     check_complete,
     normalize_entry,
+    with_package_defaults,
 )
 
 DEFAULT_KEY = "default"
@@ -175,7 +177,7 @@ def resolve_config(
     spec = algorithm_spec(algo)
     check_env_id(env_id)
     path = config_file(algo, conf_file)
-    entry = merged_entry(load_config_entries(path, algo), env_id, path)
+    entry = with_package_defaults(merged_entry(load_config_entries(path, algo), env_id, path), spec)
     source = f"{path}: entry {env_id!r}"
     if hyperparams:
         entry = apply_overrides(entry, parse_hyperparams(hyperparams), spec)

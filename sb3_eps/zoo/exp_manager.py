@@ -13,15 +13,17 @@ the same total; the result equals an uninterrupted run with the same seed (see :
 
 from __future__ import annotations
 
-import argparse
 import importlib.util
 import random
 import sys
 import time
+import types
+import typing
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import torch as th
@@ -57,7 +59,7 @@ from sb3_eps.zoo.checkpoint import (
     save_model_atomic,
     write_text_atomic,
 )
-from sb3_eps.zoo.cli import import_gym_packages
+from sb3_eps.zoo.cli import NamespaceOptions, import_gym_packages
 from sb3_eps.zoo.config import (
     ResolvedConfig,
     check_env_id,
@@ -77,7 +79,7 @@ EVAL_SEED_OFFSET = 10_000
 
 # ---------------------------------------------------------------------------------------------- options
 @dataclass
-class TrainOptions:
+class TrainOptions(NamespaceOptions):
     """The options of a training run (``python -m sb3_eps.train``; ``args.yml`` holds them resolved).
 
     Counts (``n_timesteps``, ``eval_freq``, ``save_freq``) are SB3 timesteps = agent-steps, as in RL Zoo.
@@ -118,19 +120,15 @@ class TrainOptions:
         if not isinstance(record, dict):
             raise ConfigError(f"{source} is not a mapping of options: not a run folder of sb3_eps.train")
         options = cls(**{key: value for key, value in record.items() if key in cls.__dataclass_fields__})
-        for key, default in vars(cls()).items():
-            value, kinds = getattr(options, key), _OPTION_TYPES.get(key, (type(default),))
-            if not ((value is None and default is None) or isinstance(value, kinds)):
+        for key, hint in typing.get_type_hints(cls).items():  # the fields' own annotations say what each holds
+            value = getattr(options, key)
+            members = typing.get_args(hint) if isinstance(hint, types.UnionType) else (hint,)
+            kinds = tuple(typing.get_origin(kind) or kind for kind in members)
+            if not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds):
                 raise ConfigError(
                     f"{source}: {key} is {value!r}, not a {kinds[0].__name__}: not a run of sb3_eps.train"
                 )
         return options
-
-    @classmethod
-    def from_namespace(cls, namespace: argparse.Namespace) -> TrainOptions:
-        """:return: the options of a parsed command line (unknown attributes ignored)."""
-        names = cls.__dataclass_fields__
-        return cls(**{key: value for key, value in vars(namespace).items() if key in names})
 
     def check(self) -> None:
         """:raises ConfigError: for a count or flag out of range."""
@@ -186,13 +184,6 @@ def check_optional_features(progress: bool = False, tensorboard: bool = False) -
                 f"{flag} needs {' and '.join(missing)}, which this environment lacks (they are part of the base "
                 f"install): pip install 'sb3-eps' or pip install {' '.join(missing)}; or drop {flag}"
             )
-
-
-#: Types of the options whose default is None (the others must have the type of their default).
-_OPTION_TYPES: dict[str, tuple[type, ...]] = {
-    "conf_file": (str,), "eval_env": (str,), "tensorboard_log": (str,), "init_from": (str,),
-    "n_timesteps": (int,), "seed": (int,), "vec_env": (str,), "run_name": (str,), "command": (str,),
-}  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------- building
@@ -314,12 +305,8 @@ def load_agent_weights(model: MultiAgentOffPolicyAlgorithm, path: str | Path) ->
         raise ConfigError(f"--init-from: cannot read {path}: {error}") from None
     if data is None or params is None or "policy" not in params:
         raise ConfigError(f"--init-from: {path} holds no policy weights")
-    for kind in ("observation_space", "action_space"):
-        if data.get(kind) != getattr(model, kind):
-            raise ConfigError(
-                f"--init-from: {path} was trained with {kind} {describe_space(data.get(kind))}, this model has "
-                f"{describe_space(getattr(model, kind))}"
-            )
+    trained_on = SimpleNamespace(**{kind: data.get(kind) for kind in ("observation_space", "action_space")})
+    check_spaces(model, trained_on, f"the model in {path}", "the new model", "--init-from: ")
     policy: dict[str, Any] = params["policy"]  # type: ignore[assignment]
     online = {key[len("q_net.") :]: value for key, value in policy.items() if key.startswith("q_net.")}
     target = {

@@ -5,7 +5,8 @@ over the last ``window`` (100) episodes, against the ticks simulated so far *inc
 evaluation; runs are grouped by algorithm (and env id) and drawn as mean +/- std over seeds, on the range all
 seeds of a group reached. Aggregates are the final scores of the runs (mean of the last ``window`` episodes)
 summarised per algorithm by mean, median and interquartile mean (IQM) with stratified-bootstrap 95 % confidence
-intervals (Agarwal et al., NeurIPS 2021, as in ``rliable``, which is used when installed).
+intervals (Agarwal et al., NeurIPS 2021: rliable's definitions, computed here alone, so that every install gives the
+same intervals and tasks may have different numbers of runs).
 """
 
 from __future__ import annotations
@@ -227,13 +228,11 @@ def bootstrap_intervals(
 
 
 def aggregate_table(curves: list[RunCurve], key: str, window: int) -> list[dict[str, Any]]:
-    """Per algorithm: number of runs and mean / median / IQM of the final scores with 95 % CIs.
-
-    Uses ``rliable`` when it is installed (same definitions), else :func:`bootstrap_intervals`.
-    """
+    """Per algorithm: number of runs and mean / median / IQM of the final scores with 95 % CIs
+    (:func:`bootstrap_intervals`)."""
     rows = []
     for algo, by_env in sorted(final_scores(curves, key, window).items()):
-        intervals = _rliable_intervals(by_env) or bootstrap_intervals(by_env)
+        intervals = bootstrap_intervals(by_env)
         row: dict[str, Any] = {
             "algo": label_of(algo),
             "metric": key,
@@ -243,32 +242,6 @@ def aggregate_table(curves: list[RunCurve], key: str, window: int) -> list[dict[
             row.update({name: estimate, f"{name}_low": low, f"{name}_high": high})
         rows.append(row)
     return rows
-
-
-def _rliable_intervals(scores: dict[str, list[float]]) -> dict[str, tuple[float, float, float]] | None:
-    """rliable's estimates when it is installed and every task has the same number of runs (its matrix form)."""
-    try:
-        from rliable import library, metrics
-    except ImportError:
-        return None
-    counts = {len(values) for values in scores.values()}
-    if len(counts) != 1:
-        return None
-    matrix = np.stack([np.asarray(values, dtype=float) for values in scores.values()], axis=1)  # runs x tasks
-    functions = {
-        "mean": lambda x: np.array([metrics.aggregate_mean(x)]),
-        "median": lambda x: np.array([metrics.aggregate_median(x)]),
-        "iqm": lambda x: np.array([metrics.aggregate_iqm(x)]),
-    }
-    result = {}
-    for name, function in functions.items():
-        estimates, intervals = library.get_interval_estimates({"run": matrix}, function, reps=2_000)
-        result[name] = (
-            float(estimates["run"][0]),
-            float(intervals["run"][0, 0]),
-            float(intervals["run"][1, 0]),
-        )
-    return result
 
 
 def format_aggregates(rows: list[dict[str, Any]]) -> str:

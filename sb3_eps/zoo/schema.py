@@ -20,6 +20,7 @@ import importlib
 import inspect
 import math
 import re
+import sys
 import types
 import typing
 import warnings
@@ -72,12 +73,13 @@ class Param:
     """What one key may hold.
 
     :param kind: ``int``, ``float``, ``bool``, ``str``, ``choice``, ``schedule``, ``train_freq``, ``int_list``,
-        ``mapping``, ``activation``, ``optimizer``
+        ``list`` (of plain data), ``mapping``, ``activation``, ``optimizer``, ``any`` (plain data)
     :param low: smallest allowed number (``int`` / ``float`` / ``int_list`` items)
     :param high: largest allowed number
     :param open_low: ``low`` itself is excluded
     :param open_high: ``high`` itself is excluded
     :param choices: the allowed strings of a ``choice``
+    :param nullable: ``null`` (None) is allowed too
     """
 
     kind: str
@@ -86,6 +88,7 @@ class Param:
     open_low: bool = False
     open_high: bool = False
     choices: tuple[str, ...] = field(default_factory=tuple)
+    nullable: bool = False
 
     def describe(self) -> str:
         """:return: what the key may hold, in words (for error messages)."""
@@ -99,11 +102,13 @@ class Param:
             "schedule": f"a number{bounds} or a linear schedule 'lin_<initial value>' (e.g. lin_1e-3)",
             "train_freq": "an int >= 1 or a list [int >= 1, 'step' or 'episode']",
             "int_list": f"a list of ints{bounds}",
+            "list": "a list",
+            "any": "plain data (numbers, strings, lists, mappings)",
             "mapping": "a mapping of names to values (or a 'dict(...)' string)",
             "activation": f"one of {allowed(ACTIVATIONS)}",
             "optimizer": f"one of {allowed(OPTIMIZERS)}",
         }
-        return words[self.kind]
+        return words[self.kind] + (" or null" if self.nullable else "")
 
     def _bounds(self) -> str:
         parts = []
@@ -124,6 +129,12 @@ class Param:
         )
 
 
+#: The joint replay buffers a config may name (``replay_buffer_class``): those of :mod:`sb3_eps.common.buffers`.
+REPLAY_BUFFER_CLASSES: dict[str, type[buffers.JointReplayBuffer]] = {
+    name: cls
+    for name, cls in vars(buffers).items()
+    if isinstance(cls, type) and issubclass(cls, buffers.JointReplayBuffer)
+}
 #: Run keys of an entry (not algorithm arguments). ``policy`` and ``callback`` are checked separately.
 RUN_PARAMS: dict[str, Param] = {
     "tuned": Param("bool"),
@@ -150,7 +161,7 @@ ALGORITHM_PARAMS: dict[str, Param] = {
     "gamma": Param("float", low=0, high=1),
     "train_freq": Param("train_freq"),
     "gradient_steps": Param("int", low=-1),
-    "replay_buffer_class": Param("choice", choices=("JointReplayBuffer", "PrioritizedJointReplayBuffer")),
+    "replay_buffer_class": Param("choice", choices=tuple(REPLAY_BUFFER_CLASSES)),
     "replay_buffer_kwargs": Param("mapping"),
     "gradient_steps_per_target_update": Param("int", low=1),
     "n_steps": Param("int", low=1),
@@ -162,7 +173,7 @@ ALGORITHM_PARAMS: dict[str, Param] = {
     "exploration_initial_eps": Param("float", low=0, high=1),
     "exploration_final_eps": Param("float", low=0, high=1),
     "max_grad_norm": Param("float", low=0, open_low=True),
-    "team_reward_mode": Param("choice", choices=("sum", "mean")),
+    "team_reward_mode": Param("choice", choices=buffers.TEAM_REWARD_MODES),
     "overlap_training": Param("bool"),
     "stats_window_size": Param("int", low=1),
 }
@@ -188,20 +199,6 @@ COMMON_POLICY_PARAMS: dict[str, Param] = {
     "agent_target": Param("bool"),
     "normalize_images": Param("bool"),
 }
-GDQ_POLICY_PARAMS: dict[str, Param] = {
-    **COMMON_POLICY_PARAMS,
-    "global_net_arch": Param("int_list", low=1),
-    "global_init": Param("choice", choices=("random", "sum", "mean")),
-    "global_bootstrap": Param("float", low=0, high=1),
-    "global_values": Param("choice", choices=("recomputed", "stored", "target")),
-}
-QMIX_POLICY_PARAMS: dict[str, Param] = {
-    **COMMON_POLICY_PARAMS,
-    "mixing_embed_dim": Param("int", low=1),
-    "hypernet_hidden_dim": Param("int", low=1),
-}
-
-
 # ---------------------------------------------------------------------------------------------- algorithms
 @dataclass(frozen=True)
 class AlgorithmSpec:
@@ -228,17 +225,8 @@ class AlgorithmSpec:
         return {**ALGORITHM_PARAMS, **self.extra_params}
 
 
-ALGORITHMS: dict[str, AlgorithmSpec] = {
-    spec.name: spec
-    for spec in (
-        AlgorithmSpec("iql", IQL, COMMON_POLICY_PARAMS, False, "IL"),
-        AlgorithmSpec("gdq", GDQ, GDQ_POLICY_PARAMS, False, "GDQ"),
-        AlgorithmSpec("qmix", QMIX, QMIX_POLICY_PARAMS, False, "QMIX"),
-        AlgorithmSpec("vdn", VDN, COMMON_POLICY_PARAMS, False, "VDN"),
-        AlgorithmSpec("eps_iql", IQL, COMMON_POLICY_PARAMS, True, "EPS-IL"),
-        AlgorithmSpec("eps_gdq", GDQ, GDQ_POLICY_PARAMS, True, "EPS-GDQ"),
-    )
-}
+#: The algorithm names of the configs and command lines; plug-ins add theirs with :func:`register_algorithm`.
+ALGORITHMS: dict[str, AlgorithmSpec] = {}
 
 
 def register_algorithm(
@@ -269,13 +257,13 @@ def register_algorithm(
     known = ALGORITHMS.get(name)
     if known is not None and known.algorithm_class is not algorithm_class:
         raise ValueError(f"algorithm name {name!r} is taken by {known.algorithm_class.__name__}; pick another")
+    # The keys of its own: its constructor's and its policy's arguments beyond the base's, typed in the signatures.
     skip = (*ALGORITHM_PARAMS, *COMMAND_LINE_ARGUMENTS, *RENAMED_KEYS, POLICY_KWARGS_KEY)
     own = params_from_signature(algorithm_class.__init__, skip)
-    policy_init = algorithm_class.policy_aliases["MlpPolicy"].__init__
-    policy_params = {
-        **COMMON_POLICY_PARAMS,
-        **params_from_signature(policy_init, (*_POLICY_INTERNALS, *COMMON_POLICY_PARAMS)),
-    }
+    policy_class = algorithm_class.policy_aliases["MlpPolicy"]
+    policy_params = dict(COMMON_POLICY_PARAMS)
+    if "__init__" in vars(policy_class):  # a policy that only inherits its constructor adds no keys (VDN's)
+        policy_params.update(params_from_signature(policy_class.__init__, (*_POLICY_INTERNALS, *COMMON_POLICY_PARAMS)))
     spec = AlgorithmSpec(name, algorithm_class, policy_params, eps, label or algorithm_class.__name__, own)
     ALGORITHMS[name] = spec
     return spec
@@ -294,8 +282,9 @@ def params_from_signature(function: Callable[..., Any], skip: Sequence[str] = ()
     them); the others are left out."""
     hints = typing.get_type_hints(function)
     params: dict[str, Param] = {}
-    for name in inspect.signature(function).parameters:
-        if name in skip or name == "self" or name not in hints:
+    for name, parameter in inspect.signature(function).parameters.items():
+        variadic = parameter.kind in (parameter.VAR_POSITIONAL, parameter.VAR_KEYWORD)
+        if variadic or name in skip or name == "self" or name not in hints:
             continue
         param = _param_of_hint(hints[name])
         if param is not None:
@@ -305,18 +294,25 @@ def params_from_signature(function: Callable[..., Any], skip: Sequence[str] = ()
 
 def _param_of_hint(hint: Any) -> Param | None:
     members = [member for member in _hint_members(hint) if member is not type(None)]
+    nullable = len(members) < len(_hint_members(hint))
     if len(members) != 1:
         return None
     member = members[0]
     origin, arguments = typing.get_origin(member), typing.get_args(member)
     if origin is typing.Literal:
-        return Param("choice", choices=tuple(str(argument) for argument in arguments))
-    kinds = {bool: "bool", int: "int", float: "float", str: "str", dict: "mapping"}
+        return Param("choice", choices=tuple(str(argument) for argument in arguments), nullable=nullable)
+    kinds = {bool: "bool", int: "int", float: "float", str: "str", dict: "mapping", Any: "any"}
     if member in kinds or origin is dict:
-        return Param(kinds[origin or member])
-    if origin in (list, tuple) and arguments[:1] == (int,):
-        return Param("int_list")
+        return Param(kinds[origin or member], nullable=nullable)
+    if origin in (list, tuple):
+        return Param("int_list" if arguments[:1] == (int,) else "list", nullable=nullable)
     return None
+
+
+def _hint_members(hint: Any) -> tuple[Any, ...]:
+    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
+        return typing.get_args(hint)
+    return (hint,)
 
 
 def algorithm_spec(name: str) -> AlgorithmSpec:
@@ -376,7 +372,8 @@ def callback_class(name: str, where: str = "callback") -> type[BaseCallback]:
         raise ConfigError(f"{where}: unknown callback {name!r}; allowed: {allowed(CALLBACKS)}")
     module_name, _, attribute = CALLBACKS[canonical].partition(":")
     try:
-        return functools.reduce(getattr, attribute.split("."), importlib.import_module(module_name))  # type: ignore[arg-type]
+        found: Any = functools.reduce(getattr, attribute.split("."), importlib.import_module(module_name))
+        return found
     except (ImportError, AttributeError) as error:
         raise ConfigError(f"{where}: callback {canonical} cannot be imported here ({error})") from None
 
@@ -405,7 +402,7 @@ def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, An
         raise ConfigError(
             f"{where}: an entry must be a mapping of keys to values, got {type(entry).__name__}"
         )
-    entry = _renamed_keys(entry, where)
+    entry = _lift_algorithm_options(_renamed_keys(entry, where), spec, where)
     keys = [*RUN_PARAMS, *spec.params, POLICY_KWARGS_KEY, CALLBACK_KEY]
     for key in entry:
         if key not in keys:
@@ -442,6 +439,30 @@ def _renamed_keys(entry: Mapping[str, Any], where: str) -> Mapping[str, Any]:
     return entry
 
 
+def _lift_algorithm_options(entry: Mapping[str, Any], spec: AlgorithmSpec, where: str) -> Mapping[str, Any]:
+    """:return: ``entry`` with the algorithm's own arguments that ``policy_kwargs`` holds (GDQ's ``global_values``,
+    ``global_bootstrap`` before they were GDQ's) moved to the entry, with a DeprecationWarning."""
+    policy_kwargs = entry.get(POLICY_KWARGS_KEY)
+    if isinstance(policy_kwargs, str):
+        policy_kwargs = parse_literal(policy_kwargs, NAME_SPELLINGS, f"{where}: {POLICY_KWARGS_KEY}")
+    if not isinstance(policy_kwargs, Mapping):
+        return entry
+    moved = [key for key in policy_kwargs if key in spec.extra_params and key not in spec.policy_params]
+    if not moved:
+        return entry
+    for key in moved:
+        if key in entry:
+            raise ConfigError(f"{where}: {key} is given twice, in policy_kwargs and in the entry; keep the entry's")
+    warnings.warn(
+        f"{where}: {', '.join(moved)} in policy_kwargs is deprecated and goes in the next release: they are arguments "
+        f"of {spec.algorithm_class.__name__}, give them as keys of the entry",
+        DeprecationWarning,
+        stacklevel=4,
+    )
+    rest = {key: value for key, value in policy_kwargs.items() if key not in moved}
+    return {**entry, POLICY_KWARGS_KEY: rest, **{key: policy_kwargs[key] for key in moved}}
+
+
 def check_complete(entry: Mapping[str, Any], spec: AlgorithmSpec, where: str) -> None:
     """The checks that need the whole (merged) entry.
 
@@ -468,6 +489,8 @@ def normalize_value(value: Any, param: Param, where: str) -> Any:
 
     :raises ConfigError: naming ``where`` and what is allowed
     """
+    if value is None and param.nullable:
+        return None
     if param.kind == "mapping" and isinstance(value, str):
         value = parse_literal(value, {}, where)  # RL Zoo's "dict(...)" string
     result = _CHECKERS[param.kind](value, param)
@@ -562,6 +585,8 @@ _CHECKERS: dict[str, Callable[[Any, Param], Any]] = {
     "train_freq": _check_train_freq,
     "int_list": _check_int_list,
     "mapping": _check_mapping,
+    "list": lambda value, param: list(value) if isinstance(value, list | tuple) and _is_plain_data(value) else _INVALID,
+    "any": lambda value, param: value if _is_plain_data(value) else _INVALID,
     "activation": _check_name(ACTIVATIONS),
     "optimizer": _check_name(OPTIMIZERS),
 }
@@ -639,60 +664,71 @@ def _check_callback_kwargs(cls: type[BaseCallback], kwargs: Any, where: str) -> 
     if not isinstance(kwargs, Mapping):
         raise ConfigError(f"{where}: the arguments must be a mapping, got {kwargs!r}")
     parameters = callback_parameters(cls)
-    hints = typing.get_type_hints(cls.__init__)
+    params = params_from_signature(cls.__init__)
     result: dict[str, Any] = {}
     for key, value in kwargs.items():
         if key not in parameters:
             raise ConfigError(f"{where}: unknown argument {key!r}; allowed: {allowed(parameters)}")
-        value = _as_number(value) if isinstance(value, str) and _accepts(hints.get(key), float) else value
-        if not _matches_hint(value, hints.get(key, Any)):
-            raise ConfigError(f"{where}: {key} must be {_describe_hint(hints.get(key, Any))}, got {value!r}")
-        result[key] = float(value) if _is_float_hint(hints.get(key)) and isinstance(value, int) else value
+        result[key] = normalize_value(value, params.get(key, Param("any")), f"{where}: {key}")
     return result
 
 
-def _hint_members(hint: Any) -> tuple[Any, ...]:
-    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
-        return typing.get_args(hint)
-    return (hint,)
+# ---------------------------------------------------------------------------------------------- defaults
+def package_defaults(spec: AlgorithmSpec) -> dict[str, Any]:
+    """The constructors' defaults as a canonical entry (the algorithm's arguments and its ``policy_kwargs``, read
+    from the signatures): what an entry that sets nothing trains with. :func:`~sb3_eps.zoo.config.resolve_config`
+    puts them under every entry, so the config files list only what differs and a run's ``config.yml`` still
+    holds every value it trained with. A None default stands for the ``DEFAULT_<NAME>`` constant of the class's
+    module when there is one (``DEFAULT_NET_ARCH``), as the constructors read it; other None defaults are left out.
+    """
+    algorithm = _constructor_defaults(spec.algorithm_class)
+    entry = {name: _config_value(algorithm[name]) for name in spec.params if algorithm.get(name) is not None}
+    policy = _constructor_defaults(spec.algorithm_class.policy_aliases["MlpPolicy"])
+    policy["agent_target"] = spec.algorithm_class.default_agent_target
+    entry[POLICY_KWARGS_KEY] = {
+        name: _config_value(policy[name]) for name in spec.policy_params if policy.get(name) is not None
+    }
+    return entry
 
 
-def _accepts(hint: Any, kind: type) -> bool:
-    return any(member is kind for member in _hint_members(hint))
+def with_package_defaults(entry: Mapping[str, Any], spec: AlgorithmSpec) -> dict[str, Any]:
+    """:return: ``entry`` over :func:`package_defaults` (``policy_kwargs`` merged key by key), in schema order."""
+    defaults = package_defaults(spec)
+    merged = {**defaults, **entry}
+    merged[POLICY_KWARGS_KEY] = {**defaults[POLICY_KWARGS_KEY], **entry.get(POLICY_KWARGS_KEY, {})}
+    order = [*RUN_PARAMS, *spec.params, POLICY_KWARGS_KEY, CALLBACK_KEY]
+    return {key: merged[key] for key in order if key in merged}
 
 
-def _is_float_hint(hint: Any) -> bool:
-    return _accepts(hint, float) and not _accepts(hint, int)
+def _constructor_defaults(cls: type) -> dict[str, Any]:
+    """:return: the keyword defaults of every ``__init__`` along ``cls``'s MRO, the base's first and each subclass's
+    over them (a subclass that passes ``**kwargs`` on keeps its base's); a None default becomes the
+    ``DEFAULT_<NAME>`` constant of the class's module where there is one."""
+    defaults: dict[str, Any] = {}
+    for owner in reversed(cls.__mro__):
+        if "__init__" not in vars(owner) or owner is object:
+            continue
+        module = sys.modules[owner.__module__]
+        for name, parameter in inspect.signature(vars(owner)["__init__"]).parameters.items():
+            if parameter.default is not inspect.Parameter.empty:
+                value = parameter.default
+                defaults[name] = getattr(module, f"DEFAULT_{name.upper()}", None) if value is None else value
+    return defaults
 
 
-def _matches_hint(value: Any, hint: Any) -> bool:
-    for member in _hint_members(hint):
-        origin = typing.get_origin(member) or member
-        if member is Any:
-            return _is_plain_data(value)
-        if member is type(None) and value is None:
-            return True
-        if origin is bool and isinstance(value, bool):
-            return True
-        if origin is int and isinstance(value, int) and not isinstance(value, bool):
-            return True
-        if origin is float and isinstance(value, int | float) and not isinstance(value, bool):
-            return True
-        if origin is str and isinstance(value, str):
-            return True
-        if origin in (dict, Mapping) and isinstance(value, Mapping) and _is_plain_data(value):
-            return True
-        if origin in (list, tuple) and isinstance(value, list | tuple) and _is_plain_data(value):
-            return True
-    return False
-
-
-def _describe_hint(hint: Any) -> str:
-    names = {bool: "true/false", int: "an int", float: "a number", str: "a string", type(None): "null"}
-    words = [
-        names.get(typing.get_origin(m) or m, getattr(m, "__name__", str(m))) for m in _hint_members(hint)
-    ]
-    return " or ".join(word if word not in ("dict", "Mapping") else "a mapping" for word in words)
+def _config_value(value: Any) -> Any:
+    """A constructor default as a config value: SB3's ``LinearSchedule(x, 0, 1)`` is RL Zoo's ``lin_<x>``; classes
+    are their config names (``nn.ReLU``, ``th.optim.Adam``, ``JointReplayBuffer``)."""
+    if isinstance(value, LinearSchedule):
+        if value.end != 0.0 or value.end_fraction != 1.0:
+            raise ValueError(f"a default {value!r} has no config form: only lin_<x> (x -> 0 over training) has")
+        return f"lin_{value.start}"
+    if isinstance(value, type):
+        names = {cls: name for name, cls in {**ACTIVATIONS, **OPTIMIZERS}.items()}
+        return names.get(value, value.__name__)
+    if isinstance(value, tuple):
+        return list(value)
+    return value
 
 
 # ---------------------------------------------------------------------------------------------- building
@@ -711,7 +747,7 @@ def algorithm_kwargs(entry: Mapping[str, Any]) -> dict[str, Any]:
         elif key == "train_freq" and isinstance(value, list):
             value = (value[0], value[1])
         elif key == "replay_buffer_class":
-            value = getattr(buffers, value)
+            value = REPLAY_BUFFER_CLASSES[value]
         kwargs[key] = value
     if POLICY_KWARGS_KEY in entry:
         kwargs[POLICY_KWARGS_KEY] = policy_kwargs_objects(entry[POLICY_KWARGS_KEY])
@@ -752,3 +788,10 @@ def build_callbacks(
         except (TypeError, ValueError) as error:
             raise ConfigError(f"{where}: callback {name}: {error}") from None
     return callbacks
+
+
+# The package's own algorithms, registered as a plug-in's would be (their config keys read from the signatures).
+for _name, _class, _label in (("iql", IQL, "IL"), ("gdq", GDQ, "GDQ"), ("qmix", QMIX, "QMIX"), ("vdn", VDN, "VDN")):
+    register_algorithm(_name, _class, label=_label)
+for _name, _class, _label in (("eps_iql", IQL, "EPS-IL"), ("eps_gdq", GDQ, "EPS-GDQ")):
+    register_algorithm(_name, _class, label=_label, eps=True)

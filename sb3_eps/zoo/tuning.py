@@ -10,7 +10,6 @@ one study. At the end the best trial is written as a ready-to-use config entry, 
 
 from __future__ import annotations
 
-import argparse
 import csv
 import math
 import time
@@ -24,6 +23,7 @@ from stable_baselines3.common.logger import Logger
 
 from sb3_eps.zoo.callbacks import TeamEvalCallback
 from sb3_eps.zoo.checkpoint import write_text_atomic
+from sb3_eps.zoo.cli import NamespaceOptions
 from sb3_eps.zoo.config import ResolvedConfig, check_env_id, entry_yaml, resolve_config
 from sb3_eps.zoo.errors import ConfigError
 from sb3_eps.zoo.exp_manager import EVAL_SEED_OFFSET, TrainOptions, build_env, build_model, prepare_run
@@ -47,7 +47,7 @@ _GLOBAL_NET_ARCHS = {"small": [32, 32], "medium": [64, 64], "large": [128, 128]}
 
 
 @dataclass
-class TuningOptions:
+class TuningOptions(NamespaceOptions):
     """The tuning flags of ``python -m sb3_eps.train -optimize``."""
 
     n_trials: int = 20
@@ -58,12 +58,6 @@ class TuningOptions:
     n_evaluations: int = 4
     storage: str | None = None
     study_name: str | None = None
-
-    @classmethod
-    def from_namespace(cls, namespace: argparse.Namespace) -> TuningOptions:
-        """:return: the tuning options of a parsed command line."""
-        names = cls.__dataclass_fields__
-        return cls(**{key: value for key, value in vars(namespace).items() if key in names})
 
     def check(self) -> None:
         """:raises ConfigError: for a count out of range."""
@@ -118,7 +112,7 @@ def sample_hyperparams(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dic
         ]
         policy_kwargs["agent_target"] = trial.suggest_categorical("agent_target", [True, False])
         if not policy_kwargs["agent_target"]:  # v' cannot come from a target network that does not exist
-            policy_kwargs["global_values"] = "recomputed"
+            params["global_values"] = "recomputed"
         params["team_reward_mode"] = trial.suggest_categorical("team_reward_mode", ["sum", "mean"])
     if "mixing_embed_dim" in spec.policy_params:
         policy_kwargs["mixing_embed_dim"] = trial.suggest_categorical("mixing_embed_dim", [16, 32, 64])
