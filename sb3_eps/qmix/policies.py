@@ -22,12 +22,20 @@ class QMixer(nn.Module):
     :param state_dim: global state length
     :param embed_dim: width of the mixing layer (32 in the QMIX paper)
     :param hypernet_hidden_dim: hidden width of the weight hypernetworks (64)
+    :param init: ``"random"``: PyTorch's default initialisation (the QMIX paper's); ``"sum"``: the hypernetworks'
+        output layers start so that ``Q_tot = sum_i Q_i`` (VDN's mixer, a gain of 1 per agent) wherever
+        ``sum_i Q_i > -n_agents``, with state-dependent perturbations of 1/10 of the default scale that the TD loss
+        then grows (see :func:`_init_mixer_as_sum`)
     """
 
-    def __init__(self, n_agents: int, state_dim: int, embed_dim: int = 32, hypernet_hidden_dim: int = 64) -> None:
+    def __init__(
+        self, n_agents: int, state_dim: int, embed_dim: int = 32, hypernet_hidden_dim: int = 64, init: str = "random"
+    ) -> None:
         super().__init__()
         if state_dim < 1:
             raise ValueError("QMIX needs a global state: the env must provide state() (state_dim >= 1)")
+        if init not in MIXER_INITS:
+            raise ValueError(f"mixer_init must be one of {MIXER_INITS}, got {init!r}")
         self.n_agents, self.state_dim, self.embed_dim = n_agents, state_dim, embed_dim
         self.hyper_w1 = nn.Sequential(
             nn.Linear(state_dim, hypernet_hidden_dim), nn.ReLU(), nn.Linear(hypernet_hidden_dim, n_agents * embed_dim)
@@ -37,6 +45,8 @@ class QMixer(nn.Module):
             nn.Linear(state_dim, hypernet_hidden_dim), nn.ReLU(), nn.Linear(hypernet_hidden_dim, embed_dim)
         )
         self.hyper_b2 = nn.Sequential(nn.Linear(state_dim, embed_dim), nn.ReLU(), nn.Linear(embed_dim, 1))
+        if init == "sum":
+            _init_mixer_as_sum(self)
 
     def forward(self, agent_qs: th.Tensor, states: th.Tensor) -> th.Tensor:
         """:param agent_qs: ``(B, n_agents)``; :param states: ``(B, state_dim)``; :return: ``Q_tot (B,)``."""
@@ -54,6 +64,30 @@ class QMixer(nn.Module):
         return (th.bmm(hidden, w2) + b2).view(batch)
 
 
+MIXER_INITS = ("random", "sum")
+# Scale of the state-dependent part of the hypernetworks' output layers under ``init="sum"``: small enough that
+# the mixer starts close to the sum, large enough to break the symmetry between the mixing units.
+SUM_INIT_PERTURBATION = 0.1
+
+
+@th.no_grad()
+def _init_mixer_as_sum(mixer: QMixer) -> None:
+    """Start ``mixer`` as ``Q_tot = sum_i Q_i`` on ``sum_i Q_i > -n``: ``|w1| = 1``, ``b1 = n``, ``|w2| = 1 / embed``,
+    ``b2 = -n``, so every mixing unit is ``elu(sum_i Q_i + n)`` on the ELU's linear side. The output layers'
+    random weights (the state dependence) are scaled by :data:`SUM_INIT_PERTURBATION` times the size of the
+    weight they perturb (1 for ``w1``, ``b1`` and ``b2``, ``1 / embed`` for ``w2``)."""
+    n_agents, embed_dim = mixer.n_agents, mixer.embed_dim
+    outputs = [  # (output layer, its bias, the scale of its random weights)
+        (mixer.hyper_w1[-1], 1.0, 1.0),
+        (mixer.hyper_b1, float(n_agents), 1.0),
+        (mixer.hyper_w2[-1], 1.0 / embed_dim, 1.0 / embed_dim),
+        (mixer.hyper_b2[-1], -float(n_agents), 1.0),
+    ]
+    for layer, bias, scale in outputs:
+        layer.weight.mul_(SUM_INIT_PERTURBATION * scale)
+        layer.bias.fill_(bias)
+
+
 class SumMixer(nn.Module):
     """VDN's mixer (Sunehag et al., AAMAS 2018): ``Q_tot = sum_i Q_i``; it has no parameters."""
 
@@ -69,19 +103,32 @@ class QMIXPolicy(MultiAgentQPolicy):
 
     :param mixing_embed_dim: width of the mixing layer (32)
     :param hypernet_hidden_dim: hidden width of the hypernetworks (64)
+    :param mixer_init: initialisation of the mixer, ``"random"`` or ``"sum"`` (see :class:`QMixer`)
     :param kwargs: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`
     """
 
     mixer: nn.Module
     mixer_target: nn.Module
 
-    def __init__(self, *args: Any, mixing_embed_dim: int = 32, hypernet_hidden_dim: int = 64, **kwargs: Any):
+    def __init__(
+        self,
+        *args: Any,
+        mixing_embed_dim: int = 32,
+        hypernet_hidden_dim: int = 64,
+        mixer_init: str = "random",
+        **kwargs: Any,
+    ):
+        if mixer_init not in MIXER_INITS:
+            raise ValueError(f"mixer_init must be one of {MIXER_INITS}, got {mixer_init!r}")
         self.mixing_embed_dim = mixing_embed_dim
         self.hypernet_hidden_dim = hypernet_hidden_dim
+        self.mixer_init = mixer_init
         super().__init__(*args, **kwargs)
 
     def _make_mixer(self) -> nn.Module:
-        return QMixer(self.n_agents, self.state_dim, self.mixing_embed_dim, self.hypernet_hidden_dim)
+        return QMixer(
+            self.n_agents, self.state_dim, self.mixing_embed_dim, self.hypernet_hidden_dim, init=self.mixer_init
+        )
 
     def _build_joint_modules(self) -> None:
         self.mixer = self._make_mixer().to(self.device)
@@ -94,7 +141,11 @@ class QMIXPolicy(MultiAgentQPolicy):
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
-        data.update(mixing_embed_dim=self.mixing_embed_dim, hypernet_hidden_dim=self.hypernet_hidden_dim)
+        data.update(
+            mixing_embed_dim=self.mixing_embed_dim,
+            hypernet_hidden_dim=self.hypernet_hidden_dim,
+            mixer_init=self.mixer_init,
+        )
         return data
 
 

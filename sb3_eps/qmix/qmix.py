@@ -38,11 +38,18 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
             targets = td_target(batch.team_rewards, batch.team_discounts, batch.team_dones, next_total)
         loss = weighted_huber(q_total, targets, batch.weights)
         priorities = (q_total - targets).detach().abs()
-        logs = {"q_total_mean": float(q_total.detach().mean()), "target_mean": float(targets.mean())}
+        q_total_detached = q_total.detach()
+        logs = {
+            "q_total_mean": float(q_total_detached.mean()),
+            "q_total_min": float(q_total_detached.min()),
+            "q_total_max": float(q_total_detached.max()),
+            "target_mean": float(targets.mean()),
+        }
         if self._n_updates % self.diagnostics_interval == 0:
             gain = input_gain(self.policy.mixer, terms.q_taken * batch.alive, batch.states)
             logs.update(
                 mixer_gain_sum=float(gain.sum(dim=1).mean()),
+                mixer_gain_std=float(gain[batch.alive > 0].std()),
                 agent_q_mean=float(terms.q_taken.detach().mean()),
                 agent_q_max=float(terms.q_taken.detach().abs().max()),
             )
