@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
+from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
 from sb3_eps.common.buffers import JointReplayBufferSamples
 from sb3_eps.common.losses import weighted_huber
@@ -20,8 +21,15 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     reward, ``y = r_team + gamma^k (1 - done) mixer_target(Q_i'(s'_i, a*_i); s')``; agents act greedily on
     their own ``Q_i`` (monotonicity makes that the joint arg max). Agents that are not acting (a robot that
     arrived) enter the mixer with ``Q = 0``. Needs the env's global state (``state()``).
-    All arguments are those of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`;
-    ``policy_kwargs=dict(mixing_embed_dim=32, hypernet_hidden_dim=64)`` size the mixer.
+    ``policy_kwargs=dict(mixing_embed_dim=32, hypernet_hidden_dim=64, mixer_init="random")`` size and initialise
+    the mixer (:class:`~sb3_eps.qmix.policies.QMIXPolicy`).
+
+    :param handle_timeout_termination: at a time-limit truncation, bootstrap from the truncated agents'
+        ``Q_i'(s'_i, a*_i)`` (SB3's ``handle_timeout_termination``: a time limit is not a terminal state). False
+        feeds them to the target mixer as ``Q = 0``, as agents that arrived; then a truncated window's target is
+        the mixer's state path alone, ``mixer(0, ..., 0; s')``, a value no agent is trained towards
+        (``docs/results/baselines.md``, QMIX section)
+    Other arguments are those of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`.
     """
 
     policy: QMIXPolicy
@@ -29,11 +37,59 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     requires_fixed_n_agents: ClassVar[bool] = True
     uses_global_state: ClassVar[bool] = True
 
+    def __init__(
+        self,
+        policy: str | type[MultiAgentQPolicy],
+        env: GymEnv | None,
+        learning_rate: float | Schedule = 3e-4,
+        buffer_size: int = 50_000,
+        learning_starts: int = 2_000,
+        batch_size: int = 64,
+        tau: float = 0.01,
+        gamma: float = 0.99,
+        train_freq: int | tuple[int, str] = 1,
+        gradient_steps: int = 1,
+        target_update_interval: int = 1,
+        n_steps: int = 3,
+        prioritized_replay: bool = True,
+        prioritized_replay_alpha: float = 0.6,
+        prioritized_replay_beta0: float = 0.4,
+        double_q: bool = True,
+        exploration_fraction: float = 0.05,
+        exploration_initial_eps: float = 1.0,
+        exploration_final_eps: float = 0.02,
+        max_grad_norm: float = 10.0,
+        team_reward_mode: str = "sum",
+        handle_timeout_termination: bool = True,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ) -> None:
+        self.handle_timeout_termination = bool(handle_timeout_termination)
+        arguments = dict(locals())
+        for name in ("self", "__class__", "policy", "env", "handle_timeout_termination"):
+            arguments.pop(name, None)
+        super().__init__(policy, env, **arguments)
+
+    def _bootstrap_mask(self, batch: JointReplayBufferSamples) -> th.Tensor:
+        """``(B, n)``: 1 for the agents whose ``Q_i'`` enters the target mixer, 0 for those entering as ``Q = 0``.
+
+        ``next_alive`` marks the agents still driving after the window; with ``handle_timeout_termination`` the
+        agents cut by the time limit count too: alive at the window's start and not terminated in it.
+        """
+        if self.handle_timeout_termination:
+            return batch.alive * (1.0 - batch.dones)
+        return batch.next_alive
+
     def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         terms = self._td_terms(batch)
         q_total = self.policy.mixer(terms.q_taken * batch.alive, batch.states)
         with th.no_grad():
-            next_q = (terms.next_values + terms.next_advantage_term) * batch.next_alive
+            next_q = (terms.next_values + terms.next_advantage_term) * self._bootstrap_mask(batch)
             next_total = self.policy.mixer_target(next_q, batch.next_states)
             targets = td_target(batch.team_rewards, batch.team_discounts, batch.team_dones, next_total)
         loss = weighted_huber(q_total, targets, batch.weights)
