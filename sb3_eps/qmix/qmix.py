@@ -102,14 +102,25 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
             "target_mean": float(targets.mean()),
         }
         if self._n_updates % self.diagnostics_interval == 0:
-            gain = input_gain(self.policy.mixer, terms.q_taken * batch.alive, batch.states)
-            logs.update(
-                mixer_gain_sum=float(gain.sum(dim=1).mean()),
-                mixer_gain_std=float(gain[batch.alive > 0].std()),
-                agent_q_mean=float(terms.q_taken.detach().mean()),
-                agent_q_max=float(terms.q_taken.detach().abs().max()),
-            )
+            logs.update(self._diagnostics(terms.q_taken * batch.alive, next_q, next_total, batch))
         return loss, priorities.cpu().numpy(), logs
+
+    def _diagnostics(
+        self, agent_qs: th.Tensor, next_q: th.Tensor, next_total: th.Tensor, batch: JointReplayBufferSamples
+    ) -> dict[str, float]:
+        """The mixer's gain ``dQ_tot/dQ_i`` (sum over agents, spread across agents and rows), the agents' Q, and
+        ``zero_input_gap``: how far the target mixer moves when every agent enters it as ``Q = 0`` (the bootstrap
+        of a time-limit truncation without ``handle_timeout_termination``), ``mixer'(0; s') - mixer'(Q'; s')``."""
+        gain = input_gain(self.policy.mixer, agent_qs, batch.states)
+        with th.no_grad():
+            zero_total = self.policy.mixer_target(th.zeros_like(next_q), batch.next_states)
+        return {
+            "mixer_gain_sum": float(gain.sum(dim=1).mean()),
+            "mixer_gain_std": float(gain[batch.alive > 0].std()),
+            "agent_q_mean": float(agent_qs.detach().sum() / batch.alive.sum().clamp(min=1)),
+            "agent_q_max": float(agent_qs.detach().abs().max()),
+            "zero_input_gap": float((zero_total - next_total).mean()),
+        }
 
 
 class VDN(QMIX):
