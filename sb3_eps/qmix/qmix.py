@@ -7,6 +7,7 @@ from typing import Any, ClassVar
 import numpy as np
 import torch as th
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
+from stable_baselines3.common.utils import LinearSchedule
 
 from sb3_eps.common.buffers import JointReplayBufferSamples
 from sb3_eps.common.losses import weighted_huber
@@ -14,6 +15,10 @@ from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.common.utils import input_gain, td_target
 from sb3_eps.qmix.policies import QMIXPolicy, VDNPolicy
+
+#: QMIX's and VDN's default learning rate: 3e-4 decaying linearly to 0 over the budget (RL Zoo's ``lin_3e-4``), as
+#: GDQ's: the greedy policy stops churning as the budget ends (docs/results/baselines.md).
+DEFAULT_LEARNING_RATE = LinearSchedule(3e-4, 0.0, 1.0)
 
 
 class QMIX(MultiAgentOffPolicyAlgorithm):
@@ -41,7 +46,7 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
         self,
         policy: str | type[MultiAgentQPolicy],
         env: GymEnv | None,
-        learning_rate: float | Schedule = 3e-4,
+        learning_rate: float | Schedule = DEFAULT_LEARNING_RATE,
         buffer_size: int = 50_000,
         learning_starts: int = 2_000,
         batch_size: int = 64,
