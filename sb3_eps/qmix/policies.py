@@ -6,6 +6,7 @@ from typing import Any
 
 import torch as th
 import torch.nn.functional as F
+from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 
 from sb3_eps.common.policies import MultiAgentQPolicy
@@ -88,6 +89,12 @@ def _init_mixer_as_sum(mixer: QMixer) -> None:
         layer.bias.fill_(bias)
 
 
+def apply_lr_scales(optimizer: th.optim.Optimizer) -> None:
+    """Multiply each parameter group's learning rate by its ``lr_scale`` (after SB3 has set them all to one rate)."""
+    for group in optimizer.param_groups:
+        group["lr"] = group["lr"] * group.get("lr_scale", 1.0)
+
+
 class SumMixer(nn.Module):
     """VDN's mixer (Sunehag et al., AAMAS 2018): ``Q_tot = sum_i Q_i``; it has no parameters."""
 
@@ -104,6 +111,8 @@ class QMIXPolicy(MultiAgentQPolicy):
     :param mixing_embed_dim: width of the mixing layer (32)
     :param hypernet_hidden_dim: hidden width of the hypernetworks (64)
     :param mixer_init: initialisation of the mixer, ``"random"`` or ``"sum"`` (see :class:`QMixer`)
+    :param mixer_lr_scale: the mixer's learning rate as a fraction of the agent network's (1: one rate for all);
+        below 1 the hypernetworks re-weight the agents more slowly than the agents learn their own ``Q_i``
     :param kwargs: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`
     """
 
@@ -116,14 +125,30 @@ class QMIXPolicy(MultiAgentQPolicy):
         mixing_embed_dim: int = 32,
         hypernet_hidden_dim: int = 64,
         mixer_init: str = "random",
+        mixer_lr_scale: float = 1.0,
         **kwargs: Any,
     ):
         if mixer_init not in MIXER_INITS:
             raise ValueError(f"mixer_init must be one of {MIXER_INITS}, got {mixer_init!r}")
+        if not (isinstance(mixer_lr_scale, float | int) and not isinstance(mixer_lr_scale, bool) and mixer_lr_scale > 0):
+            raise ValueError(f"mixer_lr_scale must be a number > 0, got {mixer_lr_scale!r}")
         self.mixing_embed_dim = mixing_embed_dim
         self.hypernet_hidden_dim = hypernet_hidden_dim
         self.mixer_init = mixer_init
+        self.mixer_lr_scale = float(mixer_lr_scale)
         super().__init__(*args, **kwargs)
+
+    def _build(self, lr_schedule: Schedule) -> None:
+        super()._build(lr_schedule)
+        if self.mixer_lr_scale != 1.0:
+            # Two parameter groups; the algorithm multiplies each group's rate by its lr_scale at every update.
+            groups = [
+                {"params": list(self.q_net.parameters()), "lr_scale": 1.0},
+                {"params": list(self.mixer.parameters()), "lr_scale": self.mixer_lr_scale},
+            ]
+            defaults = {key: value for key, value in self.optimizer.defaults.items() if key != "lr"}
+            self.optimizer = self.optimizer_class(groups, lr=lr_schedule(1), **defaults)
+            apply_lr_scales(self.optimizer)
 
     def _make_mixer(self) -> nn.Module:
         return QMixer(
@@ -145,6 +170,7 @@ class QMIXPolicy(MultiAgentQPolicy):
             mixing_embed_dim=self.mixing_embed_dim,
             hypernet_hidden_dim=self.hypernet_hidden_dim,
             mixer_init=self.mixer_init,
+            mixer_lr_scale=self.mixer_lr_scale,
         )
         return data
 

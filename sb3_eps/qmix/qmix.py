@@ -14,7 +14,7 @@ from sb3_eps.common.losses import weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.common.utils import input_gain, td_target
-from sb3_eps.qmix.policies import QMIXPolicy, VDNPolicy
+from sb3_eps.qmix.policies import QMIXPolicy, VDNPolicy, apply_lr_scales
 
 #: QMIX's and VDN's default learning rate: 3e-4 decaying linearly to 0 over the budget (RL Zoo's ``lin_3e-4``), as
 #: GDQ's: the greedy policy stops churning as the budget ends (docs/results/baselines.md).
@@ -79,6 +79,10 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
         for name in ("self", "__class__", "policy", "env", "handle_timeout_termination"):
             arguments.pop(name, None)
         super().__init__(policy, env, **arguments)
+
+    def _update_learning_rate(self, optimizers: list[th.optim.Optimizer] | th.optim.Optimizer) -> None:
+        super()._update_learning_rate(optimizers)
+        apply_lr_scales(self.policy.optimizer)  # the mixer's own rate (policy_kwargs mixer_lr_scale)
 
     def _bootstrap_mask(self, batch: JointReplayBufferSamples) -> th.Tensor:
         """``(B, n)``: 1 for the agents whose ``Q_i'`` enters the target mixer, 0 for those entering as ``Q = 0``.
