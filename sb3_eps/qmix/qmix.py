@@ -29,18 +29,20 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     ``policy_kwargs=dict(mixing_embed_dim=32, hypernet_hidden_dim=64, mixer_init="random")`` size and initialise
     the mixer (:class:`~sb3_eps.qmix.policies.QMIXPolicy`).
 
-    :param handle_timeout_termination: at a time-limit truncation, bootstrap from the truncated agents'
-        ``Q_i'(s'_i, a*_i)`` (SB3's ``handle_timeout_termination``: a time limit is not a terminal state). False
-        feeds them to the target mixer as ``Q = 0``, as agents that arrived; then a truncated window's target is
-        the mixer's state path alone, ``mixer(0, ..., 0; s')``, a value no agent is trained towards
-        (``docs/results/baselines.md``, QMIX section)
-    Other arguments are those of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`.
+    At a time-limit truncation the agents still driving enter the target mixer with their ``Q_i'(s'_i, a*_i)``: a time
+    limit is not a terminal state (SB3's ``handle_timeout_termination``; IQL's per-agent targets do the same).
+    Before, they entered as ``Q = 0``, as agents that arrived, and a truncated window's target was the mixer's
+    state path alone, ``mixer'(0, ..., 0; s')``, a value no agent is trained towards (the class attribute
+    ``handle_timeout_termination = False`` restores that for comparison; ``docs/results/baselines.md``).
+    Arguments are those of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`, with the learning rate
+    decaying linearly from 3e-4 to 0 over the budget by default.
     """
 
     policy: QMIXPolicy
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": QMIXPolicy}
     requires_fixed_n_agents: ClassVar[bool] = True
     uses_global_state: ClassVar[bool] = True
+    handle_timeout_termination: ClassVar[bool] = True
 
     def __init__(
         self,
@@ -65,7 +67,6 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
         exploration_final_eps: float = 0.02,
         max_grad_norm: float = 10.0,
         team_reward_mode: str = "sum",
-        handle_timeout_termination: bool = True,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -74,9 +75,9 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
-        self.handle_timeout_termination = bool(handle_timeout_termination)
+        # QMIX's and VDN's own default: the learning rate (lin_3e-4, as GDQ's; docs/results/baselines.md).
         arguments = dict(locals())
-        for name in ("self", "__class__", "policy", "env", "handle_timeout_termination"):
+        for name in ("self", "__class__", "policy", "env"):
             arguments.pop(name, None)
         super().__init__(policy, env, **arguments)
 

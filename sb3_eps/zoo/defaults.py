@@ -92,6 +92,8 @@ def package_policy_kwargs(algo: str) -> dict[str, Any]:
             "global_net_arch",
             "mixing_embed_dim",
             "hypernet_hidden_dim",
+            "mixer_init",
+            "mixer_lr_scale",
         ):
             value = defaults[name]
             result[name] = list(value or fallbacks[name]) if name == "global_net_arch" else value

@@ -191,6 +191,8 @@ QMIX_POLICY_PARAMS: dict[str, Param] = {
     **COMMON_POLICY_PARAMS,
     "mixing_embed_dim": Param("int", low=1),
     "hypernet_hidden_dim": Param("int", low=1),
+    "mixer_init": Param("choice", choices=("random", "sum")),
+    "mixer_lr_scale": Param("float", low=0, open_low=True),
 }
 
 
