@@ -110,9 +110,10 @@ class QMIXPolicy(MultiAgentQPolicy):
 
     :param mixing_embed_dim: width of the mixing layer (32)
     :param hypernet_hidden_dim: hidden width of the hypernetworks (64)
-    :param mixer_init: initialisation of the mixer, ``"random"`` or ``"sum"`` (see :class:`QMixer`)
-    :param mixer_lr_scale: the mixer's learning rate as a fraction of the agent network's (1: one rate for all);
-        below 1 the hypernetworks re-weight the agents more slowly than the agents learn their own ``Q_i``
+    :param mixer_init: initialisation of the mixer, ``"sum"`` (default: it starts as VDN's sum) or ``"random"``
+        (PyTorch's default initialisation, the QMIX paper's) (see :class:`QMixer`)
+    :param mixer_lr_scale: the mixer's learning rate as a fraction of the agent network's (default 0.1; 1: one rate
+        for all): the hypernetworks re-weight the agents more slowly than the agents learn their own ``Q_i``
     :param kwargs: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`
     """
 
@@ -124,8 +125,8 @@ class QMIXPolicy(MultiAgentQPolicy):
         *args: Any,
         mixing_embed_dim: int = 32,
         hypernet_hidden_dim: int = 64,
-        mixer_init: str = "random",
-        mixer_lr_scale: float = 1.0,
+        mixer_init: str = "sum",
+        mixer_lr_scale: float = 0.1,
         **kwargs: Any,
     ):
         if mixer_init not in MIXER_INITS:
@@ -140,7 +141,7 @@ class QMIXPolicy(MultiAgentQPolicy):
 
     def _build(self, lr_schedule: Schedule) -> None:
         super()._build(lr_schedule)
-        if self.mixer_lr_scale != 1.0:
+        if self.mixer_lr_scale != 1.0 and any(True for _ in self.mixer.parameters()):  # VDN's sum has none
             # Two parameter groups; the algorithm multiplies each group's rate by its lr_scale at every update.
             groups = [
                 {"params": list(self.q_net.parameters()), "lr_scale": 1.0},
