@@ -26,8 +26,9 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     reward, ``y = r_team + gamma^k (1 - done) mixer_target(Q_i'(s'_i, a*_i); s')``; agents act greedily on
     their own ``Q_i`` (monotonicity makes that the joint arg max). Agents that are not acting (a robot that
     arrived) enter the mixer with ``Q = 0``. Needs the env's global state (``state()``).
-    ``policy_kwargs=dict(mixing_embed_dim=32, hypernet_hidden_dim=64, mixer_init="random")`` size and initialise
-    the mixer (:class:`~sb3_eps.qmix.policies.QMIXPolicy`).
+    ``policy_kwargs=dict(mixing_embed_dim=32, hypernet_hidden_dim=64, mixer_init="sum", mixer_lr_scale=0.1)`` (the
+    defaults) size the mixer, start it as VDN's sum and let it learn at a tenth of the agents' rate
+    (:class:`~sb3_eps.qmix.policies.QMIXPolicy`; with one rate its gain ran away on the robot worlds).
 
     At a time-limit truncation the agents still driving enter the target mixer with their ``Q_i'(s'_i, a*_i)``: a time
     limit is not a terminal state (SB3's ``handle_timeout_termination``; IQL's per-agent targets do the same).
