@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal, get_args
 
 import torch as th
 import torch.nn.functional as F
+from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 
 from sb3_eps.common.policies import MultiAgentQPolicy
@@ -22,12 +23,20 @@ class QMixer(nn.Module):
     :param state_dim: global state length
     :param embed_dim: width of the mixing layer (32 in the QMIX paper)
     :param hypernet_hidden_dim: hidden width of the weight hypernetworks (64)
+    :param init: ``"random"``: PyTorch's default initialisation (the QMIX paper's); ``"sum"``: the hypernetworks'
+        output layers start so that ``Q_tot = sum_i Q_i`` (VDN's mixer, a gain of 1 per agent) wherever
+        ``sum_i Q_i > -n_agents``, with state-dependent perturbations of 1/10 of the default scale that the TD loss
+        then grows (see :func:`_init_mixer_as_sum`)
     """
 
-    def __init__(self, n_agents: int, state_dim: int, embed_dim: int = 32, hypernet_hidden_dim: int = 64) -> None:
+    def __init__(
+        self, n_agents: int, state_dim: int, embed_dim: int = 32, hypernet_hidden_dim: int = 64, init: str = "random"
+    ) -> None:
         super().__init__()
         if state_dim < 1:
             raise ValueError("QMIX needs a global state: the env must provide state() (state_dim >= 1)")
+        if init not in MIXER_INITS:
+            raise ValueError(f"mixer_init must be one of {MIXER_INITS}, got {init!r}")
         self.n_agents, self.state_dim, self.embed_dim = n_agents, state_dim, embed_dim
         self.hyper_w1 = nn.Sequential(
             nn.Linear(state_dim, hypernet_hidden_dim), nn.ReLU(), nn.Linear(hypernet_hidden_dim, n_agents * embed_dim)
@@ -37,6 +46,8 @@ class QMixer(nn.Module):
             nn.Linear(state_dim, hypernet_hidden_dim), nn.ReLU(), nn.Linear(hypernet_hidden_dim, embed_dim)
         )
         self.hyper_b2 = nn.Sequential(nn.Linear(state_dim, embed_dim), nn.ReLU(), nn.Linear(embed_dim, 1))
+        if init == "sum":
+            _init_mixer_as_sum(self)
 
     def forward(self, agent_qs: th.Tensor, states: th.Tensor) -> th.Tensor:
         """:param agent_qs: ``(B, n_agents)``; :param states: ``(B, state_dim)``; :return: ``Q_tot (B,)``."""
@@ -54,6 +65,37 @@ class QMixer(nn.Module):
         return (th.bmm(hidden, w2) + b2).view(batch)
 
 
+MixerInit = Literal["random", "sum"]
+MIXER_INITS: tuple[str, ...] = get_args(MixerInit)
+# Scale of the state-dependent part of the hypernetworks' output layers under ``init="sum"``: small enough that
+# the mixer starts close to the sum, large enough to break the symmetry between the mixing units.
+SUM_INIT_PERTURBATION = 0.1
+
+
+@th.no_grad()
+def _init_mixer_as_sum(mixer: QMixer) -> None:
+    """Start ``mixer`` as ``Q_tot = sum_i Q_i`` on ``sum_i Q_i > -n``: ``|w1| = 1``, ``b1 = n``, ``|w2| = 1 / embed``,
+    ``b2 = -n``, so every mixing unit is ``elu(sum_i Q_i + n)`` on the ELU's linear side. The output layers'
+    random weights (the state dependence) are scaled by :data:`SUM_INIT_PERTURBATION` times the size of the
+    weight they perturb (1 for ``w1``, ``b1`` and ``b2``, ``1 / embed`` for ``w2``)."""
+    n_agents, embed_dim = mixer.n_agents, mixer.embed_dim
+    outputs = [  # (output layer, its bias, the scale of its random weights)
+        (mixer.hyper_w1[-1], 1.0, 1.0),
+        (mixer.hyper_b1, float(n_agents), 1.0),
+        (mixer.hyper_w2[-1], 1.0 / embed_dim, 1.0 / embed_dim),
+        (mixer.hyper_b2[-1], -float(n_agents), 1.0),
+    ]
+    for layer, bias, scale in outputs:
+        layer.weight.mul_(SUM_INIT_PERTURBATION * scale)
+        layer.bias.fill_(bias)
+
+
+def apply_lr_scales(optimizer: th.optim.Optimizer) -> None:
+    """Multiply each parameter group's learning rate by its ``lr_scale`` (after SB3 has set them all to one rate)."""
+    for group in optimizer.param_groups:
+        group["lr"] = group["lr"] * group.get("lr_scale", 1.0)
+
+
 class SumMixer(nn.Module):
     """VDN's mixer (Sunehag et al., AAMAS 2018): ``Q_tot = sum_i Q_i``; it has no parameters."""
 
@@ -69,19 +111,51 @@ class QMIXPolicy(MultiAgentQPolicy):
 
     :param mixing_embed_dim: width of the mixing layer (32)
     :param hypernet_hidden_dim: hidden width of the hypernetworks (64)
+    :param mixer_init: initialisation of the mixer, ``"sum"`` (default: it starts as VDN's sum) or ``"random"``
+        (PyTorch's default initialisation, the QMIX paper's) (see :class:`QMixer`)
+    :param mixer_lr_scale: the mixer's learning rate as a fraction of the agent network's (default 0.1; 1: one rate
+        for all): the hypernetworks re-weight the agents more slowly than the agents learn their own ``Q_i``
     :param kwargs: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`
     """
 
     mixer: nn.Module
     mixer_target: nn.Module
 
-    def __init__(self, *args: Any, mixing_embed_dim: int = 32, hypernet_hidden_dim: int = 64, **kwargs: Any):
+    def __init__(
+        self,
+        *args: Any,
+        mixing_embed_dim: int = 32,
+        hypernet_hidden_dim: int = 64,
+        mixer_init: MixerInit = "sum",
+        mixer_lr_scale: float = 0.1,
+        **kwargs: Any,
+    ):
+        if mixer_init not in MIXER_INITS:
+            raise ValueError(f"mixer_init must be one of {MIXER_INITS}, got {mixer_init!r}")
+        if not (isinstance(mixer_lr_scale, float | int) and not isinstance(mixer_lr_scale, bool) and mixer_lr_scale > 0):
+            raise ValueError(f"mixer_lr_scale must be a number > 0, got {mixer_lr_scale!r}")
         self.mixing_embed_dim = mixing_embed_dim
         self.hypernet_hidden_dim = hypernet_hidden_dim
+        self.mixer_init = mixer_init
+        self.mixer_lr_scale = float(mixer_lr_scale)
         super().__init__(*args, **kwargs)
 
+    def _build(self, lr_schedule: Schedule) -> None:
+        super()._build(lr_schedule)
+        if self.mixer_lr_scale != 1.0 and any(True for _ in self.mixer.parameters()):  # VDN's sum has none
+            # Two parameter groups; the algorithm multiplies each group's rate by its lr_scale at every update.
+            groups = [
+                {"params": list(self.q_net.parameters()), "lr_scale": 1.0},
+                {"params": list(self.mixer.parameters()), "lr_scale": self.mixer_lr_scale},
+            ]
+            defaults = {key: value for key, value in self.optimizer.defaults.items() if key != "lr"}
+            self.optimizer = self.optimizer_class(groups, lr=lr_schedule(1), **defaults)
+            apply_lr_scales(self.optimizer)
+
     def _make_mixer(self) -> nn.Module:
-        return QMixer(self.n_agents, self.state_dim, self.mixing_embed_dim, self.hypernet_hidden_dim)
+        return QMixer(
+            self.n_agents, self.state_dim, self.mixing_embed_dim, self.hypernet_hidden_dim, init=self.mixer_init
+        )
 
     def _build_joint_modules(self) -> None:
         self.mixer = self._make_mixer().to(self.device)
@@ -94,7 +168,12 @@ class QMIXPolicy(MultiAgentQPolicy):
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
-        data.update(mixing_embed_dim=self.mixing_embed_dim, hypernet_hidden_dim=self.hypernet_hidden_dim)
+        data.update(
+            mixing_embed_dim=self.mixing_embed_dim,
+            hypernet_hidden_dim=self.hypernet_hidden_dim,
+            mixer_init=self.mixer_init,
+            mixer_lr_scale=self.mixer_lr_scale,
+        )
         return data
 
 

@@ -2,17 +2,23 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
+from stable_baselines3.common.type_aliases import GymEnv, Schedule
+from stable_baselines3.common.utils import LinearSchedule
 
 from sb3_eps.common.buffers import JointReplayBufferSamples
 from sb3_eps.common.losses import weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.common.utils import input_gain, td_target
-from sb3_eps.qmix.policies import QMIXPolicy, VDNPolicy
+from sb3_eps.qmix.policies import QMIXPolicy, VDNPolicy, apply_lr_scales
+
+#: QMIX's and VDN's default learning rate: 3e-4 decaying linearly to 0 over the budget (RL Zoo's ``lin_3e-4``), as
+#: GDQ's: the greedy policy stops churning as the budget ends (docs/results/baselines.md).
+DEFAULT_LEARNING_RATE = LinearSchedule(3e-4, 0.0, 1.0)
 
 
 class QMIX(MultiAgentOffPolicyAlgorithm):
@@ -20,33 +26,112 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     reward, ``y = r_team + gamma^k (1 - done) mixer_target(Q_i'(s'_i, a*_i); s')``; agents act greedily on
     their own ``Q_i`` (monotonicity makes that the joint arg max). Agents that are not acting (a robot that
     arrived) enter the mixer with ``Q = 0``. Needs the env's global state (``state()``).
-    All arguments are those of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`;
-    ``policy_kwargs=dict(mixing_embed_dim=32, hypernet_hidden_dim=64)`` size the mixer.
+    ``policy_kwargs=dict(mixing_embed_dim=32, hypernet_hidden_dim=64, mixer_init="sum", mixer_lr_scale=0.1)`` (the
+    defaults) size the mixer, start it as VDN's sum and let it learn at a tenth of the agents' rate
+    (:class:`~sb3_eps.qmix.policies.QMIXPolicy`; with one rate its gain ran away on the robot worlds).
+
+    At a time-limit truncation the agents still driving enter the target mixer with their ``Q_i'(s'_i, a*_i)``: a time
+    limit is not a terminal state (SB3's ``handle_timeout_termination``; IQL's per-agent targets do the same).
+    Before, they entered as ``Q = 0``, as agents that arrived, and a truncated window's target was the mixer's
+    state path alone, ``mixer'(0, ..., 0; s')``, a value no agent is trained towards (the class attribute
+    ``handle_timeout_termination = False`` restores that for comparison; ``docs/results/baselines.md``).
+    Arguments are those of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`, with the learning rate
+    decaying linearly from 3e-4 to 0 over the budget by default.
     """
 
     policy: QMIXPolicy
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": QMIXPolicy}
     requires_fixed_n_agents: ClassVar[bool] = True
     uses_global_state: ClassVar[bool] = True
+    handle_timeout_termination: ClassVar[bool] = True
+
+    def __init__(
+        self,
+        policy: str | type[MultiAgentQPolicy],
+        env: GymEnv | None,
+        learning_rate: float | Schedule = DEFAULT_LEARNING_RATE,
+        buffer_size: int = 50_000,
+        learning_starts: int = 2_000,
+        batch_size: int = 64,
+        tau: float = 0.01,
+        gamma: float = 0.99,
+        train_freq: int | tuple[int, str] = 1,
+        gradient_steps: int = 1,
+        target_update_interval: int = 1,
+        n_steps: int = 3,
+        prioritized_replay: bool = True,
+        prioritized_replay_alpha: float = 0.6,
+        prioritized_replay_beta0: float = 0.4,
+        double_q: bool = True,
+        exploration_fraction: float = 0.05,
+        exploration_initial_eps: float = 1.0,
+        exploration_final_eps: float = 0.02,
+        max_grad_norm: float = 10.0,
+        team_reward_mode: str = "sum",
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ) -> None:
+        # QMIX's and VDN's own default: the learning rate (lin_3e-4, as GDQ's; docs/results/baselines.md).
+        arguments = dict(locals())
+        for name in ("self", "__class__", "policy", "env"):
+            arguments.pop(name, None)
+        super().__init__(policy, env, **arguments)
+
+    def _update_learning_rate(self, optimizers: list[th.optim.Optimizer] | th.optim.Optimizer) -> None:
+        super()._update_learning_rate(optimizers)
+        apply_lr_scales(self.policy.optimizer)  # the mixer's own rate (policy_kwargs mixer_lr_scale)
+
+    def _bootstrap_mask(self, batch: JointReplayBufferSamples) -> th.Tensor:
+        """``(B, n)``: 1 for the agents whose ``Q_i'`` enters the target mixer, 0 for those entering as ``Q = 0``.
+
+        ``next_alive`` marks the agents still driving after the window; with ``handle_timeout_termination`` the
+        agents cut by the time limit count too: alive at the window's start and not terminated in it.
+        """
+        if self.handle_timeout_termination:
+            return batch.alive * (1.0 - batch.dones)
+        return batch.next_alive
 
     def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         terms = self._td_terms(batch)
         q_total = self.policy.mixer(terms.q_taken * batch.alive, batch.states)
         with th.no_grad():
-            next_q = (terms.next_values + terms.next_advantage_term) * batch.next_alive
+            next_q = (terms.next_values + terms.next_advantage_term) * self._bootstrap_mask(batch)
             next_total = self.policy.mixer_target(next_q, batch.next_states)
             targets = td_target(batch.team_rewards, batch.team_discounts, batch.team_dones, next_total)
         loss = weighted_huber(q_total, targets, batch.weights)
         priorities = (q_total - targets).detach().abs()
-        logs = {"q_total_mean": float(q_total.detach().mean()), "target_mean": float(targets.mean())}
+        q_total_detached = q_total.detach()
+        logs = {
+            "q_total_mean": float(q_total_detached.mean()),
+            "q_total_min": float(q_total_detached.min()),
+            "q_total_max": float(q_total_detached.max()),
+            "target_mean": float(targets.mean()),
+        }
         if self._n_updates % self.diagnostics_interval == 0:
-            gain = input_gain(self.policy.mixer, terms.q_taken * batch.alive, batch.states)
-            logs.update(
-                mixer_gain_sum=float(gain.sum(dim=1).mean()),
-                agent_q_mean=float(terms.q_taken.detach().mean()),
-                agent_q_max=float(terms.q_taken.detach().abs().max()),
-            )
+            logs.update(self._diagnostics(terms.q_taken * batch.alive, next_q, next_total, batch))
         return loss, priorities.cpu().numpy(), logs
+
+    def _diagnostics(
+        self, agent_qs: th.Tensor, next_q: th.Tensor, next_total: th.Tensor, batch: JointReplayBufferSamples
+    ) -> dict[str, float]:
+        """The mixer's gain ``dQ_tot/dQ_i`` (sum over agents, spread across agents and rows), the agents' Q, and
+        ``zero_input_gap``: how far the target mixer moves when every agent enters it as ``Q = 0`` (the bootstrap
+        of a time-limit truncation without ``handle_timeout_termination``), ``mixer'(0; s') - mixer'(Q'; s')``."""
+        gain = input_gain(self.policy.mixer, agent_qs, batch.states)
+        with th.no_grad():
+            zero_total = self.policy.mixer_target(th.zeros_like(next_q), batch.next_states)
+        return {
+            "mixer_gain_sum": float(gain.sum(dim=1).mean()),
+            "mixer_gain_std": float(gain[batch.alive > 0].std()),
+            "agent_q_mean": float(agent_qs.detach().sum() / batch.alive.sum().clamp(min=1)),
+            "agent_q_max": float(agent_qs.detach().abs().max()),
+            "zero_input_gap": float((zero_total - next_total).mean()),
+        }
 
 
 class VDN(QMIX):

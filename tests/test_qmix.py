@@ -1,0 +1,141 @@
+"""QMIX's and VDN's own options: the mixer's initialisation, the bootstrap at time limits, the Q-range logs."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+import torch as th
+
+import envs  # noqa: F401
+from sb3_eps import QMIX, VDN, make_vec_env
+from sb3_eps.common.utils import input_gain
+from sb3_eps.qmix import QMixer, QMIXPolicy
+
+TINY = {"net_arch": [16], "stream_arch": [16], "mixing_embed_dim": 8, "hypernet_hidden_dim": 16}
+
+
+def tiny_model(algorithm=QMIX, seed=0, **kwargs):
+    """A small model on Cooperative Navigation, whose 25-tick episodes all end by the time limit."""
+    venv = make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=seed)
+    defaults = {"learning_starts": 60, "batch_size": 16, "buffer_size": 2_000, "train_freq": 2, "seed": seed}
+    defaults["policy_kwargs"] = dict(TINY)
+    return algorithm("MlpPolicy", venv, **{**defaults, **kwargs})
+
+
+def test_sum_init_starts_the_mixer_as_the_sum_of_the_agents_q() -> None:
+    th.manual_seed(0)
+    n_agents, state_dim = 4, 36
+    agent_qs = th.randn(512, n_agents) * 0.5
+    states = th.randn(512, state_dim)
+    mixer = QMixer(n_agents, state_dim, init="sum")
+    assert th.allclose(mixer(agent_qs, states), agent_qs.sum(dim=1), atol=0.2)
+    gain = input_gain(mixer, agent_qs, states)
+    assert gain.mean().item() == pytest.approx(1.0, abs=0.05)
+    assert gain.std().item() < 0.05  # nearly the same credit for every agent in every state
+    # The default (PyTorch's initialisation) is far from it: random, state-dependent credit.
+    random_gain = input_gain(QMixer(n_agents, state_dim), agent_qs, states)
+    assert random_gain.std().item() > 3 * gain.std().item()
+    # Still a QMIX mixer: monotonic, and the state dependence is there for training to grow.
+    assert (gain > 0).all()
+    assert not th.allclose(gain[0], gain[1])
+
+
+def test_mixer_init_is_checked_and_survives_save_load(tmp_path) -> None:
+    with pytest.raises(ValueError, match="mixer_init must be one of"):
+        QMixer(2, 3, init="identity")
+    with pytest.raises(ValueError, match="mixer_init must be one of"):
+        tiny_model(policy_kwargs={**TINY, "mixer_init": "vdn"})
+    model = tiny_model(policy_kwargs={**TINY, "mixer_init": "sum"})
+    assert isinstance(model.policy, QMIXPolicy) and model.policy.mixer_init == "sum"
+    model.save(tmp_path / "model")
+    loaded = QMIX.load(tmp_path / "model", env=make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=1))
+    assert loaded.policy.mixer_init == "sum"
+    for key, value in model.policy.mixer.state_dict().items():
+        assert th.equal(value, loaded.policy.mixer.state_dict()[key])
+
+
+def _truncated_rows(model):
+    """A batch of the rows whose window ends at the 25-tick time limit (every agent cut, none terminated)."""
+    model.learn(400)
+    buffer = model.replay_buffer
+    rows = np.flatnonzero(
+        (buffer.alive[: buffer.size()].min(axis=1) == 1)
+        & (buffer.next_alive[: buffer.size()].max(axis=1) == 0)
+        & (buffer.dones[: buffer.size()].max(axis=1) == 0)
+    )
+    assert len(rows) > 0, "Cooperative Navigation's episodes end at the time limit"
+    return buffer._to_samples(rows, np.ones(len(rows), dtype=np.float32))
+
+
+@pytest.mark.parametrize("algorithm", [QMIX, VDN], ids=lambda a: a.__name__)
+def test_time_limit_windows_bootstrap_from_the_truncated_agents(algorithm) -> None:
+    model = tiny_model(algorithm)
+    assert model.handle_timeout_termination  # the default
+    batch = _truncated_rows(model)
+    assert th.equal(model._bootstrap_mask(batch), th.ones_like(batch.alive))
+    assert (batch.team_dones == 0).all()  # a time limit is not a terminal state
+    # Rows where agents are still driving, or were terminated, keep the mask they always had.
+    everything = model.replay_buffer._to_samples(
+        np.arange(model.replay_buffer.size()), np.ones(model.replay_buffer.size(), dtype=np.float32)
+    )
+    driving_or_terminated = everything.next_alive + everything.dones * everything.alive
+    timed_out = (everything.alive == 1) & (everything.dones == 0) & (everything.next_alive == 0)
+    mask = model._bootstrap_mask(everything)
+    assert th.equal(mask[~timed_out], everything.next_alive[~timed_out])
+    assert (mask[timed_out] == 1).all() and (driving_or_terminated[timed_out] == 0).all()
+    # The former behaviour, kept as an option: truncated agents enter the target mixer as Q = 0.
+    model.handle_timeout_termination = False
+    assert th.equal(model._bootstrap_mask(batch), th.zeros_like(batch.alive))
+
+
+def test_the_two_timeout_bootstraps_differ() -> None:
+    model = tiny_model(QMIX)
+    batch = _truncated_rows(model)
+    with th.no_grad():
+        terms = model._td_terms(batch)
+        next_q = terms.next_values + terms.next_advantage_term
+        with_agents = model.policy.mixer_target(next_q, batch.next_states)
+        zeros = model.policy.mixer_target(th.zeros_like(next_q), batch.next_states)
+    assert not th.allclose(with_agents, zeros)  # the two bootstraps differ: the choice matters
+
+
+def test_q_range_and_mixer_diagnostics_are_logged(tmp_path) -> None:
+    from stable_baselines3.common.logger import configure
+
+    model = tiny_model(QMIX)
+    model.diagnostics_interval = 1  # type: ignore[misc]
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    model.learn(600, log_interval=1)
+    with (tmp_path / "progress.csv").open() as file:
+        rows = [row for row in csv.DictReader(file) if row.get("train/q_total_min")]
+    assert rows
+    for key in ("q_total_min", "q_total_max", "mixer_gain_sum", "mixer_gain_std", "zero_input_gap"):
+        assert rows[-1][f"train/{key}"] != "", key
+    last = rows[-1]
+    assert float(last["train/q_total_min"]) <= float(last["train/q_total_mean"]) <= float(last["train/q_total_max"])
+
+
+def test_mixer_learns_at_its_fraction_of_the_agents_rate(tmp_path) -> None:
+    model = tiny_model(QMIX, learning_rate=1e-3)
+    assert model.policy.mixer_lr_scale == 0.1 and model.policy.mixer_init == "sum"  # the package defaults
+    groups = model.policy.optimizer.param_groups
+    assert [group["lr"] for group in groups] == pytest.approx([1e-3, 1e-4])
+    assert {id(p) for p in groups[1]["params"]} == {id(p) for p in model.policy.mixer.parameters()}
+    model.learn(300)  # the schedule's updates keep the ratio (here a constant rate)
+    assert [group["lr"] for group in model.policy.optimizer.param_groups] == pytest.approx([1e-3, 1e-4])
+    decaying = tiny_model(QMIX)  # lin_3e-4, the default: both decay, the ratio stays
+    decaying.learn(300)
+    decaying._current_progress_remaining = 0.5
+    decaying._update_learning_rate(decaying.policy.optimizer)
+    assert [group["lr"] for group in decaying.policy.optimizer.param_groups] == pytest.approx([1.5e-4, 1.5e-5])
+    model.save(tmp_path / "model")
+    loaded = QMIX.load(tmp_path / "model", env=make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=1))
+    assert [group["lr"] for group in loaded.policy.optimizer.param_groups] == pytest.approx([1e-3, 1e-4])
+    one_rate = tiny_model(QMIX, policy_kwargs={**TINY, "mixer_lr_scale": 1.0})
+    assert len(one_rate.policy.optimizer.param_groups) == 1
+    assert len(tiny_model(VDN).policy.optimizer.param_groups) == 1  # VDN's sum has no parameters
+    for bad in (0, -0.1, True, "0.1"):
+        with pytest.raises(ValueError, match="mixer_lr_scale must be a number > 0"):
+            tiny_model(QMIX, policy_kwargs={**TINY, "mixer_lr_scale": bad})
