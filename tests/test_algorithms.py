@@ -206,7 +206,7 @@ def test_runs_on_the_robot_world(algorithm) -> None:
     assert actions.shape == (5,) and ((actions >= 0) & (actions < 20)).all()
 
 
-GDQ_OPTIONS = ("global_values", "global_bootstrap")  # GDQ's own arguments; the others are policy_kwargs
+GDQ_OPTIONS = ("global_values", "global_bootstrap", "global_timeout_bootstrap")  # GDQ's own arguments; the others are policy_kwargs
 
 
 def _gdq_with(tmp_path=None, **options):
@@ -310,6 +310,23 @@ def test_gdq_target_values_feed_the_global_target_head_from_the_agent_target_net
         next_obs = batch.next_observations.reshape(-1, batch.next_observations.shape[-1])
         expected = model.policy.q_net_target.value(next_obs).reshape(8, 3) * batch.next_alive
     th.testing.assert_close(seen[0], expected)
+
+
+@pytest.mark.parametrize("timeout_bootstrap", [False, True])
+def test_gdq_global_timeout_bootstrap_reads_the_agents_cut_by_the_time_limit(timeout_bootstrap) -> None:
+    """Cooperative Navigation ends every episode by its time limit (25 ticks): with global_timeout_bootstrap,
+    V_G' reads the truncated agents' v' (alive, not terminated); without, they enter as 0."""
+    model = _gdq_with(global_timeout_bootstrap=timeout_bootstrap)
+    model.learn(600)
+    batch = model.replay_buffer.sample(64)
+    truncated = (batch.alive * (1.0 - batch.dones)) * (1.0 - batch.next_alive)
+    assert truncated.sum() > 0  # windows cut by the time limit are in the sample
+    seen = []
+    hook = model.policy.global_value_net_target.register_forward_hook(lambda module, args, out: seen.append(args[0]))
+    model._compute_loss(batch)
+    hook.remove()
+    cut = truncated.bool()
+    assert (seen[0][cut] != 0).all() if timeout_bootstrap else (seen[0][cut] == 0).all()
 
 
 def test_gdq_options_in_policy_kwargs_still_work_with_a_deprecation_warning(tmp_path) -> None:

@@ -90,6 +90,10 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     :param global_bootstrap: ``lambda`` of the agents' bootstrap value ``lambda V_G'(v') + (1 - lambda) V_i(s'_i)``:
         1 is the paper's GDQ, 0 independent learning with a global head trained beside it (``docs/modules/gdq.md``,
         "GDQ-lambda")
+    :param global_timeout_bootstrap: ``V_G'`` also reads the agents cut by the time limit (with ``v'`` of their last
+        observation), not only those still driving after the window: a time limit is not a terminal state (SB3's
+        ``handle_timeout_termination``; QMIX does the same). False (the default until measured): they enter as 0,
+        as agents that arrived
     """
 
     policy: GDQPolicy
@@ -135,6 +139,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         target_update_interval: int | None = None,
         global_values: GlobalValues = DEFAULT_GLOBAL_VALUES,
         global_bootstrap: float = 1.0,
+        global_timeout_bootstrap: bool = False,
     ) -> None:
         # GDQ's own defaults differ from the base's in n_steps (30: an agent's own rewards reach its target
         # directly for 1.5 s, where V_G' passes them on with weight g_i ~ 1/n), team_reward_mode ("mean":
@@ -142,7 +147,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         # decaying linearly to 0 over the call's budget, RL Zoo's lin_3e-4: the greedy policy stops churning
         # as the budget ends); docs/results/baselines.md.
         arguments = dict(locals())
-        for name in ("self", "__class__", "policy", "env", *_FORMER_POLICY_OPTIONS):
+        for name in ("self", "__class__", "policy", "env", "global_timeout_bootstrap", *_FORMER_POLICY_OPTIONS):
             arguments.pop(name, None)
         options: dict[str, Any] = {"global_values": global_values, "global_bootstrap": global_bootstrap}
         if any(name in (policy_kwargs or {}) for name in _FORMER_POLICY_OPTIONS):
@@ -162,6 +167,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             raise ValueError(f"global_bootstrap must be in [0, 1], got {options['global_bootstrap']}")
         self.global_values: GlobalValues = options["global_values"]
         self.global_bootstrap = float(options["global_bootstrap"])
+        self.global_timeout_bootstrap = bool(global_timeout_bootstrap)
         super().__init__(policy, env, **arguments)
 
     def _diagnostics(self, inputs: th.Tensor, terms: TDTerms, batch: JointReplayBufferSamples) -> dict[str, float]:
@@ -238,7 +244,11 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             else:
                 next_values = terms.next_values if from_target else terms.online_next_values
             assert next_values is not None
-            global_next = self.policy.global_value_net_target(next_values * batch.next_alive)
+            # V_G' reads the agents still driving after the window; with global_timeout_bootstrap also those cut
+            # by the time limit (alive at the window's start, not terminated in it), whose v' is that of their
+            # last observation: a time limit is not a terminal state (as SB3's handle_timeout_termination).
+            mask = batch.alive * (1.0 - batch.dones) if self.global_timeout_bootstrap else batch.next_alive
+            global_next = self.policy.global_value_net_target(next_values * mask)
             agent_targets = gdq_agent_targets(
                 batch.rewards,
                 batch.discounts,
