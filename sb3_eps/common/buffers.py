@@ -55,6 +55,13 @@ class JointReplayBufferSamples(NamedTuple):
     values: th.Tensor | None = None
     next_values: th.Tensor | None = None
 
+    def bootstrap_alive(self, through_time_limit: bool) -> th.Tensor:
+        """``(B, n)``: 1 for the agents whose next value enters a joint bootstrap (a mixer, ``V_G'``), 0 for those
+        entering as 0. ``next_alive``: the agents still acting after the window. ``through_time_limit``: also those
+        cut by the time limit (alive at the window's start, not terminated in it), whose next observation is their
+        last: a time limit is not a terminal state (SB3's ``handle_timeout_termination``)."""
+        return self.alive * (1.0 - self.dones) if through_time_limit else self.next_alive
+
 
 class JointReplayBuffer:
     """Uniform replay buffer of joint rows.

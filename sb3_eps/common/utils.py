@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+import inspect
 from collections.abc import Callable
 from typing import Any
 
@@ -145,3 +147,30 @@ def moved_names(module_name: str, moved: dict[str, str]) -> Callable[[str], Any]
         return getattr(importlib.import_module(new_module), new_name)
 
     return __getattr__
+
+
+def init_with_defaults(init: Callable[..., None], **defaults: Any) -> Callable[..., None]:
+    """An ``__init__`` for a subclass that differs from its base only in some defaults (QMIX's learning rate): it
+    passes every argument on to ``init``, and its signature, which ``inspect``, the config schema and IDEs read, is
+    ``init``'s with those defaults. The base's signature is written once.
+
+    :param init: the base class's ``__init__``
+    :param defaults: argument name -> the subclass's default
+    """
+    signature = inspect.signature(init)
+    unknown = sorted(set(defaults) - set(signature.parameters))
+    if unknown:
+        raise TypeError(f"{init.__qualname__} has no arguments {unknown}")
+
+    @functools.wraps(init)
+    def __init__(self: Any, *args: Any, **kwargs: Any) -> None:
+        given = signature.bind_partial(self, *args, **kwargs).arguments
+        init(self, *args, **kwargs, **{name: value for name, value in defaults.items() if name not in given})
+
+    __init__.__signature__ = signature.replace(  # type: ignore[attr-defined]
+        parameters=[
+            parameter.replace(default=defaults[name]) if name in defaults else parameter
+            for name, parameter in signature.parameters.items()
+        ]
+    )
+    return __init__

@@ -244,10 +244,9 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             else:
                 next_values = terms.next_values if from_target else terms.online_next_values
             assert next_values is not None
-            # V_G' reads the agents still driving after the window; with global_timeout_bootstrap also those cut
-            # by the time limit (alive at the window's start, not terminated in it), whose v' is that of their
-            # last observation: a time limit is not a terminal state (as SB3's handle_timeout_termination).
-            mask = batch.alive * (1.0 - batch.dones) if self.global_timeout_bootstrap else batch.next_alive
+            # V_G' reads the agents still driving after the window, and with global_timeout_bootstrap also those
+            # cut by the time limit (v' of their last observation), as QMIX's mixer does.
+            mask = batch.bootstrap_alive(self.global_timeout_bootstrap)
             global_next = self.policy.global_value_net_target(next_values * mask)
             agent_targets = gdq_agent_targets(
                 batch.rewards,

@@ -2,18 +2,17 @@
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 import torch as th
-from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import LinearSchedule
 
-from sb3_eps.common.buffers import JointReplayBuffer, JointReplayBufferSamples, TeamRewardMode
+from sb3_eps.common.buffers import JointReplayBufferSamples
 from sb3_eps.common.losses import weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import input_gain, td_target
+from sb3_eps.common.utils import init_with_defaults, input_gain, td_target
 from sb3_eps.qmix.policies import QMIXPolicy, VDNPolicy, apply_lr_scales
 
 #: QMIX's and VDN's default learning rate: 3e-4 decaying linearly to 0 over the budget (RL Zoo's ``lin_3e-4``), as
@@ -45,60 +44,18 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     uses_global_state: ClassVar[bool] = True
     handle_timeout_termination: ClassVar[bool] = True
 
-    def __init__(
-        self,
-        policy: str | type[MultiAgentQPolicy],
-        env: GymEnv | None,
-        learning_rate: float | Schedule = DEFAULT_LEARNING_RATE,
-        buffer_size: int = 50_000,
-        learning_starts: int = 2_000,
-        batch_size: int = 64,
-        tau: float = 0.01,
-        gamma: float = 0.99,
-        train_freq: int | tuple[int, str] = 1,
-        gradient_steps: int = 1,
-        replay_buffer_class: type[JointReplayBuffer] | None = None,
-        replay_buffer_kwargs: dict[str, Any] | None = None,
-        gradient_steps_per_target_update: int = 1,
-        n_steps: int = 3,
-        prioritized_replay: bool = True,
-        prioritized_replay_alpha: float = 0.6,
-        prioritized_replay_beta0: float = 0.4,
-        double_q: bool = True,
-        exploration_fraction: float = 0.05,
-        exploration_initial_eps: float = 1.0,
-        exploration_final_eps: float = 0.02,
-        max_grad_norm: float = 10.0,
-        team_reward_mode: TeamRewardMode = "sum",
-        overlap_training: bool = False,
-        stats_window_size: int = 100,
-        tensorboard_log: str | None = None,
-        policy_kwargs: dict[str, Any] | None = None,
-        verbose: int = 0,
-        seed: int | None = None,
-        device: th.device | str = "auto",
-        _init_setup_model: bool = True,
-        target_update_interval: int | None = None,
-    ) -> None:
-        # QMIX's and VDN's own default: the learning rate (lin_3e-4, as GDQ's; docs/results/baselines.md).
-        arguments = dict(locals())
-        for name in ("self", "__class__", "policy", "env"):
-            arguments.pop(name, None)
-        super().__init__(policy, env, **arguments)
+    # QMIX's and VDN's own default: the learning rate (lin_3e-4, as GDQ's; docs/results/baselines.md).
+    __init__ = init_with_defaults(MultiAgentOffPolicyAlgorithm.__init__, learning_rate=DEFAULT_LEARNING_RATE)
 
     def _update_learning_rate(self, optimizers: list[th.optim.Optimizer] | th.optim.Optimizer) -> None:
         super()._update_learning_rate(optimizers)
         apply_lr_scales(self.policy.optimizer)  # the mixer's own rate (policy_kwargs mixer_lr_scale)
 
     def _bootstrap_mask(self, batch: JointReplayBufferSamples) -> th.Tensor:
-        """``(B, n)``: 1 for the agents whose ``Q_i'`` enters the target mixer, 0 for those entering as ``Q = 0``.
-
-        ``next_alive`` marks the agents still driving after the window; with ``handle_timeout_termination`` the
-        agents cut by the time limit count too: alive at the window's start and not terminated in it.
-        """
-        if self.handle_timeout_termination:
-            return batch.alive * (1.0 - batch.dones)
-        return batch.next_alive
+        """``(B, n)``: 1 for the agents whose ``Q_i'`` enters the target mixer, 0 for those entering as ``Q = 0``
+        (:meth:`~sb3_eps.common.buffers.JointReplayBufferSamples.bootstrap_alive`, through the time limit with
+        ``handle_timeout_termination``)."""
+        return batch.bootstrap_alive(self.handle_timeout_termination)
 
     def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         terms = self._td_terms(batch)
