@@ -5,9 +5,16 @@ its training ticks plus its EPS evaluation ticks, as the paper's curves do. Per 
 both folders this prints:
 
 - ticks to 80 % and to 90 % (the first evaluation at or above; "-" if never),
-- the mean of the last 3 evaluations at or before ``--budget`` total ticks (the floor of issue 10 compares these),
+- the mean of the last 3 evaluations scheduled at or before ``--budget`` total ticks (the floor of issue 10 compares
+  these),
 - the area under the success curve from 0 to ``--budget``, as a share of the best possible (success 1 throughout;
   the curve starts at 0 success and 0 ticks, and holds its last value to the budget),
+
+Every evaluation counts at the point it was scheduled for, a multiple of ``--eval-every``: an EPS run evaluates at the
+first step at or after each point, and a round can carry its total past the point (90,051 or 104,763 ticks for the
+90k and 100k points; a run of 4 worlds also ends 1-3 ticks past its budget, since its counter moves 4 ticks at a
+time). Cutting at the recorded total instead would drop an EPS run's final evaluation and average earlier ones; the
+records keep the exact totals, and the overshoot is part of the EPS ticks listed.
 - the floor (EPS mean of the last 3 at most 3 points below the base's) and the paper's target (EPS mean >= 90 %
   within ``--target-ticks``, reached in at least 1.5x fewer ticks than the base needs for 90 %).
 
@@ -41,16 +48,23 @@ def ticks_to(run: EvaluationRun, level: float) -> int | None:
     return int(reached[0]) if len(reached) else None
 
 
-def last_mean(run: EvaluationRun, budget: int, n: int = 3) -> float:
-    """:return: the mean success of the last ``n`` evaluations at or before ``budget`` ticks."""
-    within = run.metrics["success_rate"][run.ticks <= budget]
+def scheduled(run: EvaluationRun, every: int) -> np.ndarray:
+    """:return: the point each evaluation was scheduled for: its ticks rounded down to a multiple of ``every``."""
+    return run.ticks // every * every
+
+
+def last_mean(run: EvaluationRun, budget: int, every: int, n: int = 3) -> float:
+    """:return: the mean success of the last ``n`` evaluations scheduled at or before ``budget`` ticks."""
+    within = run.metrics["success_rate"][scheduled(run, every) <= budget]
     return float(np.mean(within[-n:])) if len(within) else float("nan")
 
 
-def area(run: EvaluationRun, budget: int) -> float:
-    """:return: the area under success(ticks) on [0, budget] over ``budget`` (0 at 0 ticks; the last value held)."""
-    within = run.ticks <= budget
-    x = np.concatenate([[0.0], run.ticks[within], [budget]])
+def area(run: EvaluationRun, budget: int, every: int) -> float:
+    """:return: the area under success(ticks) on [0, budget] over ``budget`` (0 at 0 ticks; the last value held),
+    every evaluation at the point it was scheduled for."""
+    points = scheduled(run, every)
+    within = points <= budget
+    x = np.concatenate([[0.0], points[within], [budget]])
     y = np.concatenate([[0.0], run.metrics["success_rate"][within]])
     y = np.append(y, y[-1])
     return float(np.trapezoid(y, x) / budget)
@@ -61,13 +75,13 @@ def last_value(run: EvaluationRun, key: str) -> int:
     return int(run.metrics[key][-1]) if key in run.metrics else 0
 
 
-def summary(runs: dict[int, EvaluationRun], seeds: list[int], budget: int) -> dict[str, list]:
+def summary(runs: dict[int, EvaluationRun], seeds: list[int], budget: int, every: int) -> dict[str, list]:
     """:return: per-seed figures, in the order of ``seeds``."""
     return {
         "to80": [ticks_to(runs[s], 0.8) for s in seeds],
         "to90": [ticks_to(runs[s], 0.9) for s in seeds],
-        "last3": [last_mean(runs[s], budget) for s in seeds],
-        "auc": [area(runs[s], budget) for s in seeds],
+        "last3": [last_mean(runs[s], budget, every) for s in seeds],
+        "auc": [area(runs[s], budget, every) for s in seeds],
         "eps_ticks": [last_value(runs[s], "eps_ticks") for s in seeds],
         "crossovers": [last_value(runs[s], "eps_crossovers") for s in seeds],
         "rounds": [last_value(runs[s], "eps_rounds") for s in seeds],
@@ -80,7 +94,9 @@ def mean_curve(runs: dict[int, EvaluationRun], seeds: list[int], at: list[int]) 
     return [float(value) for value in np.mean(curves, axis=0)]
 
 
-def report(base_dir: pathlib.Path, eps_dir: pathlib.Path, budget: int, target_ticks: int) -> str:
+def report(
+    base_dir: pathlib.Path, eps_dir: pathlib.Path, budget: int, target_ticks: int, every: int = 10_000
+) -> str:
     base, eps = read_runs(base_dir), read_runs(eps_dir)
     unfinished = {seed for runs in (base, eps) for seed, run in runs.items() if run.ticks[-1] < budget}
     seeds = sorted((set(base) & set(eps)) - unfinished)
@@ -88,7 +104,7 @@ def report(base_dir: pathlib.Path, eps_dir: pathlib.Path, budget: int, target_ti
         print(f"left out, not at {budget} ticks yet: seeds {sorted(unfinished)}")
     if not seeds:
         raise SystemExit(f"no seed in common between {base_dir} and {eps_dir}")
-    figures = {"base": summary(base, seeds, budget), "eps": summary(eps, seeds, budget)}
+    figures = {"base": summary(base, seeds, budget, every), "eps": summary(eps, seeds, budget, every)}
     names = {"base": base_dir.name, "eps": eps_dir.name}
 
     def ticks_text(value: int | None) -> str:
@@ -146,14 +162,20 @@ def main() -> None:
     parser.add_argument("eps", type=pathlib.Path, help="records of EPS-<algo> (ticks include EPS ticks)")
     parser.add_argument("--budget", type=int, required=True, help="total ticks compared")
     parser.add_argument("--target-ticks", type=int, default=100_000)
+    parser.add_argument("--eval-every", type=int, default=10_000, help="the evaluation spacing of the runs, in ticks")
     parser.add_argument("--plot", type=pathlib.Path, default=None, help="draw both (mean +/- std over seeds)")
     args = parser.parse_args()
-    print(report(args.base, args.eps, args.budget, args.target_ticks))
+    print(report(args.base, args.eps, args.budget, args.target_ticks, args.eval_every))
     if args.plot is not None:
         from sb3_eps.zoo.plotting import plot_learning_curves, record_curves
 
         curves = record_curves([args.base, args.eps])
-        plot_learning_curves(curves, args.plot, window=1, title="greedy evaluations (100 episodes)")
+        episodes = {
+            int(n) for folder in (args.base, args.eps) for run in read_runs(folder).values()
+            for n in run.metrics.get("n_episodes", [])
+        }
+        counts = "/".join(str(n) for n in sorted(episodes)) or "?"
+        plot_learning_curves(curves, args.plot, window=1, title=f"greedy evaluations ({counts} episodes)")
         print(f"picture: {args.plot}")
 
 
