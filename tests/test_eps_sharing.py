@@ -19,7 +19,8 @@ from sb3_eps.eps.evaluation import TeamEpisode, _EpisodeRecorder
 from sb3_eps.eps.mutations import mutate_population, network_parameters
 from sb3_eps.eps.sharing import share_episodes
 from sb3_eps.gdq import GDQ
-from sb3_eps.qmix import QMIX
+from sb3_eps.iql import IQL
+from sb3_eps.qmix import QMIX, VDN
 from tests.test_eps import tiny_model
 
 TEAM = "MultiRobotNav-2-v0"
@@ -154,11 +155,16 @@ def sharing_callback(**kwargs) -> EvolutionCallback:
     return EvolutionCallback(**defaults)
 
 
-def test_a_round_adds_its_ticks_as_rows_and_survives_a_state_dict_round_trip(tmp_path) -> None:
+@pytest.mark.parametrize(
+    ("algorithm", "kwargs"),
+    [(GDQ, {"global_values": "stored"}), (IQL, {}), (QMIX, {}), (VDN, {})],
+    ids=["gdq-stored", "iql", "qmix", "vdn"],
+)
+def test_a_round_adds_its_ticks_as_rows_and_survives_a_state_dict_round_trip(tmp_path, algorithm, kwargs) -> None:
     """(b) With one-step rows and no gradient step, the buffer holds one row per training tick plus one per EPS tick
     (selection and reevaluation episodes, played in a worker), and the round records and logs them; (e) the count
     survives ``state_dict``."""
-    model = team_model(GDQ, n_steps=1, learning_starts=10**6, global_values="stored")
+    model = team_model(algorithm, n_steps=1, learning_starts=10**6, **kwargs)
     model.set_logger(configure(str(tmp_path), ["csv"]))
     callback = sharing_callback()
     model.learn(2 * 100, callback=callback)
