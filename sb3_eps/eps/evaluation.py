@@ -16,6 +16,9 @@ the loaded 2-core VM both versions measured the same round time (2.6-2.9 s for 7
 message-free one is kept because it stops paying for messages as cores become free. The workers are created
 once, reused for every round, and a crashed or hung worker surfaces as :class:`EvaluationFailed`, which the
 callback turns into a skipped round.
+
+With ``record`` (EPS's experience sharing) a block also keeps every tick of its team-world episodes
+(:class:`TeamEpisode`) and sends them back as numpy arrays with its answer: still one message per round.
 """
 
 from __future__ import annotations
@@ -111,6 +114,9 @@ class _EpisodeRecorder:
 
 #: What an evaluation block records of its episodes: nothing, every tick of a team world, or also its global states.
 RECORD_MODES = (None, "ticks", "ticks+states")
+#: What a pool (or a block) answers for a population: returns, lengths, outcomes ``(P, E)``, valid ``(P,)``, and the
+#: recorded episodes (``P x E``, individual-major; None where not played) when it records them, else None.
+PoolAnswer = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[TeamEpisode | None] | None]
 
 
 class EvaluationFailed(RuntimeError):
@@ -234,7 +240,7 @@ class _Block:
 
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[TeamEpisode | None] | None]:
+    ) -> PoolAnswer:
         """Play every episode of every valid individual greedily, all envs in lockstep.
 
         :param population: the block's weights ``(n_individuals, *shape)``
@@ -343,7 +349,7 @@ class EnvPool(ABC):
     @abstractmethod
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[TeamEpisode | None] | None]:
+    ) -> PoolAnswer:
         """Play every episode of every valid individual (see :meth:`_Block.evaluate`).
 
         :param population: weights ``(n_individuals, *shape)`` on the CPU
@@ -391,7 +397,7 @@ class InProcessEnvPool(EnvPool):
 
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[TeamEpisode | None] | None]:
+    ) -> PoolAnswer:
         try:
             return self._block.evaluate(population, seeds, valid)
         except Exception as error:  # an env that fails (e.g. its PyBullet client is gone): skip the round
@@ -476,7 +482,7 @@ class SubprocessEnvPool(EnvPool):
 
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[TeamEpisode | None] | None]:
+    ) -> PoolAnswer:
         self.wait_ready(deadline)
         for connection, block in zip(self._connections, self.blocks, strict=True):
             weights = {name: stacked[block].cpu().numpy() for name, stacked in population.items()}
