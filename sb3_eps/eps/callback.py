@@ -656,6 +656,7 @@ class EvolutionCallback(BaseCallback):
                 f"{record['scale']:.2e} flipped {100 * np.mean(record['flip_share']):.0f} % of greedy actions; "
                 f"{record['ticks_spent']} ticks, {wall_time:.2f} s; {self.eps_ticks} EPS ticks "
                 f"({100 * self.eps_ticks / max(self._model_ticks(), 1):.1f} % of training)"
+                + (f"; {record['shared_rows']} replay rows shared" if self.share_experience else "")
             )
 
     def _skip_round(self, error: EvaluationFailed, wall_time: float, record: dict[str, Any]) -> None:
