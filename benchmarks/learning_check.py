@@ -81,6 +81,7 @@ class PeriodicTeamEval(BaseCallback):
                 eps_ticks=self.eps.eps_ticks,
                 eps_rounds=len(rounds),
                 eps_crossovers=sum(bool(r.get("accepted")) for r in rounds),
+                eps_shared_rows=self.eps.shared_rows,  # replay rows from EPS episodes (share_experience)
             )
         with self.path.open("a") as file:
             file.write(json.dumps(record) + "\n")

@@ -83,30 +83,10 @@ def assert_equal_runs(run: Path, expected: Path) -> None:
             np.testing.assert_array_equal(got[key], want[key], err_msg=key)
 
 
-@pytest.fixture(scope="module")
-def uninterrupted(tmp_path_factory) -> Path:
-    folder = tmp_path_factory.mktemp("uninterrupted")
-    assert train.main([*ARGV, "-f", str(folder)]) == 0
-    return run_folder(folder)
-
-
-@pytest.mark.parametrize(
-    ("stop", "vec_env"),
-    [
-        (signal.SIGTERM, "dummy"),
-        (signal.SIGKILL, "dummy"),
-        (signal.SIGTERM, "subproc"),
-        (signal.SIGKILL, "subproc"),
-    ],
-    ids=["sigterm", "crash", "sigterm-workers", "crash-workers"],
-)
-def test_resume_equals_the_uninterrupted_run(uninterrupted, tmp_path, stop, vec_env) -> None:
-    """SIGTERM: a checkpoint at the next rollout start, exit 0. SIGKILL (a crash): resume from the last periodic
-    checkpoint; what was logged after it is cut back and logged again. With ``--vec-env subproc`` the worlds run
-    in worker processes (snapshotted into the checkpoint, rebuilt in new workers on resume), and the result still
-    equals the uninterrupted in-process run."""
-    folder = tmp_path / "interrupted"
-    argv = [*ARGV, "-f", str(folder), "--vec-env", vec_env]
+def stop_and_resume(argv: list[str], folder: Path, stop: signal.Signals, vec_env: str) -> Path:
+    """Train ``argv`` into ``folder`` in a new process, stop it with ``stop`` after its first checkpoint (a SIGKILL
+    once it has logged past the checkpoint), check what it left, resume it: :return: the run folder."""
+    argv = [*argv, "-f", str(folder), "--vec-env", vec_env]
     process = subprocess.Popen([sys.executable, "-m", "sb3_eps.train", *argv])
     deadline = time.time() + 120
     while not list(folder.glob("eps_gdq/*/checkpoint.zip")):  # the first periodic checkpoint: training runs
@@ -135,7 +115,33 @@ def test_resume_equals_the_uninterrupted_run(uninterrupted, tmp_path, stop, vec_
     assert not alive
 
     assert train.main(["--resume", str(run), "--verbose", "0"]) == 0
+    return run
 
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("uninterrupted")
+    assert train.main([*ARGV, "-f", str(folder)]) == 0
+    return run_folder(folder)
+
+
+@pytest.mark.parametrize(
+    ("stop", "vec_env"),
+    [
+        (signal.SIGTERM, "dummy"),
+        (signal.SIGKILL, "dummy"),
+        (signal.SIGTERM, "subproc"),
+        (signal.SIGKILL, "subproc"),
+    ],
+    ids=["sigterm", "crash", "sigterm-workers", "crash-workers"],
+)
+def test_resume_equals_the_uninterrupted_run(uninterrupted, tmp_path, stop, vec_env) -> None:
+    """SIGTERM: a checkpoint at the next rollout start, exit 0. SIGKILL (a crash): resume from the last periodic
+    checkpoint; what was logged after it is cut back and logged again. With ``--vec-env subproc`` the worlds run
+    in worker processes (snapshotted into the checkpoint, rebuilt in new workers on resume), and the result still
+    equals the uninterrupted in-process run."""
+    folder = tmp_path / "interrupted"
+    run = stop_and_resume(ARGV, folder, stop, vec_env)
     assert_equal_runs(run, uninterrupted)
     assert np.load(run / "evaluations.npz")["eps_ticks"][-1] > 0  # EPS rounds ran, before and after the stop
     # The EPS round log holds each round once, as the uninterrupted run's (wall times aside).
@@ -192,3 +198,16 @@ def test_resume_needs_a_checkpoint(tmp_path) -> None:
     (tmp_path / "config.yml").write_text("CooperativeNavigation-v0:\n  n_timesteps: 10\n")
     with pytest.raises(ConfigError, match=r"no checkpoint\.zip"):
         train.main(["--resume", str(tmp_path)])
+
+
+def test_resume_of_a_run_sharing_experience_equals_the_uninterrupted_run(tmp_path) -> None:
+    """EPS experience sharing (a team world of the training env): the shared rows live in the replay buffer that the
+    checkpoint carries, and the count in the callback's state; the resumed run equals the uninterrupted one."""
+    sharing = [*ARGV, "callback.eval_env_id:'CooperativeNavigation-v0'", "callback.share_experience:True"]
+    assert train.main([*sharing, "-f", str(tmp_path / "uninterrupted")]) == 0
+    expected = run_folder(tmp_path / "uninterrupted")
+    run = stop_and_resume(sharing, tmp_path / "interrupted", signal.SIGTERM, "dummy")
+    assert_equal_runs(run, expected)
+    rounds, expected_rounds = (read_round_log(folder / "eps_rounds.jsonl") for folder in (run, expected))
+    assert [record["shared_rows"] for record in rounds] == [record["shared_rows"] for record in expected_rounds]
+    assert sum(record["shared_rows"] for record in rounds) == sum(record["ticks_spent"] for record in rounds) > 0

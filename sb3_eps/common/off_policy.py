@@ -556,23 +556,18 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                 next_state = infos[world * self.n_agents].get("terminal_state", next_state)
             self._collector.add(
                 world,
-                _Tick(
+                joint_tick(
                     observations=last_obs[world],
                     actions=actions[world],
                     rewards=rewards[world],
                     next_observations=next_obs[world],
-                    terminated=step.terminated[world],
-                    ended=step.ended[world],
                     alive=step.alive[world],
+                    ended=step.ended[world],
+                    truncated=step.truncated[world],
+                    world_ended=bool(step.world_ended[world]),
                     state=self._last_state[world],
                     next_state=np.asarray(next_state, dtype=np.float32),
-                    world_ended=bool(step.world_ended[world]),
-                    # an episode whose every living agent reached a real end, not the time limit
-                    world_terminated=bool(
-                        step.world_ended[world] and not step.truncated[world][step.alive[world]].any()
-                    ),
-                    values=None if values is None else values[0][world],
-                    next_values=None if values is None else values[1][world],
+                    values=None if values is None else (values[0][world], values[1][world]),
                 ),
             )
         self._last_obs = new_obs  # type: ignore[assignment]
@@ -792,7 +787,6 @@ class _Step(NamedTuple):
     alive: np.ndarray  # the agent acted at this tick
     truncated: np.ndarray  # its episode was cut by the time limit
     ended: np.ndarray  # its episode (its life) ended at this tick
-    terminated: np.ndarray  # ended, and not by the time limit
     world_ended: np.ndarray  # (n_worlds,): every agent of the world is done
 
 
@@ -814,8 +808,47 @@ def _read_step(
         alive=alive.reshape(shape),
         truncated=truncated.reshape(shape),
         ended=ended.reshape(shape),
-        terminated=(ended & ~truncated).reshape(shape),
         world_ended=dones.reshape(shape).all(axis=1),
+    )
+
+
+def joint_tick(
+    observations: np.ndarray,
+    actions: np.ndarray,
+    rewards: np.ndarray,
+    next_observations: np.ndarray,
+    alive: np.ndarray,
+    ended: np.ndarray,
+    truncated: np.ndarray,
+    world_ended: bool,
+    state: np.ndarray,
+    next_state: np.ndarray,
+    values: tuple[np.ndarray, np.ndarray] | None = None,
+) -> _Tick:
+    """One world's tick for the n-step collector, from what the bridge says of each agent (``(n_agents, ...)``
+    arrays): the training rollout and EPS's experience sharing both store their ticks through it.
+
+    :param alive: the agents that acted at this tick
+    :param ended: the agents whose episode (life) ended at this tick
+    :param truncated: the agents whose end was the time limit
+    :param world_ended: every agent of the world is done
+    :param values: ``(v, v')`` to store with the tick (GDQ's ``global_values="stored"``), or None
+    """
+    return _Tick(
+        observations=observations,
+        actions=actions,
+        rewards=rewards,
+        next_observations=next_observations,
+        terminated=ended & ~truncated,
+        ended=ended,
+        alive=alive,
+        state=state,
+        next_state=next_state,
+        world_ended=world_ended,
+        # an episode whose every living agent reached a real end, not the time limit
+        world_terminated=bool(world_ended and not truncated[alive].any()),
+        values=None if values is None else values[0],
+        next_values=None if values is None else values[1],
     )
 
 

@@ -10,7 +10,7 @@ turns a whole multi-agent world into one gymnasium env whose agents all act with
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import gymnasium
 import numpy as np
@@ -145,6 +145,16 @@ class ParallelEnvAsGymnasium(gymnasium.Env):
         self.env.close()
 
 
+class TeamTick(NamedTuple):
+    """What one step of a team world said of each agent (``possible_agents`` order), as the bridge would see it:
+    the wrapped :class:`FixedAgentSet`'s rewards, terminations and truncations, and which agents acted."""
+
+    rewards: np.ndarray  # (n,) float32; 0 for an agent whose episode was over
+    terminations: np.ndarray  # (n,) bool
+    truncations: np.ndarray  # (n,) bool
+    alive: np.ndarray  # (n,) bool: the agent acted in this step
+
+
 class TeamAsGymnasium(gymnasium.Env):
     """A multi-agent ParallelEnv seen as one gymnasium env played by a team that shares one policy.
 
@@ -158,6 +168,8 @@ class TeamAsGymnasium(gymnasium.Env):
     - The episode ends when every agent's has ended; it is truncated when an agent was cut by the time limit,
       else terminated. At its end ``info["is_success"]`` is the team's success (``info["team"]["success"]`` of
       the agents' infos, where the env reports it) and ``info["team"]`` the team's last record.
+    - ``last_tick`` (a :class:`TeamTick`) keeps what the step said of each agent, which the gymnasium step tuple
+      averages away: EPS's experience sharing turns it into the replay rows a training tick would give.
 
     :param env: a ParallelEnv whose agents all exist at reset and share one observation and one action space
     """
@@ -186,6 +198,8 @@ class TeamAsGymnasium(gymnasium.Env):
         self.max_episode_steps = getattr(env, "max_episode_steps", None)
         self.metadata = dict(getattr(env, "metadata", {}))
         self.render_mode = getattr(env, "render_mode", None)
+        self.state_space = self.env.state_space  # the global state's, for centralised critics (QMIX)
+        self.last_tick: TeamTick | None = None
 
     def _stack(self, observations: dict[str, Any]) -> np.ndarray:
         return np.stack([observations[agent] for agent in self.agents]).astype(self.observation_space.dtype)
@@ -203,8 +217,14 @@ class TeamAsGymnasium(gymnasium.Env):
         actions = np.asarray(action).reshape(-1)
         if actions.shape != (self.team_size,):
             raise ValueError(f"expected {self.team_size} actions (one per agent), got {np.shape(action)}")
-        observations, rewards, _, truncations, _ = self.env.step(
+        observations, rewards, terminations, truncations, _ = self.env.step(
             {agent: int(a) for agent, a in zip(self.agents, actions)}
+        )
+        self.last_tick = TeamTick(
+            rewards=np.array([rewards[agent] for agent in self.agents], dtype=np.float32),
+            terminations=np.array([terminations[agent] for agent in self.agents], dtype=bool),
+            truncations=np.array([truncations[agent] for agent in self.agents], dtype=bool),
+            alive=self.env.step_alive.copy(),
         )
         reward = float(np.mean([rewards[agent] for agent in self.agents]))
         info: dict[str, Any] = {}
@@ -217,6 +237,10 @@ class TeamAsGymnasium(gymnasium.Env):
                 if "success" in team:
                     info["is_success"] = bool(team["success"])
         return self._stack(observations), reward, self.env.world_done and not truncated, truncated, info
+
+    def state(self) -> np.ndarray:
+        """The world's global state (:meth:`FixedAgentSet.state`); at the end of an episode its terminal state."""
+        return np.asarray(self.env.state(), dtype=np.float32)
 
     def render(self) -> Any:
         """Render the world."""

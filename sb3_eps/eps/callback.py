@@ -44,6 +44,7 @@ from sb3_eps.eps.mutations import (
     population_outputs,
     select_best,
 )
+from sb3_eps.eps.sharing import record_mode, share_episodes, sharing_problem
 
 MUTATIONS = ("safe", "gaussian")
 # Noise scales giving a mean |Q change| of about 5-10 % of |Q| on a mid-training GDQ robot network (measured); with
@@ -164,6 +165,11 @@ class EvolutionCallback(BaseCallback):
     :param worker_start_method: multiprocessing start method of the workers; None: ``"fork"`` where available
     :param seed: seed of the noise, the buffer sampling and the evaluation episodes; None: derived from the
         model's seed (a seeded model gives a reproducible EPS), or random when the model has none
+    :param share_experience: write every tick of every evaluation episode (all individuals, the reevaluation
+        episodes too) into the model's replay buffer, as a training world's tick is written (Evolutionary RL,
+        Khadka & Tumer, NeurIPS 2018: the population's transitions feed the RL agent's replay buffer). Needs a team
+        world whose agents are the training worlds' (same agent count, spaces and global-state size) and one of
+        this package's algorithms. The training ticks and gradient steps do not change. Default False
     :param verbose: 0 silent, 1 one line per round, 2 also worker restarts
     """
 
@@ -196,9 +202,12 @@ class EvolutionCallback(BaseCallback):
         eval_env_kwargs: dict[str, Any] | None = None,
         worker_start_method: str | None = None,
         seed: int | None = None,
+        share_experience: bool = False,
         verbose: int = 0,
     ) -> None:
         super().__init__(verbose=verbose)
+        if not isinstance(share_experience, bool):
+            raise ValueError(f"share_experience must be True or False, got {share_experience!r}")
         _check_arguments(
             population_size=population_size, period=period, period_unit=period_unit, sigma=sigma, alpha=alpha,
             alpha_schedule=alpha_schedule, n_eval_episodes=n_eval_episodes, mutation=mutation,
@@ -238,12 +247,16 @@ class EvolutionCallback(BaseCallback):
         self.eval_env_kwargs = copy.deepcopy(dict(eval_env_kwargs))
         self.worker_start_method = worker_start_method
         self.seed = seed
+        self.share_experience = share_experience
         # Public counters and records (they survive across learn() calls).
         self.eps_ticks = 0
         """Cumulative single-agent ticks simulated in EPS evaluation (add to the training ticks in plots)."""
         self.n_rounds = 0
         self.n_skipped_rounds = 0
         self.eps_time = 0.0
+        self.shared_rows = 0
+        """Replay rows written from the evaluation episodes (``share_experience``), all rounds together."""
+        self._round_shared_rows = 0
         self.history: list[dict[str, Any]] = []
         """One record per round (see docs/modules/eps.md, "The round record"); also in ``diagnostics_path``."""
         self._scale: float | None = None  # the last calibrated noise scale: the next calibration starts there
@@ -292,6 +305,7 @@ class EvolutionCallback(BaseCallback):
             "rng": copy.deepcopy(self._rng),
             "generator": self._generator.get_state() if self._generator is not None else None,
             "last_round_mark": self._last_round_mark,
+            "shared_rows": self.shared_rows,
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -311,6 +325,7 @@ class EvolutionCallback(BaseCallback):
         self.n_skipped_rounds, self.eps_time = int(state["n_skipped_rounds"]), float(state["eps_time"])
         self.history = copy.deepcopy(state["history"])
         self._scale, self._last_round_mark = state["scale"], state["last_round_mark"]
+        self.shared_rows = int(state.get("shared_rows", 0))  # checkpoints from before experience sharing: none
         self._rng = copy.deepcopy(state["rng"])
         if state["generator"] is not None and self._generator is not None:
             self._generator.set_state(state["generator"])
@@ -359,6 +374,7 @@ class EvolutionCallback(BaseCallback):
     # ------------------------------------------------------------------ one round (Algorithm 1, lines 3-13)
     def _run_round(self) -> None:
         start = time.perf_counter()
+        self._round_shared_rows = 0
         q_net = self._q_net()
         theta = network_parameters(q_net)  # line 5: the copies of theta^e
         observations = self._visited_observations(None, self.sensitivity_batch_size)
@@ -427,6 +443,11 @@ class EvolutionCallback(BaseCallback):
         seeds = [int(seed) for seed in self._rng.integers(2**31 - 1, size=self.n_eval_episodes)]
         result = evaluate_population(self._pool, population, seeds, self.eval_timeout, self.fitness, active)
         self.eps_ticks += int(result.lengths.sum())
+        if self.share_experience and result.episodes is not None:
+            rows = share_episodes(self._model, result.episodes)  # before any crossover: the round's network
+            self._round_shared_rows += rows
+            self.shared_rows += rows
+            result.episodes = None  # the arrays are in the buffer now
         return seeds, result
 
     def _evaluate(self, population: Parameters, record: dict[str, Any]) -> PopulationResult:
@@ -580,6 +601,7 @@ class EvolutionCallback(BaseCallback):
             "model_ticks": self._model_ticks(),
             "eps_ticks": self.eps_ticks,
             "ticks_spent": ticks_spent,
+            "shared_rows": self._round_shared_rows,
             **record,
             "wall_time": wall_time,
             "skipped": False,
@@ -597,6 +619,9 @@ class EvolutionCallback(BaseCallback):
         logger.record("eps/ticks", self.eps_ticks)
         logger.record("eps/total_ticks", self._model_ticks() + self.eps_ticks)
         logger.record("eps/round_ticks", record["ticks_spent"])
+        if self.share_experience:
+            logger.record("eps/shared_rows", record["shared_rows"])
+            logger.record("eps/shared_rows_total", self.shared_rows)
         logger.record("eps/tick_share", self.eps_ticks / max(self._model_ticks(), 1))
         for index, value in enumerate(fitness):
             logger.record(f"eps/fitness_{index}", float(value))
@@ -631,6 +656,7 @@ class EvolutionCallback(BaseCallback):
                 f"{record['scale']:.2e} flipped {100 * np.mean(record['flip_share']):.0f} % of greedy actions; "
                 f"{record['ticks_spent']} ticks, {wall_time:.2f} s; {self.eps_ticks} EPS ticks "
                 f"({100 * self.eps_ticks / max(self._model_ticks(), 1):.1f} % of training)"
+                + (f"; {record['shared_rows']} replay rows shared" if self.share_experience else "")
             )
 
     def _skip_round(self, error: EvaluationFailed, wall_time: float, record: dict[str, Any]) -> None:
@@ -642,6 +668,7 @@ class EvolutionCallback(BaseCallback):
                 "model_ticks": self._model_ticks(),
                 "eps_ticks": self.eps_ticks,
                 "ticks_spent": record.get("round_ticks", 0),
+                "shared_rows": self._round_shared_rows,
                 "skipped": True,
                 "reason": str(error),
             }
@@ -695,14 +722,16 @@ class EvolutionCallback(BaseCallback):
             template,
         )
         n_workers = self._n_workers()
+        record = record_mode(self._model) if self.share_experience else None
         if n_workers == 0:
-            self._pool = InProcessEnvPool(*arguments, batched=self.batched_forward)
+            self._pool = InProcessEnvPool(*arguments, batched=self.batched_forward, record=record)
         else:
             self._pool = SubprocessEnvPool(
                 *arguments,
                 batched=self.batched_forward,
                 n_workers=n_workers,
                 start_method=self.worker_start_method,
+                record=record,
             )
         # Close the workers even when training dies with an exception (no _on_training_end then).
         self._pool_finalizer = weakref.finalize(self, self._pool.close)
@@ -756,6 +785,9 @@ class EvolutionCallback(BaseCallback):
                         f"({theirs}): pick the evaluation world that matches the training env "
                         "(envs.eps_env_id_for(training env id))"
                     )
+            problem = sharing_problem(self.model, env) if self.share_experience else None
+            if problem is not None:
+                raise ValueError(f"{problem}; or set share_experience=False")
         finally:
             env.close()
 

@@ -16,6 +16,9 @@ the loaded 2-core VM both versions measured the same round time (2.6-2.9 s for 7
 message-free one is kept because it stops paying for messages as cores become free. The workers are created
 once, reused for every round, and a crashed or hung worker surfaces as :class:`EvaluationFailed`, which the
 callback turns into a skipped round.
+
+With ``record`` (EPS's experience sharing) a block also keeps every tick of its team-world episodes
+(:class:`TeamEpisode`) and sends them back as numpy arrays with its answer: still one message per round.
 """
 
 from __future__ import annotations
@@ -37,8 +40,83 @@ import torch as th
 from torch import nn
 from torch.func import functional_call, vmap
 
-from sb3_eps.common.parallel_wrappers import TeamAsGymnasium
+from sb3_eps.common.parallel_wrappers import TeamAsGymnasium, TeamTick
 from sb3_eps.eps.mutations import Parameters, finite_individuals, individual
+
+
+@dataclass
+class TeamEpisode:
+    """Every tick of one team-world episode (``T`` ticks, ``n`` agents, ``possible_agents`` order), as numpy arrays,
+    for EPS's experience sharing (:func:`sb3_eps.eps.sharing.share_episodes`): what a training world's tick tells
+    the replay buffer, recorded where the episode is played (a worker) and sent back in one message.
+
+    :param observations: ``(T + 1, n, obs)``: each agent's observation before every tick, and after the last
+    :param actions: ``(T, n)`` the greedy actions played (those of finished agents are ignored by the world)
+    :param rewards: ``(T, n)`` float32, each agent's reward (0 once its episode is over)
+    :param terminations: ``(T, n)`` the world's per-agent terminations (:class:`TeamTick`)
+    :param truncations: ``(T, n)`` its per-agent truncations
+    :param alive: ``(T, n)`` the agents that acted at each tick
+    :param states: ``(T + 1, state_dim)`` the global state before every tick and after the last; ``(T + 1, 0)`` when
+        not recorded
+    """
+
+    observations: np.ndarray
+    actions: np.ndarray
+    rewards: np.ndarray
+    terminations: np.ndarray
+    truncations: np.ndarray
+    alive: np.ndarray
+    states: np.ndarray
+
+    @property
+    def n_ticks(self) -> int:
+        """``T``, the episode's ticks."""
+        return len(self.actions)
+
+
+class _EpisodeRecorder:
+    """Collects the ticks of one team-world episode as it is played (:class:`TeamEpisode`)."""
+
+    def __init__(self, env: TeamAsGymnasium, first_obs: np.ndarray, record_states: bool) -> None:
+        self.env, self.record_states = env, record_states
+        self.observations = [first_obs]
+        self.states = [env.state()] if record_states else []
+        self.actions: list[np.ndarray] = []
+        self.ticks: list[TeamTick] = []
+
+    def add(self, action: np.ndarray, next_obs: np.ndarray) -> None:
+        """Note one step: the actions played and what the world returned."""
+        assert self.env.last_tick is not None
+        self.actions.append(np.asarray(action, dtype=np.int64))
+        self.ticks.append(self.env.last_tick)
+        self.observations.append(np.array(next_obs, dtype=np.float32))
+        if self.record_states:
+            self.states.append(self.env.state())
+
+    def episode(self) -> TeamEpisode:
+        """:return: the arrays of the ticks played so far."""
+        n_ticks, n_agents = len(self.actions), self.env.team_size
+        states = np.stack(self.states) if self.record_states else np.zeros((n_ticks + 1, 0), dtype=np.float32)
+        flags = {
+            name: np.stack([getattr(tick, name) for tick in self.ticks]) if self.ticks else np.zeros((0, n_agents))
+            for name in TeamTick._fields
+        }
+        return TeamEpisode(
+            observations=np.stack(self.observations).astype(np.float32),
+            actions=np.stack(self.actions) if self.actions else np.zeros((0, n_agents), dtype=np.int64),
+            rewards=flags["rewards"].astype(np.float32),
+            terminations=flags["terminations"].astype(bool),
+            truncations=flags["truncations"].astype(bool),
+            alive=flags["alive"].astype(bool),
+            states=states.astype(np.float32),
+        )
+
+
+#: What an evaluation block records of its episodes: nothing, every tick of a team world, or also its global states.
+RECORD_MODES = (None, "ticks", "ticks+states")
+#: What a pool (or a block) answers for a population: returns, lengths, outcomes ``(P, E)``, valid ``(P,)``, and the
+#: recorded episodes (``P x E``, individual-major; None where not played) when it records them, else None.
+PoolAnswer = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[TeamEpisode | None] | None]
 
 
 class EvaluationFailed(RuntimeError):
@@ -136,6 +214,8 @@ class _Block:
     :param n_episodes: episodes per individual; env ``p * n_episodes + j`` plays episode ``j`` of individual ``p``
     :param network: architecture template (CPU)
     :param batched: batched forward pass
+    :param record: ``None`` records nothing; ``"ticks"`` / ``"ticks+states"`` record every tick of every episode of a
+        team world (:class:`TeamEpisode`), with the global states in the second case
     """
 
     def __init__(
@@ -146,22 +226,30 @@ class _Block:
         n_episodes: int,
         network: nn.Module,
         batched: bool,
+        record: str | None = None,
     ) -> None:
         self.n_individuals, self.n_episodes = n_individuals, n_episodes
         self.envs = [make_eval_env(env_id, env_kwargs) for _ in range(n_individuals * n_episodes)]
         self.team_size = int(getattr(self.envs[0], "team_size", 0))  # 0: a single-agent env
+        if record not in RECORD_MODES:
+            raise ValueError(f"record must be one of {RECORD_MODES}, got {record!r}")
+        if record is not None and not self.team_size:
+            raise ValueError(f"only team worlds record their ticks; {env_id!r} is a single-agent env")
+        self.record = record
         self.forward = PopulationForward(network, batched)
 
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    ) -> PoolAnswer:
         """Play every episode of every valid individual greedily, all envs in lockstep.
 
         :param population: the block's weights ``(n_individuals, *shape)``
         :param seeds: ``n_episodes`` reset seeds, the same for every individual (common random numbers)
         :param valid: ``(n_individuals,)`` False for individuals not to run (non-finite weights)
         :return: returns ``(n_individuals, n_episodes)``, lengths (same shape), outcomes (same shape, see
-            :data:`OUTCOMES`), valid ``(n_individuals,)``: False also where an output was not finite
+            :data:`OUTCOMES`), valid ``(n_individuals,)``: False also where an output was not finite; with
+            ``record``, the episodes (env order) as :class:`TeamEpisode`, None for those of invalid individuals,
+            else None
         """
         shape = (self.n_individuals, self.n_episodes)
         if len(seeds) != self.n_episodes:
@@ -176,6 +264,7 @@ class _Block:
         obs = np.zeros((len(self.envs), *obs_shape), dtype=np.float32)
         for index in np.flatnonzero(active):
             obs[index] = self.envs[index].reset(seed=int(seeds[int(index) % self.n_episodes]))[0]
+        recorders = self._recorders(obs, active)
         while active.any():
             outputs = self.forward(th.as_tensor(obs).reshape(self.n_individuals, self.n_episodes * agents, -1))
             outputs = outputs.reshape(len(self.envs), agents, -1)
@@ -189,13 +278,31 @@ class _Block:
             for index in np.flatnonzero(active):
                 action = actions[index] if self.team_size else int(actions[index, 0])
                 next_obs, reward, terminated, truncated, info = self.envs[index].step(action)
+                if recorders is not None:
+                    recorders[int(index)].add(np.asarray(action), next_obs)
                 obs[index] = next_obs
                 returns.flat[index] += float(reward)
                 lengths.flat[index] += 1
                 active[index] = not (terminated or truncated)
                 if terminated or truncated:
                     outcomes.flat[index] = episode_outcome(bool(terminated), info)
-        return returns, lengths, outcomes, valid
+        episodes = None
+        if recorders is not None:  # an individual stopped for non-finite outputs left unfinished episodes: none
+            played = np.repeat(valid, self.n_episodes)
+            episodes = [recorder.episode() if played[index] else None for index, recorder in enumerate(recorders)]
+        return returns, lengths, outcomes, valid, episodes
+
+    def _recorders(self, obs: np.ndarray, active: np.ndarray) -> list[_EpisodeRecorder] | None:
+        """One recorder per env, from its reset observation (None when not recording)."""
+        if self.record is None:
+            return None
+        record_states = self.record == "ticks+states"
+        teams = [env for env in self.envs if isinstance(env, TeamAsGymnasium)]
+        assert len(teams) == len(self.envs)  # checked in __init__: only team worlds record
+        return [
+            _EpisodeRecorder(env, obs[index].copy(), record_states and bool(active[index]))
+            for index, env in enumerate(teams)
+        ]
 
     def close(self) -> None:
         for env in self.envs:
@@ -242,14 +349,15 @@ class EnvPool(ABC):
     @abstractmethod
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    ) -> PoolAnswer:
         """Play every episode of every valid individual (see :meth:`_Block.evaluate`).
 
         :param population: weights ``(n_individuals, *shape)`` on the CPU
         :param seeds: ``n_episodes`` reset seeds
         :param valid: ``(n_individuals,)`` individuals to run
         :param deadline: ``time.monotonic()`` value after which the pool gives up (:class:`EvaluationFailed`)
-        :return: returns, lengths and outcomes ``(n_individuals, n_episodes)``, valid ``(n_individuals,)``
+        :return: returns, lengths and outcomes ``(n_individuals, n_episodes)``, valid ``(n_individuals,)``, and the
+            recorded episodes (individual-major, None where not played) when the pool records them, else None
         """
 
     @abstractmethod
@@ -271,6 +379,7 @@ class InProcessEnvPool(EnvPool):
     :param n_episodes: episodes per individual
     :param network: architecture template (CPU)
     :param batched: batched forward pass
+    :param record: what to record of every episode (:data:`RECORD_MODES`; see :class:`_Block`)
     """
 
     def __init__(
@@ -281,13 +390,14 @@ class InProcessEnvPool(EnvPool):
         n_episodes: int,
         network: nn.Module,
         batched: bool = True,
+        record: str | None = None,
     ) -> None:
         self.n_individuals, self.n_episodes = n_individuals, n_episodes
-        self._block = _Block(env_id, env_kwargs, n_individuals, n_episodes, network, batched)
+        self._block = _Block(env_id, env_kwargs, n_individuals, n_episodes, network, batched, record)
 
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    ) -> PoolAnswer:
         try:
             return self._block.evaluate(population, seeds, valid)
         except Exception as error:  # an env that fails (e.g. its PyBullet client is gone): skip the round
@@ -310,6 +420,8 @@ class SubprocessEnvPool(EnvPool):
     :param n_workers: number of worker processes (at most ``n_individuals``)
     :param start_method: multiprocessing start method; None: ``"fork"`` where available (the workers start in
         milliseconds with everything imported), else ``"spawn"``
+    :param record: what the workers record of every episode (:data:`RECORD_MODES`): the arrays of a block's
+        episodes come back with its answer, one message per round
     """
 
     def __init__(
@@ -322,7 +434,10 @@ class SubprocessEnvPool(EnvPool):
         batched: bool = True,
         n_workers: int = 2,
         start_method: str | None = None,
+        record: str | None = None,
     ) -> None:
+        if record not in RECORD_MODES:
+            raise ValueError(f"record must be one of {RECORD_MODES}, got {record!r}")
         if start_method is None:
             start_method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
         context: Any = mp.get_context(start_method)
@@ -340,6 +455,7 @@ class SubprocessEnvPool(EnvPool):
                 "n_episodes": n_episodes,
                 "network": network,
                 "batched": batched,
+                "record": record,
             }
             process = context.Process(target=_worker_main, args=(child_end, block_kwargs), daemon=True)
             process.start()
@@ -366,7 +482,7 @@ class SubprocessEnvPool(EnvPool):
 
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    ) -> PoolAnswer:
         self.wait_ready(deadline)
         for connection, block in zip(self._connections, self.blocks, strict=True):
             weights = {name: stacked[block].cpu().numpy() for name, stacked in population.items()}
@@ -375,9 +491,11 @@ class SubprocessEnvPool(EnvPool):
             except (BrokenPipeError, OSError) as error:
                 raise EvaluationFailed(f"an evaluation worker is gone ({error})") from error
         answers = self._gather(deadline)
-        parts = zip(*answers, strict=True)
-        returns, lengths, outcomes, valid_parts = (np.concatenate(part) for part in parts)
-        return returns, lengths, outcomes, valid_parts
+        returns, lengths, outcomes, valid_parts = (
+            np.concatenate([answer[part] for answer in answers]) for part in range(4)
+        )
+        episodes = None if answers[0][4] is None else [episode for answer in answers for episode in answer[4]]
+        return returns, lengths, outcomes, valid_parts, episodes
 
     def close(self) -> None:
         for connection in self._connections:
@@ -421,6 +539,8 @@ class PopulationResult:
     :param valid: ``(P,)`` False for an individual whose weights or outputs were not finite, or not run
     :param fitness: ``(P,)`` Eq. 4's ``F`` (:func:`population_fitness`); ``-inf`` where not valid
     :param outcomes: ``(P, E)`` how every episode ended (:data:`OUTCOMES`); zeros when not recorded
+    :param episodes: ``P x E`` recorded team-world episodes (individual-major; None where not played), when the
+        pool records them
     """
 
     returns: np.ndarray
@@ -428,6 +548,7 @@ class PopulationResult:
     valid: np.ndarray
     fitness: np.ndarray
     outcomes: np.ndarray | None = None
+    episodes: list[TeamEpisode | None] | None = None
 
     @property
     def successes(self) -> np.ndarray:
@@ -508,6 +629,8 @@ def evaluate_population(
     valid = finite_individuals(cpu_population)
     if active is not None:
         valid &= np.asarray(active, dtype=bool)
-    returns, lengths, outcomes, valid = pool.evaluate(cpu_population, list(episode_seeds), valid, deadline)
+    returns, lengths, outcomes, valid, episodes = pool.evaluate(cpu_population, list(episode_seeds), valid, deadline)
     scores = population_fitness(returns, outcomes, valid, fitness)
-    return PopulationResult(returns=returns, lengths=lengths, valid=valid, fitness=scores, outcomes=outcomes)
+    return PopulationResult(
+        returns=returns, lengths=lengths, valid=valid, fitness=scores, outcomes=outcomes, episodes=episodes
+    )

@@ -1,0 +1,136 @@
+"""EPS experience sharing: the population's team-world episodes become replay rows of the learner.
+
+Evolutionary RL (Khadka & Tumer, "Evolution-Guided Policy Gradient in Reinforcement Learning", NeurIPS 2018) puts
+every transition the evolutionary population experiences into the RL agent's replay buffer, so the evaluation
+ticks are not lost to learning. Here the population plays whole episodes of a team world
+(:class:`~sb3_eps.common.parallel_wrappers.TeamAsGymnasium`) whose agents are the training worlds' agents; each
+episode's ticks (:class:`~sb3_eps.eps.evaluation.TeamEpisode`) go through a fresh
+:class:`~sb3_eps.common.buffers.NStepJointCollector` into ``model.replay_buffer`` exactly as a training world's
+ticks do (:func:`~sb3_eps.common.off_policy.joint_tick`): the same n-step windows, team reward mode, alive /
+next-alive masks, truncation against termination, global states, and the values GDQ stores at collection time
+(computed by the current network in one batched pass over the round's ticks).
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from sb3_eps.common.buffers import JointReplayBuffer, JointRow, NStepJointCollector
+from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm, joint_tick
+from sb3_eps.eps.evaluation import TeamEpisode
+
+
+class _RowCounter:
+    """The replay buffer as a collector sees it, counting the rows written through it."""
+
+    def __init__(self, buffer: JointReplayBuffer) -> None:
+        self.buffer, self.n_rows = buffer, 0
+
+    def add_row(self, row: JointRow) -> int:
+        self.n_rows += 1
+        return self.buffer.add_row(row)
+
+
+def sharing_problem(model: Any, eval_env: Any) -> str | None:
+    """Why the episodes of ``eval_env`` cannot become ``model``'s replay rows, or None when they can.
+
+    :param model: the model being trained
+    :param eval_env: one evaluation env, as :func:`~sb3_eps.eps.evaluation.make_eval_env` builds it
+    """
+    if not isinstance(model, MultiAgentOffPolicyAlgorithm):
+        return (
+            f"share_experience writes joint replay rows: it needs IQL, GDQ, QMIX or VDN, not {type(model).__name__}"
+        )
+    team_size = int(getattr(eval_env, "team_size", 0))
+    if not team_size:
+        return (
+            "share_experience needs a team world as eval_env_id (a multi-agent id such as 'MultiRobotNav-4-v0', "
+            "whose robots act as in training); a single-agent world's ticks are no rows of the training worlds"
+        )
+    if team_size != model.n_agents:
+        return (
+            f"share_experience needs a team world with the training worlds' {model.n_agents} agents; the evaluation "
+            f"world has {team_size}: use the training env id as eval_env_id"
+        )
+    state_dim = int(np.prod(eval_env.state_space.shape))
+    if state_dim != model.state_dim:
+        return (
+            f"share_experience needs the training worlds' global state ({model.state_dim} entries); the evaluation "
+            f"world's has {state_dim}: use the training env id (and its env_kwargs) for the evaluation world"
+        )
+    return None
+
+
+def record_mode(model: MultiAgentOffPolicyAlgorithm) -> str:
+    """What the evaluation workers must record for ``model``'s rows: the global states only where it stores them."""
+    return "ticks+states" if model.uses_global_state else "ticks"
+
+
+def share_episodes(model: MultiAgentOffPolicyAlgorithm, episodes: Sequence[TeamEpisode | None]) -> int:
+    """Write every tick of ``episodes`` into ``model.replay_buffer`` as the training rollout writes a world's ticks.
+
+    The stored values (GDQ ``global_values="stored"``) come from the model's network now, in one batched pass over
+    all the episodes' ticks. A tick with a non-finite observation or reward is refused as in training: it is not
+    stored, and the unfinished windows across it are dropped.
+
+    :param model: the model whose buffer gets the rows
+    :param episodes: recorded episodes (None entries, the episodes of disqualified individuals, are skipped)
+    :return: the rows written
+    """
+    played = [episode for episode in episodes if episode is not None and episode.n_ticks]
+    if not played:
+        return 0
+    assert model.replay_buffer is not None
+    observations = np.concatenate([episode.observations[:-1] for episode in played])
+    next_observations = np.concatenate([episode.observations[1:] for episode in played])
+    values = model._collection_values(observations, next_observations)  # one pass for the whole round
+    counter = _RowCounter(model.replay_buffer)
+    offset = 0
+    for episode in played:
+        collector = NStepJointCollector(
+            counter, 1, model.n_steps, model.gamma, model.team_reward_mode  # type: ignore[arg-type]
+        )
+        for tick in range(episode.n_ticks):
+            row = offset + tick
+            if not _finite_tick(episode, tick):
+                collector.pending[0].clear()
+                warnings.warn(
+                    "EPS experience sharing: a team-world tick with a non-finite observation or reward is not stored",
+                    RuntimeWarning,
+                    stacklevel=2,
+                )
+                continue
+            collector.add(0, _episode_tick(episode, tick, None if values is None else (values[0][row], values[1][row])))
+        offset += episode.n_ticks
+    return counter.n_rows
+
+
+def _episode_tick(episode: TeamEpisode, tick: int, values: tuple[np.ndarray, np.ndarray] | None) -> Any:
+    """Tick ``tick`` of a team-world episode as the bridge would report it (``MultiAgentVecEnv.step_wait``): an agent
+    is done when terminated or truncated (a finished agent's slot is terminated with the world), a truncation counts
+    only without a termination, and the world ends when every agent is done."""
+    terminations, truncations, alive = episode.terminations[tick], episode.truncations[tick], episode.alive[tick]
+    dones = terminations | truncations
+    return joint_tick(
+        observations=episode.observations[tick],
+        actions=episode.actions[tick],
+        rewards=episode.rewards[tick],
+        next_observations=episode.observations[tick + 1],
+        alive=alive,
+        ended=dones & alive,
+        truncated=truncations & ~terminations,
+        world_ended=bool(dones.all()),
+        state=episode.states[tick],
+        next_state=episode.states[tick + 1],
+        values=values,
+    )
+
+
+def _finite_tick(episode: TeamEpisode, tick: int) -> bool:
+    return bool(
+        np.isfinite(episode.observations[tick : tick + 2]).all() and np.isfinite(episode.rewards[tick]).all()
+    )
