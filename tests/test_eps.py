@@ -366,10 +366,16 @@ def test_it_runs_with_gdq_on_the_robot_worlds() -> None:
         eval_env_kwargs={"scenario": "eps_pillars", "max_episode_steps": 40},
         seed=0,
     )
+    learn_and_check_the_tick_accounting(model, callback, max_episode_steps=40)
+
+
+def learn_and_check_the_tick_accounting(model, callback: EvolutionCallback, max_episode_steps: int) -> None:
+    """Train through at least two rounds; every episode stays within the time limit, and the EPS ticks are the
+    rounds' ticks (at least their episodes' lengths)."""
     model.learn(2 * 100, callback=callback)
     assert callback.n_rounds >= 2
     lengths = np.array([record["episode_lengths"] for record in callback.history])
-    assert 0 < lengths.max() <= 40
+    assert 0 < lengths.max() <= max_episode_steps
     assert callback.eps_ticks == sum(record["ticks_spent"] for record in callback.history) >= lengths.sum()
 
 
@@ -396,11 +402,7 @@ def test_a_team_world_plays_every_robot_with_the_individual_and_counts_world_tic
         eval_env_id="MultiRobotNav-2-v0", eval_env_kwargs={"max_episode_steps": 30}, population_size=2,
         period=40, n_eval_episodes=1, max_eps_share=None, n_workers=0, seed=0,
     )  # fmt: skip
-    model.learn(2 * 100, callback=callback)
-    assert callback.n_rounds >= 2
-    lengths = np.array([record["episode_lengths"] for record in callback.history])
-    assert 0 < lengths.max() <= 30
-    assert callback.eps_ticks == sum(record["ticks_spent"] for record in callback.history) >= lengths.sum()
+    learn_and_check_the_tick_accounting(model, callback, max_episode_steps=30)
 
 
 def test_a_team_world_must_speak_the_models_language() -> None:

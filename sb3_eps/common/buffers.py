@@ -348,6 +348,48 @@ class _Tick:
         self.any_ended = bool(self.ended.any())
 
 
+def joint_tick(
+    observations: np.ndarray,
+    actions: np.ndarray,
+    rewards: np.ndarray,
+    next_observations: np.ndarray,
+    alive: np.ndarray,
+    ended: np.ndarray,
+    truncated: np.ndarray,
+    world_ended: bool,
+    state: np.ndarray,
+    next_state: np.ndarray,
+    values: tuple[np.ndarray, np.ndarray] | None = None,
+) -> _Tick:
+    """One world's tick for the n-step collector, from what the bridge says of each agent (``(n_agents, ...)``
+    arrays), with the termination flags derived from ``ended`` and ``truncated``: the training rollout
+    (:class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`) and EPS's experience sharing both store
+    their ticks through it.
+
+    :param alive: the agents that acted at this tick
+    :param ended: the agents whose episode (life) ended at this tick
+    :param truncated: the agents whose end was the time limit
+    :param world_ended: every agent of the world is done
+    :param values: ``(v, v')`` to store with the tick (GDQ's ``global_values="stored"``), or None
+    """
+    return _Tick(
+        observations=observations,
+        actions=actions,
+        rewards=rewards,
+        next_observations=next_observations,
+        terminated=ended & ~truncated,
+        ended=ended,
+        alive=alive,
+        state=state,
+        next_state=next_state,
+        world_ended=world_ended,
+        # an episode whose every living agent reached a real end, not the time limit
+        world_terminated=bool(world_ended and not truncated[alive].any()),
+        values=None if values is None else values[0],
+        next_values=None if values is None else values[1],
+    )
+
+
 def n_step_row(ticks: list[_Tick], gamma: float, team_reward_mode: str = "sum") -> JointRow:
     """Fold the ticks ``t0 .. t0+K-1`` of one world into the n-step row of tick ``t0``.
 

@@ -43,7 +43,7 @@ from sb3_eps.common.buffers import (
     NStepJointCollector,
     PrioritizedJointReplayBuffer,
     TeamRewardMode,
-    _Tick,
+    joint_tick,
 )
 from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.common.utils import describe_space, epsilon_greedy, polyak_update_tensors_
@@ -809,46 +809,6 @@ def _read_step(
         truncated=truncated.reshape(shape),
         ended=ended.reshape(shape),
         world_ended=dones.reshape(shape).all(axis=1),
-    )
-
-
-def joint_tick(
-    observations: np.ndarray,
-    actions: np.ndarray,
-    rewards: np.ndarray,
-    next_observations: np.ndarray,
-    alive: np.ndarray,
-    ended: np.ndarray,
-    truncated: np.ndarray,
-    world_ended: bool,
-    state: np.ndarray,
-    next_state: np.ndarray,
-    values: tuple[np.ndarray, np.ndarray] | None = None,
-) -> _Tick:
-    """One world's tick for the n-step collector, from what the bridge says of each agent (``(n_agents, ...)``
-    arrays): the training rollout and EPS's experience sharing both store their ticks through it.
-
-    :param alive: the agents that acted at this tick
-    :param ended: the agents whose episode (life) ended at this tick
-    :param truncated: the agents whose end was the time limit
-    :param world_ended: every agent of the world is done
-    :param values: ``(v, v')`` to store with the tick (GDQ's ``global_values="stored"``), or None
-    """
-    return _Tick(
-        observations=observations,
-        actions=actions,
-        rewards=rewards,
-        next_observations=next_observations,
-        terminated=ended & ~truncated,
-        ended=ended,
-        alive=alive,
-        state=state,
-        next_state=next_state,
-        world_ended=world_ended,
-        # an episode whose every living agent reached a real end, not the time limit
-        world_terminated=bool(world_ended and not truncated[alive].any()),
-        values=None if values is None else values[0],
-        next_values=None if values is None else values[1],
     )
 
 

@@ -220,13 +220,14 @@ class TeamAsGymnasium(gymnasium.Env):
         observations, rewards, terminations, truncations, _ = self.env.step(
             {agent: int(a) for agent, a in zip(self.agents, actions)}
         )
+        agent_rewards = np.array([rewards[agent] for agent in self.agents], dtype=np.float64)
         self.last_tick = TeamTick(
-            rewards=np.array([rewards[agent] for agent in self.agents], dtype=np.float32),
+            rewards=agent_rewards.astype(np.float32),
             terminations=np.array([terminations[agent] for agent in self.agents], dtype=bool),
             truncations=np.array([truncations[agent] for agent in self.agents], dtype=bool),
             alive=self.env.step_alive.copy(),
         )
-        reward = float(np.mean([rewards[agent] for agent in self.agents]))
+        reward = float(agent_rewards.mean())
         info: dict[str, Any] = {}
         truncated = False
         if self.env.world_done:

@@ -6,7 +6,7 @@ ticks are not lost to learning. Here the population plays whole episodes of a te
 (:class:`~sb3_eps.common.parallel_wrappers.TeamAsGymnasium`) whose agents are the training worlds' agents; each
 episode's ticks (:class:`~sb3_eps.eps.evaluation.TeamEpisode`) go through a fresh
 :class:`~sb3_eps.common.buffers.NStepJointCollector` into ``model.replay_buffer`` exactly as a training world's
-ticks do (:func:`~sb3_eps.common.off_policy.joint_tick`): the same n-step windows, team reward mode, alive /
+ticks do (:func:`~sb3_eps.common.buffers.joint_tick`): the same n-step windows, team reward mode, alive /
 next-alive masks, truncation against termination, global states, and the values GDQ stores at collection time
 (computed by the current network in one batched pass over the round's ticks).
 """
@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from sb3_eps.common.buffers import JointReplayBuffer, JointRow, NStepJointCollector
-from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm, joint_tick
+from sb3_eps.common.buffers import JointReplayBuffer, JointRow, NStepJointCollector, joint_tick
+from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.eps.evaluation import TeamEpisode
 
 
