@@ -113,6 +113,12 @@ def make_parser() -> argparse.ArgumentParser:
         "--storage", default=None, help="Optuna storage URL (default: sqlite file in the tuning folder)"
     )
     tuning.add_argument("--study-name", default=None, help="study name (default <algo>-<env>)")
+    tuning.add_argument(
+        "--sampler-seed",
+        type=int,
+        default=None,
+        help="seed of the sampler (default: --seed); give each process that joins a study its own",
+    )
     return parser
 
 

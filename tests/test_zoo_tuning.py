@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import optuna
 import pytest
 
-from sb3_eps import train
+from sb3_eps import GDQ, train
 from sb3_eps.zoo.config import load_config_entries, resolve_config
 from sb3_eps.zoo.schema import ALGORITHMS, EVOLUTION_CALLBACK
-from sb3_eps.zoo.tuning import merge_overrides, objective_score, sample_hyperparams
+from sb3_eps.zoo.tuning import SEARCH_SPACES, merge_overrides, objective_score, sample_hyperparams
 
 ENV_ID = "CooperativeNavigation-v0"
 
@@ -71,3 +73,36 @@ def test_three_trials_two_jobs_write_a_sqlite_study_and_best_params(tmp_path, ca
     join += ["--storage", f"sqlite:///{database}", "--study-name", f"gdq-{ENV_ID}"]
     assert train.main(join) == 0
     assert len(optuna.load_study(study_name=f"gdq-{ENV_ID}", storage=f"sqlite:///{database}").trials) == 4
+
+
+@pytest.mark.parametrize("algo", ["gdq", "eps_gdq"])
+def test_gdq_searches_its_own_space_around_the_measured_settings(algo) -> None:
+    # The wide space's 1-5-step returns leave GDQ at 0-10 % (docs/results/baselines.md): GDQ's space keeps them
+    # long, decays the learning rate, and leaves the settled choices (team reward, agent target) to the base entry.
+    spec = ALGORITHMS[algo]
+    base = resolve_config(algo, ENV_ID).entry
+    study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=1))
+    seen = set()
+    for _ in range(25):
+        trial = study.ask()
+        entry = merge_overrides(base, sample_hyperparams(trial, spec, 600_000), spec)
+        assert entry["n_steps"] >= 20 and str(entry["learning_rate"]).startswith("lin_")
+        assert entry["team_reward_mode"] == base["team_reward_mode"] == "mean"
+        assert entry["policy_kwargs"]["agent_target"] is True and "agent_target" not in trial.params
+        seen.add(entry["global_timeout_bootstrap"])
+        study.tell(trial, 0.0)
+    assert seen == {False, True}
+    # Other algorithms keep the wide space.
+    trial = optuna.create_study().ask()
+    assert sample_hyperparams(trial, ALGORITHMS["iql"], 600_000)["n_steps"] in (1, 3, 5)
+
+
+def test_a_subclass_uses_its_closest_base_space(monkeypatch) -> None:
+    class MyGDQ(GDQ):
+        pass
+
+    spec = dataclasses.replace(ALGORITHMS["gdq"], name="my_gdq", algorithm_class=MyGDQ)
+    trial = optuna.create_study().ask()
+    assert sample_hyperparams(trial, spec, 600_000)["n_steps"] >= 20
+    monkeypatch.setitem(SEARCH_SPACES, MyGDQ, lambda trial, spec, n: {"n_steps": 7})
+    assert sample_hyperparams(optuna.create_study().ask(), spec, 600_000) == {"n_steps": 7}

@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ import yaml
 from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.logger import Logger
 
+from sb3_eps.gdq import GDQ
 from sb3_eps.zoo.callbacks import TeamEvalCallback
 from sb3_eps.zoo.checkpoint import write_text_atomic
 from sb3_eps.zoo.cli import NamespaceOptions
@@ -58,6 +60,7 @@ class TuningOptions(NamespaceOptions):
     n_evaluations: int = 4
     storage: str | None = None
     study_name: str | None = None
+    sampler_seed: int | None = None
 
     def check(self) -> None:
         """:raises ConfigError: for a count out of range."""
@@ -77,16 +80,37 @@ def sample_hyperparams(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dic
     """Sample the overrides of one trial (canonical entry keys; ``policy_kwargs`` and the EPS arguments as
     partial mappings merged over the base entry by :func:`merge_overrides`).
 
-    Shared by all algorithms: learning rate, batch and buffer sizes, gamma, tau, n-step, training frequency,
-    gradient steps, learning starts (at most a quarter of the budget), exploration, PER, network size and
-    activation. GDQ adds its global head size, team reward mode and agent target; QMIX its mixer sizes; the
-    ``eps_*`` algorithms the EPS parameters (sigma, alpha < 0.4 as the paper found alpha >= 0.4 harmful,
-    period, population, evaluation episodes).
+    The algorithm's search space is the first of :data:`SEARCH_SPACES` that its class (or a base class) has,
+    :func:`sample_common` for those without one. The ``eps_*`` algorithms add the EPS parameters (sigma,
+    alpha < 0.4 as the paper found alpha >= 0.4 harmful, period, population, evaluation episodes).
 
     :param trial: an ``optuna.Trial``
     :param spec: the algorithm
     :param n_timesteps: the trial budget (bounds ``learning_starts``)
     """
+    space = next(
+        (SEARCH_SPACES[cls] for cls in spec.algorithm_class.__mro__ if cls in SEARCH_SPACES), sample_common
+    )
+    params = space(trial, spec, n_timesteps)
+    if spec.eps:
+        params[CALLBACK_KEY] = [
+            {
+                EVOLUTION_CALLBACK: {
+                    "sigma": trial.suggest_float("eps_sigma", 1e-3, 0.3, log=True),
+                    "alpha": trial.suggest_float("eps_alpha", 0.05, 0.39),
+                    "period": trial.suggest_categorical("eps_period", [5, 10, 25, 50, 100]),
+                    "population_size": trial.suggest_int("eps_population_size", 2, 16),
+                    "n_eval_episodes": trial.suggest_categorical("eps_n_eval_episodes", [1, 2, 5, 10]),
+                }
+            }
+        ]
+    return params
+
+
+def sample_common(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str, Any]:
+    """The search space of algorithms without their own: learning rate, batch and buffer sizes, gamma, tau,
+    n-step, training frequency, gradient steps, learning starts (at most a quarter of the budget), exploration,
+    PER, network size and activation; QMIX's mixer sizes. Wide, as RL Zoo's DQN space."""
     params: dict[str, Any] = {
         "learning_rate": trial.suggest_float("learning_rate", 1e-5, 3e-3, log=True),
         "batch_size": trial.suggest_categorical("batch_size", [32, 64, 128, 256]),
@@ -106,31 +130,54 @@ def sample_hyperparams(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dic
         "net_arch": _NET_ARCHS[trial.suggest_categorical("net_arch", list(_NET_ARCHS))],
         "activation_fn": trial.suggest_categorical("activation_fn", ["nn.ReLU", "nn.Tanh", "nn.ELU"]),
     }
-    if "global_net_arch" in spec.policy_params:
+    if "global_net_arch" in spec.policy_params:  # a plug-in with a global head but no space of its own
         policy_kwargs["global_net_arch"] = _GLOBAL_NET_ARCHS[
             trial.suggest_categorical("global_net_arch", list(_GLOBAL_NET_ARCHS))
         ]
-        policy_kwargs["agent_target"] = trial.suggest_categorical("agent_target", [True, False])
-        if not policy_kwargs["agent_target"]:  # v' cannot come from a target network that does not exist
-            params["global_values"] = "recomputed"
-        params["team_reward_mode"] = trial.suggest_categorical("team_reward_mode", ["sum", "mean"])
     if "mixing_embed_dim" in spec.policy_params:
         policy_kwargs["mixing_embed_dim"] = trial.suggest_categorical("mixing_embed_dim", [16, 32, 64])
         policy_kwargs["hypernet_hidden_dim"] = trial.suggest_categorical("hypernet_hidden_dim", [32, 64, 128])
     params[POLICY_KWARGS_KEY] = policy_kwargs
-    if spec.eps:
-        params[CALLBACK_KEY] = [
-            {
-                EVOLUTION_CALLBACK: {
-                    "sigma": trial.suggest_float("eps_sigma", 1e-3, 0.3, log=True),
-                    "alpha": trial.suggest_float("eps_alpha", 0.05, 0.39),
-                    "period": trial.suggest_categorical("eps_period", [5, 10, 25, 50, 100]),
-                    "population_size": trial.suggest_int("eps_population_size", 2, 16),
-                    "n_eval_episodes": trial.suggest_categorical("eps_n_eval_episodes", [1, 2, 5, 10]),
-                }
-            }
-        ]
     return params
+
+
+def sample_gdq(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str, Any]:
+    """GDQ's search space: around what the measurements of ``docs/results/baselines.md`` left open.
+
+    Not searched, because the measurements settled them: the mean team reward, the agent target network with
+    ``v'`` read from it, the paper's target (``global_bootstrap=1``), one gradient step per vector-env step.
+    ``n_steps`` stays long (20-60): an agent's own rewards reach its target only through ``g_i ~ 1/n``, and 3-step
+    returns left GDQ at 0-10 % (the wide space's 1-5 would waste the trials). The learning rate decays linearly to 0
+    (``lin_<x>``), which ended every measured run higher than a constant one.
+    """
+    params: dict[str, Any] = {
+        "learning_rate": trial.suggest_categorical(
+            "learning_rate", ["lin_1e-4", "lin_3e-4", "lin_6e-4", "lin_1e-3"]
+        ),
+        "n_steps": trial.suggest_categorical("n_steps", [20, 30, 45, 60]),
+        "batch_size": trial.suggest_categorical("batch_size", [64, 128, 256]),
+        "buffer_size": trial.suggest_categorical("buffer_size", [50_000, 100_000, 200_000]),
+        "gamma": trial.suggest_categorical("gamma", [0.98, 0.99, 0.995]),
+        "tau": trial.suggest_categorical("tau", [0.005, 0.01, 0.02]),
+        "exploration_fraction": trial.suggest_categorical("exploration_fraction", [0.02, 0.05, 0.1, 0.2]),
+        "exploration_final_eps": trial.suggest_categorical("exploration_final_eps", [0.01, 0.02, 0.05]),
+        "prioritized_replay": trial.suggest_categorical("prioritized_replay", [True, False]),
+        "global_timeout_bootstrap": trial.suggest_categorical("global_timeout_bootstrap", [False, True]),
+    }
+    learning_starts = trial.suggest_categorical("learning_starts", [1_000, 2_000, 5_000])
+    params["learning_starts"] = min(learning_starts, max(n_timesteps // 4, 1))
+    params[POLICY_KWARGS_KEY] = {
+        "net_arch": _NET_ARCHS[trial.suggest_categorical("net_arch", list(_NET_ARCHS))],
+        "global_net_arch": _GLOBAL_NET_ARCHS[
+            trial.suggest_categorical("global_net_arch", ["small", "medium"])
+        ],
+    }
+    return params
+
+
+#: Search spaces by algorithm class (a subclass uses its closest base's); plug-ins add theirs, as RL Zoo's
+#: ``HYPERPARAMS_SAMPLER``. Each returns the overrides of one trial: ``(trial, spec, n_timesteps) -> dict``.
+SEARCH_SPACES: dict[type, Callable[[Any, AlgorithmSpec, int], dict[str, Any]]] = {GDQ: sample_gdq}
 
 
 def merge_overrides(base: dict[str, Any], overrides: dict[str, Any], spec: AlgorithmSpec) -> dict[str, Any]:
@@ -302,7 +349,9 @@ def tune(options: TrainOptions, tuning: TuningOptions) -> Path:
     if options.eval_freq <= 0:
         options.eval_freq = 1  # evaluation is the objective: it cannot be turned off here
     prepare_run(options, config).close()  # builds everything once: mistakes surface before any file exists
-    sampler = make_sampler(tuning.sampler, tuning.n_startup_trials, options.seed)
+    # Processes joining one study need their own sampler seeds, or their random startup trials coincide.
+    sampler_seed = options.seed if tuning.sampler_seed is None else tuning.sampler_seed
+    sampler = make_sampler(tuning.sampler, tuning.n_startup_trials, sampler_seed)
     pruner = make_pruner(tuning.pruner, tuning.n_startup_trials, tuning.n_evaluations)
     # A given storage is opened before the folder exists, so a bad URL leaves nothing behind.
     storage = make_storage(tuning.storage, Path(options.folder)) if tuning.storage is not None else None
@@ -338,7 +387,9 @@ def write_trials_csv(study: Any, path: Path) -> None:
     temporary = path.with_name(path.name + ".tmp")
     with temporary.open("w", newline="") as file:
         writer = csv.writer(file)
-        writer.writerow(["number", "state", "value", "duration_s", *(f"params_{name}" for name in param_names)])
+        writer.writerow(
+            ["number", "state", "value", "duration_s", *(f"params_{name}" for name in param_names)]
+        )
         for trial in trials:
             duration = trial.duration.total_seconds() if trial.duration is not None else ""
             writer.writerow(
