@@ -201,3 +201,32 @@ def test_sharing_needs_a_team_world_of_the_training_agents() -> None:
         model.learn(8, callback=EvolutionCallback(eval_env_id="MultiRobotNav-4-v0", share_experience=True))
     with pytest.raises(ValueError, match="share_experience must be True or False"):
         EvolutionCallback(eval_env_id=TEAM, share_experience="yes")
+
+
+def test_the_shared_ticks_get_the_gradient_steps_of_training_ticks(tmp_path) -> None:
+    """``train_on_shared_rows``: after each round the model takes the gradient steps its rollout takes for as many
+    world ticks (here 1 step per ``train_freq=4`` ticks of the one world), and only those; False takes none."""
+    counts = {}
+    for train in (True, False):
+        model = team_model(IQL, n_steps=1, learning_starts=20)
+        callback = sharing_callback(train_on_shared_rows=train)
+        model.learn(2 * 100, callback=callback)
+        rounds = [record for record in callback.history if not record["skipped"]]
+        assert rounds and callback.shared_rows > 0
+        expected = [round(record["shared_rows"] / 4) for record in rounds] if train else [0] * len(rounds)
+        assert [record["shared_gradient_steps"] for record in rounds] == expected
+        assert callback.shared_gradient_steps == sum(expected)
+        assert callback.state_dict()["shared_gradient_steps"] == sum(expected)
+        counts[train] = (model._n_updates, callback.shared_gradient_steps, model.ticks)
+    (updates, shared, ticks), (updates_off, shared_off, ticks_off) = counts[True], counts[False]
+    assert ticks == ticks_off and shared_off == 0 and shared > 0
+    assert updates - shared == updates_off  # the training's own steps are unchanged
+
+
+def test_shared_gradient_steps_need_a_train_freq_in_steps() -> None:
+    model = tiny_model(IQL, env_id=TEAM, n_envs=1, train_freq=(1, "episode"))
+    with pytest.raises(ValueError, match=r"needs train_freq in steps.*train_on_shared_rows=False"):
+        model.learn(8, callback=sharing_callback())
+    model.learn(8, callback=sharing_callback(train_on_shared_rows=False, period=10**6))  # the way out works
+    with pytest.raises(ValueError, match="train_on_shared_rows must be True or False"):
+        EvolutionCallback(eval_env_id=TEAM, share_experience=True, train_on_shared_rows=1)

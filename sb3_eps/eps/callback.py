@@ -44,7 +44,13 @@ from sb3_eps.eps.mutations import (
     population_outputs,
     select_best,
 )
-from sb3_eps.eps.sharing import record_mode, share_episodes, sharing_problem
+from sb3_eps.eps.sharing import (
+    record_mode,
+    share_episodes,
+    shared_gradient_steps,
+    sharing_problem,
+    train_on_shared,
+)
 
 MUTATIONS = ("safe", "gaussian")
 # Noise scales giving a mean |Q change| of about 5-10 % of |Q| on a mid-training GDQ robot network (measured); with
@@ -169,7 +175,12 @@ class EvolutionCallback(BaseCallback):
         episodes too) into the model's replay buffer, as a training world's tick is written (Evolutionary RL,
         Khadka & Tumer, NeurIPS 2018: the population's transitions feed the RL agent's replay buffer). Needs a team
         world whose agents are the training worlds' (same agent count, spaces and global-state size) and one of
-        this package's algorithms. The training ticks and gradient steps do not change. Default False
+        this package's algorithms. Default False
+    :param train_on_shared_rows: with ``share_experience``, after each round take the gradient steps the training
+        rollout would take for the round's shared ticks (:func:`~sb3_eps.eps.sharing.shared_gradient_steps`), as
+        Evolutionary RL trains on the population's steps: the shared rows are then learned from as training rows
+        are, not only sampled among them. Needs ``train_freq`` in steps. Default True; False leaves the training's
+        gradient steps as they are
     :param verbose: 0 silent, 1 one line per round, 2 also worker restarts
     """
 
@@ -203,11 +214,13 @@ class EvolutionCallback(BaseCallback):
         worker_start_method: str | None = None,
         seed: int | None = None,
         share_experience: bool = False,
+        train_on_shared_rows: bool = True,
         verbose: int = 0,
     ) -> None:
         super().__init__(verbose=verbose)
-        if not isinstance(share_experience, bool):
-            raise ValueError(f"share_experience must be True or False, got {share_experience!r}")
+        for name, flag in (("share_experience", share_experience), ("train_on_shared_rows", train_on_shared_rows)):
+            if not isinstance(flag, bool):
+                raise ValueError(f"{name} must be True or False, got {flag!r}")
         _check_arguments(
             population_size=population_size, period=period, period_unit=period_unit, sigma=sigma, alpha=alpha,
             alpha_schedule=alpha_schedule, n_eval_episodes=n_eval_episodes, mutation=mutation,
@@ -248,6 +261,7 @@ class EvolutionCallback(BaseCallback):
         self.worker_start_method = worker_start_method
         self.seed = seed
         self.share_experience = share_experience
+        self.train_on_shared_rows = train_on_shared_rows
         # Public counters and records (they survive across learn() calls).
         self.eps_ticks = 0
         """Cumulative single-agent ticks simulated in EPS evaluation (add to the training ticks in plots)."""
@@ -257,6 +271,8 @@ class EvolutionCallback(BaseCallback):
         self.shared_rows = 0
         """Replay rows written from the evaluation episodes (``share_experience``), all rounds together."""
         self._round_shared_rows = 0
+        self.shared_gradient_steps = 0
+        """Gradient steps taken for the shared rows (``train_on_shared_rows``), all rounds together."""
         self.history: list[dict[str, Any]] = []
         """One record per round (see docs/modules/eps.md, "The round record"); also in ``diagnostics_path``."""
         self._scale: float | None = None  # the last calibrated noise scale: the next calibration starts there
@@ -306,6 +322,7 @@ class EvolutionCallback(BaseCallback):
             "generator": self._generator.get_state() if self._generator is not None else None,
             "last_round_mark": self._last_round_mark,
             "shared_rows": self.shared_rows,
+            "shared_gradient_steps": self.shared_gradient_steps,
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -326,6 +343,7 @@ class EvolutionCallback(BaseCallback):
         self.history = copy.deepcopy(state["history"])
         self._scale, self._last_round_mark = state["scale"], state["last_round_mark"]
         self.shared_rows = int(state.get("shared_rows", 0))  # checkpoints from before experience sharing: none
+        self.shared_gradient_steps = int(state.get("shared_gradient_steps", 0))
         self._rng = copy.deepcopy(state["rng"])
         if state["generator"] is not None and self._generator is not None:
             self._generator.set_state(state["generator"])
@@ -401,6 +419,7 @@ class EvolutionCallback(BaseCallback):
             winner = select_best(result.fitness)  # line 11, Eq. 4 (never a disqualified individual)
             accepted = self._accept(population, result, winner, record)
         except EvaluationFailed as error:
+            record["shared_gradient_steps"] = self._train_on_round_rows()
             self._skip_round(error, time.perf_counter() - start, record)
             return
         alpha = self._current_alpha()
@@ -413,7 +432,17 @@ class EvolutionCallback(BaseCallback):
             if isinstance(target, nn.Module):
                 polyak_crossover_(target, best, alpha, self._evolved)
             self._team_check(record, "after")
+        record["shared_gradient_steps"] = self._train_on_round_rows()  # after the crossover, as a rollout's would
         self._record_round(record, time.perf_counter() - start)
+
+    def _train_on_round_rows(self) -> int:
+        """``train_on_shared_rows``: the gradient steps of the round's shared ticks. :return: the steps taken"""
+        if not (self.share_experience and self.train_on_shared_rows and self._round_shared_rows):
+            return 0
+        model = self._model
+        steps = train_on_shared(model, shared_gradient_steps(model, self._round_shared_rows))
+        self.shared_gradient_steps += steps
+        return steps
 
     def _mutation_scale(
         self,
@@ -622,6 +651,7 @@ class EvolutionCallback(BaseCallback):
         if self.share_experience:
             logger.record("eps/shared_rows", record["shared_rows"])
             logger.record("eps/shared_rows_total", self.shared_rows)
+            logger.record("eps/shared_gradient_steps", record.get("shared_gradient_steps", 0))
         logger.record("eps/tick_share", self.eps_ticks / max(self._model_ticks(), 1))
         for index, value in enumerate(fitness):
             logger.record(f"eps/fitness_{index}", float(value))
@@ -669,6 +699,7 @@ class EvolutionCallback(BaseCallback):
                 "eps_ticks": self.eps_ticks,
                 "ticks_spent": record.get("round_ticks", 0),
                 "shared_rows": self._round_shared_rows,
+                "shared_gradient_steps": record.get("shared_gradient_steps", 0),
                 "skipped": True,
                 "reason": str(error),
             }
@@ -788,6 +819,8 @@ class EvolutionCallback(BaseCallback):
             problem = sharing_problem(self.model, env) if self.share_experience else None
             if problem is not None:
                 raise ValueError(f"{problem}; or set share_experience=False")
+            if self.share_experience and self.train_on_shared_rows:
+                shared_gradient_steps(self.model, 0)  # a train_freq in episodes: the error says what to set
         finally:
             env.close()
 

@@ -387,9 +387,7 @@ def write_trials_csv(study: Any, path: Path) -> None:
     temporary = path.with_name(path.name + ".tmp")
     with temporary.open("w", newline="") as file:
         writer = csv.writer(file)
-        writer.writerow(
-            ["number", "state", "value", "duration_s", *(f"params_{name}" for name in param_names)]
-        )
+        writer.writerow(["number", "state", "value", "duration_s", *(f"params_{name}" for name in param_names)])
         for trial in trials:
             duration = trial.duration.total_seconds() if trial.duration is not None else ""
             writer.writerow(
