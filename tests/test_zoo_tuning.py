@@ -9,7 +9,7 @@ import pytest
 
 from sb3_eps import GDQ, train
 from sb3_eps.zoo.config import load_config_entries, resolve_config
-from sb3_eps.zoo.schema import ALGORITHMS, EVOLUTION_CALLBACK
+from sb3_eps.zoo.schema import ALGORITHMS, EVOLUTION_CALLBACK, build_callbacks
 from sb3_eps.zoo.tuning import SEARCH_SPACES, merge_overrides, objective_score, sample_hyperparams
 
 ENV_ID = "CooperativeNavigation-v0"
@@ -106,3 +106,25 @@ def test_a_subclass_uses_its_closest_base_space(monkeypatch) -> None:
     assert sample_hyperparams(trial, spec, 600_000)["n_steps"] >= 20
     monkeypatch.setitem(SEARCH_SPACES, MyGDQ, lambda trial, spec, n: {"n_steps": 7})
     assert sample_hyperparams(optuna.create_study().ask(), spec, 600_000) == {"n_steps": 7}
+
+
+def test_eps_searches_its_rounds_and_world_and_the_entries_build() -> None:
+    spec = ALGORITHMS["eps_gdq"]
+    env_id = "MultiRobotNav-2-v0"
+    base = resolve_config("eps_gdq", env_id).entry
+    study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=2))
+    worlds = set()
+    for _ in range(20):
+        trial = study.ask()
+        entry = merge_overrides(base, sample_hyperparams(trial, spec, 400_000, env_id), spec)
+        (item,) = entry["callback"]
+        arguments = item[EVOLUTION_CALLBACK]
+        assert arguments["period_unit"] == "ticks" and arguments["period"] >= 5_000  # not the paper's episodes
+        assert arguments["fitness"] == base["callback"][0][EVOLUTION_CALLBACK]["fitness"]  # from the base entry
+        team = arguments.get("eval_env_id") == env_id
+        assert arguments.get("share_experience", False) is team
+        worlds.add(team)
+        ((_, callback),) = build_callbacks(entry, env_id, 0, "a trial")
+        assert callback.share_experience is team and callback.max_eps_share == arguments["max_eps_share"]
+        study.tell(trial, 0.0)
+    assert worlds == {False, True}

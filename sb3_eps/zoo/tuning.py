@@ -76,35 +76,51 @@ class TuningOptions(NamespaceOptions):
 
 
 # ---------------------------------------------------------------------------------------------- search spaces
-def sample_hyperparams(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str, Any]:
+def sample_hyperparams(
+    trial: Any, spec: AlgorithmSpec, n_timesteps: int, env_id: str | None = None
+) -> dict[str, Any]:
     """Sample the overrides of one trial (canonical entry keys; ``policy_kwargs`` and the EPS arguments as
     partial mappings merged over the base entry by :func:`merge_overrides`).
 
     The algorithm's search space is the first of :data:`SEARCH_SPACES` that its class (or a base class) has,
-    :func:`sample_common` for those without one. The ``eps_*`` algorithms add the EPS parameters (sigma,
-    alpha < 0.4 as the paper found alpha >= 0.4 harmful, period, population, evaluation episodes).
+    :func:`sample_common` for those without one. The ``eps_*`` algorithms add the EPS arguments (:func:`sample_eps`).
 
     :param trial: an ``optuna.Trial``
     :param spec: the algorithm
     :param n_timesteps: the trial budget (bounds ``learning_starts``)
+    :param env_id: the training env id: EPS may then also search its team world (None: its default world only)
     """
     space = next(
         (SEARCH_SPACES[cls] for cls in spec.algorithm_class.__mro__ if cls in SEARCH_SPACES), sample_common
     )
     params = space(trial, spec, n_timesteps)
     if spec.eps:
-        params[CALLBACK_KEY] = [
-            {
-                EVOLUTION_CALLBACK: {
-                    "sigma": trial.suggest_float("eps_sigma", 1e-3, 0.3, log=True),
-                    "alpha": trial.suggest_float("eps_alpha", 0.05, 0.39),
-                    "period": trial.suggest_categorical("eps_period", [5, 10, 25, 50, 100]),
-                    "population_size": trial.suggest_int("eps_population_size", 2, 16),
-                    "n_eval_episodes": trial.suggest_categorical("eps_n_eval_episodes", [1, 2, 5, 10]),
-                }
-            }
-        ]
+        params[CALLBACK_KEY] = [{EVOLUTION_CALLBACK: sample_eps(trial, env_id)}]
     return params
+
+
+def sample_eps(trial: Any, env_id: str | None = None) -> dict[str, Any]:
+    """The ``EvolutionCallback`` arguments of a trial, around its defaults (``docs/modules/eps.md``): the calibrated
+    mutation's share of changed greedy actions, alpha (< 0.4: the paper found alpha >= 0.4 harmful) and its schedule,
+    rounds every 5-20k ticks within an EPS share of 5-20 % of the training ticks, the population, the episodes per
+    individual, the reevaluation and its margin; with ``env_id``, the evaluation world: the default single-robot one,
+    or the training team world with experience sharing. The mutation operator, fitness and frozen value stream
+    come from the base entry."""
+    arguments: dict[str, Any] = {
+        "target_flip_share": trial.suggest_categorical("eps_target_flip_share", [0.02, 0.05, 0.1, 0.2]),
+        "alpha": trial.suggest_float("eps_alpha", 0.05, 0.39),
+        "alpha_schedule": trial.suggest_categorical("eps_alpha_schedule", ["linear", "constant"]),
+        "period": trial.suggest_categorical("eps_period", [5_000, 10_000, 20_000]),
+        "period_unit": "ticks",
+        "max_eps_share": trial.suggest_categorical("eps_max_eps_share", [0.05, 0.1, 0.2]),
+        "population_size": trial.suggest_int("eps_population_size", 2, 10),
+        "n_eval_episodes": trial.suggest_categorical("eps_n_eval_episodes", [2, 4, 8]),
+        "n_reevaluation_episodes": trial.suggest_categorical("eps_n_reevaluation_episodes", [0, 4, 8]),
+        "min_gain": trial.suggest_categorical("eps_min_gain", [0.0, 0.05, 0.1]),
+    }
+    if env_id is not None and trial.suggest_categorical("eps_world", ["single", "team"]) == "team":
+        arguments.update(eval_env_id=env_id, share_experience=True)
+    return arguments
 
 
 def sample_common(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str, Any]:
@@ -286,7 +302,7 @@ class _Objective:
         optuna = _import_optuna()
         spec = self.config.spec
         n_timesteps = int(self.config.entry["n_timesteps"])
-        overrides = sample_hyperparams(trial, spec, n_timesteps)
+        overrides = sample_hyperparams(trial, spec, n_timesteps, self.config.env_id)
         entry = merge_overrides(self.config.entry, overrides, spec)
         trial.set_user_attr("hyperparams", overrides)
         if self.tuning.n_jobs > 1:
