@@ -204,19 +204,33 @@ def test_sharing_needs_a_team_world_of_the_training_agents() -> None:
 
 
 def test_the_shared_ticks_get_the_gradient_steps_of_training_ticks(tmp_path) -> None:
-    """``train_on_shared_rows``: after each round the model takes the gradient steps its rollout takes for as many
-    world ticks (here 1 step per ``train_freq=4`` ticks of the one world), and only those; False takes none."""
+    """``train_on_shared_rows``: each round owes the gradient steps its rollout takes for as many world ticks (here 1
+    per ``train_freq=4`` ticks of the one world), paid over the next rollouts at most 1 extra step each (the
+    rollout's own); False takes none. The owed steps survive ``state_dict``."""
     counts = {}
     for train in (True, False):
         model = team_model(IQL, n_steps=1, learning_starts=20)
         callback = sharing_callback(train_on_shared_rows=train)
+        taken = []
+        original = callback._pay_shared_steps
+
+        def pay(original=original, callback=callback, taken=taken):
+            before = callback.shared_gradient_steps
+            original()
+            taken.append(callback.shared_gradient_steps - before)
+
+        callback._pay_shared_steps = pay
         model.learn(2 * 100, callback=callback)
         rounds = [record for record in callback.history if not record["skipped"]]
         assert rounds and callback.shared_rows > 0
-        expected = [round(record["shared_rows"] / 4) for record in rounds] if train else [0] * len(rounds)
-        assert [record["shared_gradient_steps"] for record in rounds] == expected
-        assert callback.shared_gradient_steps == sum(expected)
-        assert callback.state_dict()["shared_gradient_steps"] == sum(expected)
+        owed = [round(record["shared_rows"] / 4) for record in rounds] if train else [0] * len(rounds)
+        assert [record["shared_gradient_steps"] for record in rounds] == owed
+        assert callback.shared_gradient_steps + callback.shared_step_debt == sum(owed)
+        assert max(taken) <= 1  # spread, never a burst
+        state = callback.state_dict()
+        assert (state["shared_gradient_steps"], state["shared_step_debt"]) == (
+            callback.shared_gradient_steps, callback.shared_step_debt
+        )
         counts[train] = (model._n_updates, callback.shared_gradient_steps, model.ticks)
     (updates, shared, ticks), (updates_off, shared_off, ticks_off) = counts[True], counts[False]
     assert ticks == ticks_off and shared_off == 0 and shared > 0
