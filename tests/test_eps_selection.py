@@ -4,6 +4,7 @@ check and the pillars world. Algorithm 1 itself is tested in test_eps.py."""
 
 from __future__ import annotations
 
+import itertools
 import json
 
 import numpy as np
@@ -282,9 +283,14 @@ def test_the_alpha_schedule_decays_over_training_and_the_budget_holds() -> None:
     alphas = [record["alpha"] for record in records]
     assert 0 < alphas[0] < 0.4 and all(0 <= a < 0.4 for a in alphas)  # 0 for a round at the very end
     assert alphas == sorted(alphas, reverse=True)
-    for index, record in enumerate(records[1:], start=1):
-        expected = np.mean([r["ticks_spent"] for r in records[:index]])
+    n_played = (4 + 2 * 1) * 2  # copy 0 and 3 mutants, then copy 0 and the winner again: 2 episodes each
+    for previous, record in itertools.pairwise(records):
+        lengths = np.concatenate(
+            [np.ravel(previous["episode_lengths"]), np.ravel(previous.get("reevaluation", {}).get("episode_lengths", []))]
+        )
+        expected = lengths[lengths > 0].mean() * n_played  # every episode it may play, at the last round's lengths
         assert record["eps_ticks"] - record["ticks_spent"] + expected <= 1.0 * record["model_ticks"] + 1e-9
+        assert record["ticks_spent"] <= n_played * lengths.max()
     # The first round waited until half its most cost fitted: (4 + 2 * 1) x 2 episodes x 25 ticks / 2 = 150.
     assert records[0]["model_ticks"] >= 150
     assert callback.eps_ticks <= 1.0 * model.ticks + max(r["ticks_spent"] for r in records)

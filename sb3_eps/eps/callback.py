@@ -144,8 +144,9 @@ class EvolutionCallback(BaseCallback):
         curse: the best of ``m + 1`` noisy scores wins by chance (docs/results/eps_probes.md). Default 8; 0: no
         reevaluation (paper)
     :param max_eps_share: a round starts only if the EPS ticks so far plus the expected cost of the round stay
-        within this share of the training ticks (default 0.1; None: no budget). The expected cost is the mean of the
-        previous rounds, or before the first round half of the most the round can cost
+        within this share of the training ticks (default 0.1; None: no budget). The expected cost is every episode a
+        round may play (selection, reevaluation, team checks) at the previous round's mean episode length, or before
+        the first round half of the most the round can cost
     :param sensitivity_batch_size: ``|b|``, visited observations (alive agents' entries) sampled from the replay
         buffer for Eq. 6, the calibration and the diagnostics. Default 128
     :param sensitivity_floor: lower bound on the sensitivity ``omega`` (a sensitivity of exactly 0 counts as 1).
@@ -579,21 +580,28 @@ class EvolutionCallback(BaseCallback):
         record["team_check_ticks"] = record.get("team_check_ticks", 0) + ticks
 
     def _within_budget(self) -> bool:
-        """Whether a round now keeps the EPS ticks within ``max_eps_share`` of the training ticks."""
+        """Whether a round now keeps the EPS ticks within ``max_eps_share`` of the training ticks, if it plays every
+        episode it may (the reevaluation too) at the previous round's mean episode length."""
         if self.max_eps_share is None:
             return True
-        done = [
-            record.get("ticks_spent", int(np.sum(record.get("episode_lengths", 0))))
-            for record in self.history
-            if not record.get("skipped")
-        ]
-        if done:
-            expected = float(np.mean(done))
-        else:  # half of the most a round can cost, reevaluation included
-            n_reevaluations = -(-self.n_reevaluation_episodes // self.n_eval_episodes)  # ceil
-            n_played = (self.n_individuals + 2 * n_reevaluations) * self.n_eval_episodes
-            expected = 0.5 * n_played * self._episode_limit
-        return self.eps_ticks + expected <= self.max_eps_share * self._model_ticks()
+        return self.eps_ticks + self._expected_round_cost() <= self.max_eps_share * self._model_ticks()
+
+    def _expected_round_cost(self) -> float:
+        n_reevaluations = -(-self.n_reevaluation_episodes // self.n_eval_episodes)  # ceil
+        n_played = (self.n_individuals + 2 * n_reevaluations) * self.n_eval_episodes + 2 * self.n_team_check_episodes
+        done = [record for record in self.history if not record.get("skipped")]
+        if not done:  # half the most a round can cost
+            return 0.5 * n_played * self._episode_limit
+        # The last round's episodes stand for the policy now; the mean of earlier rounds' costs underestimated a
+        # round that reevaluated, or whose policy had learned to survive longer (16-17 % EPS shares, eps.md).
+        last = done[-1]
+        lengths = [np.ravel(last.get("episode_lengths", []))]
+        lengths.append(np.ravel(last.get("reevaluation", {}).get("episode_lengths", [])))
+        played = np.concatenate(lengths).astype(float)
+        played = played[played > 0]  # disqualified individuals' unplayed episodes
+        if not played.size:
+            return 0.5 * n_played * self._episode_limit
+        return float(played.mean()) * n_played
 
     def _sensitivities(self, q_net: nn.Module, observations: th.Tensor) -> list[Parameters]:
         """Eq. 6 on a batch of visited observations: one for all mutants, or one per robot (``per_robot``)."""
