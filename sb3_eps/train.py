@@ -114,6 +114,12 @@ def make_parser() -> argparse.ArgumentParser:
     )
     tuning.add_argument("--study-name", default=None, help="study name (default <algo>-<env>)")
     tuning.add_argument(
+        "--n-seeds-per-trial",
+        type=int,
+        default=1,
+        help="train each trial on seeds --seed, --seed + 1, ... and score the mean (noisy worlds need several)",
+    )
+    tuning.add_argument(
         "--sampler-seed",
         type=int,
         default=None,

@@ -9,6 +9,7 @@ import pytest
 
 from sb3_eps import GDQ, train
 from sb3_eps.zoo.config import load_config_entries, resolve_config
+from sb3_eps.zoo.errors import ConfigError
 from sb3_eps.zoo.schema import ALGORITHMS, EVOLUTION_CALLBACK, build_callbacks
 from sb3_eps.zoo.tuning import SEARCH_SPACES, merge_overrides, objective_score, sample_hyperparams
 
@@ -128,3 +129,22 @@ def test_eps_searches_its_rounds_and_world_and_the_entries_build() -> None:
         assert callback.share_experience is team and callback.max_eps_share == arguments["max_eps_share"]
         study.tell(trial, 0.0)
     assert worlds == {False, True}
+
+
+def test_a_trial_can_train_several_seeds_and_scores_their_mean(tmp_path) -> None:
+    # One seed per trial ranks noise on the robot worlds (docs/results/baselines.md, the 4-robot study): each trial
+    # here trains seeds 5 and 6, reports 2 evaluations of each (4 pruning steps) and scores the mean of the seeds.
+    argv = ["--algo", "gdq", "--env", ENV_ID, "-n", "300", "--seed", "5", "-f", str(tmp_path), "--verbose", "0",
+            "--eval-episodes", "2", "--n-eval-envs", "1", "-optimize", "--n-trials", "2", "--pruner", "none",
+            "--n-evaluations", "2", "--n-seeds-per-trial", "2", "--hyperparams", "n_envs:1"]  # fmt: skip
+    assert train.main(argv) == 0
+    (folder,) = (tmp_path / "gdq").iterdir()
+    study = optuna.load_study(study_name=f"gdq-{ENV_ID}", storage=f"sqlite:///{folder / 'study.db'}")
+    for trial in study.trials:
+        assert sorted(trial.intermediate_values) == [1, 2, 3, 4]
+        first, second = trial.user_attrs["seed_scores"]
+        assert trial.value == pytest.approx((first + second) / 2)
+        assert trial.intermediate_values[2] == pytest.approx(first) and trial.intermediate_values[4] == pytest.approx(second)
+    assert "seeds 5-6" in load_config_entries(folder / "best_params.yml", "gdq")[ENV_ID]["notes"]
+    with pytest.raises(ConfigError, match="--n-seeds-per-trial must be >= 1, got 0"):
+        train.main([*argv, "--n-seeds-per-trial", "0"])

@@ -61,6 +61,7 @@ class TuningOptions(NamespaceOptions):
     storage: str | None = None
     study_name: str | None = None
     sampler_seed: int | None = None
+    n_seeds_per_trial: int = 1
 
     def check(self) -> None:
         """:raises ConfigError: for a count out of range."""
@@ -68,6 +69,7 @@ class TuningOptions(NamespaceOptions):
             ("--n-trials", self.n_trials),
             ("--n-jobs", self.n_jobs),
             ("--n-evaluations", self.n_evaluations),
+            ("--n-seeds-per-trial", self.n_seeds_per_trial),
         ):
             if value < 1:
                 raise ConfigError(f"{flag} must be >= 1, got {value}")
@@ -299,7 +301,6 @@ class _Objective:
         self.config = config
 
     def __call__(self, trial: Any) -> float:
-        optuna = _import_optuna()
         spec = self.config.spec
         n_timesteps = int(self.config.entry["n_timesteps"])
         overrides = sample_hyperparams(trial, spec, n_timesteps, self.config.env_id)
@@ -312,14 +313,33 @@ class _Objective:
                     if name == EVOLUTION_CALLBACK and kwargs.get("n_workers") is None:
                         kwargs["n_workers"] = 0
         config = ResolvedConfig(self.config.algo, self.config.env_id, entry, f"trial {trial.number}")
-        seed = int(self.options.seed)  # type: ignore[arg-type]
+        summaries = [
+            self._run_seed(trial, config, int(self.options.seed) + index, index * self.tuning.n_evaluations)  # type: ignore[arg-type,operator]
+            for index in range(self.tuning.n_seeds_per_trial)
+        ]
+        scores = [objective_score(summary, self.options.eval_episodes) for summary in summaries]
+        for key in ("success_rate", "collision_rate", "team_return_mean", "length_mean"):
+            if all(key in summary for summary in summaries):
+                trial.set_user_attr(key, float(sum(float(summary[key]) for summary in summaries) / len(summaries)))
+        if len(scores) > 1:
+            trial.set_user_attr("seed_scores", scores)
+        return float(sum(scores) / len(scores))
+
+    def _run_seed(self, trial: Any, config: ResolvedConfig, seed: int, first_step: int) -> dict[str, Any]:
+        """Train one seed of the trial, reporting every evaluation (steps after ``first_step``) for pruning.
+
+        :return: the final evaluation's summary
+        :raises optuna.TrialPruned: when the pruner stops the trial
+        """
+        optuna = _import_optuna()
+        n_timesteps = int(config.entry["n_timesteps"])
         env = build_env(config, seed)
         eval_env = build_env(config, seed + EVAL_SEED_OFFSET, self.options.eval_env, self.options.n_eval_envs)
         pruned = False
 
         def report(summary: dict[str, Any]) -> bool:
             nonlocal pruned
-            step = len(evaluation.records["timesteps"])
+            step = first_step + len(evaluation.records["timesteps"])
             trial.report(objective_score(summary, self.options.eval_episodes), step)
             pruned = trial.should_prune()
             return not pruned
@@ -333,7 +353,7 @@ class _Objective:
             )  # fmt: skip
             callbacks = [
                 evaluation,
-                *(callback for _, callback in build_callbacks(entry, config.env_id, 0, config.source)),
+                *(callback for _, callback in build_callbacks(config.entry, config.env_id, 0, config.source)),
             ]
             model.learn(n_timesteps, callback=CallbackList(callbacks))
             if pruned:
@@ -344,10 +364,7 @@ class _Objective:
         finally:
             env.close()
             eval_env.close()
-        for key in ("success_rate", "collision_rate", "team_return_mean", "length_mean"):
-            if key in summary:
-                trial.set_user_attr(key, float(summary[key]))
-        return objective_score(summary, self.options.eval_episodes)
+        return summary
 
 
 def tune(options: TrainOptions, tuning: TuningOptions) -> Path:
@@ -392,7 +409,7 @@ def tune(options: TrainOptions, tuning: TuningOptions) -> Path:
         n_jobs=tuning.n_jobs,
         gc_after_trial=True,
     )
-    write_results(study, config, folder, time.time() - start, options)
+    write_results(study, config, folder, time.time() - start, options, tuning.n_seeds_per_trial)
     return folder
 
 
@@ -414,7 +431,7 @@ def write_trials_csv(study: Any, path: Path) -> None:
 
 
 def write_results(
-    study: Any, config: ResolvedConfig, folder: Path, seconds: float, options: TrainOptions
+    study: Any, config: ResolvedConfig, folder: Path, seconds: float, options: TrainOptions, n_seeds: int = 1
 ) -> None:
     """Write ``trials.csv`` and ``best_params.yml`` (the best trial as a config entry) and print a summary."""
     optuna = _import_optuna()
@@ -435,7 +452,9 @@ def write_results(
         "notes": (
             f"optuna study {study.study_name}, trial {best.number}: score {best.value:.4f}"
             + (f" (success {100 * success:.0f} %)" if success is not None else "")
-            + f", {entry['n_timesteps']} timesteps, seed {options.seed}, {time.strftime('%Y-%m-%d')}"
+            + f", {entry['n_timesteps']} timesteps, "
+            + (f"seed {options.seed}" if n_seeds == 1 else f"seeds {options.seed}-{options.seed + n_seeds - 1}")  # type: ignore[operator]
+            + f", {time.strftime('%Y-%m-%d')}"
         ),
         **{key: value for key, value in entry.items() if key not in ("tuned", "notes")},
     }
