@@ -240,7 +240,7 @@ def test_the_shared_ticks_get_the_gradient_steps_of_training_ticks(tmp_path) -> 
 def test_shared_gradient_steps_need_a_train_freq_in_steps() -> None:
     model = tiny_model(IQL, env_id=TEAM, n_envs=1, train_freq=(1, "episode"))
     with pytest.raises(ValueError, match=r"needs train_freq in steps.*train_on_shared_rows=False"):
-        model.learn(8, callback=sharing_callback())
-    model.learn(8, callback=sharing_callback(train_on_shared_rows=False, period=10**6))  # the way out works
+        model.learn(8, callback=sharing_callback(train_on_shared_rows=True))
+    model.learn(8, callback=sharing_callback(period=10**6))  # the default works
     with pytest.raises(ValueError, match="train_on_shared_rows must be True or False"):
         EvolutionCallback(eval_env_id=TEAM, share_experience=True, train_on_shared_rows=1)

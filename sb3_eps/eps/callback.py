@@ -181,7 +181,8 @@ class EvolutionCallback(BaseCallback):
         for the round's shared ticks (:func:`~sb3_eps.eps.sharing.shared_gradient_steps`), as Evolutionary RL trains
         on the population's steps, spread over the next rollouts (at most as many extra steps per rollout as its own):
         the shared rows are then learned from as training rows are, not only sampled among them. Needs
-        ``train_freq`` in steps. Default True; False leaves the training's gradient steps as they are
+        ``train_freq`` in steps. Default False (the training's gradient steps as they are): screened on 4 robots, it
+        did not end higher than sharing alone (docs/results/eps.md)
     :param verbose: 0 silent, 1 one line per round, 2 also worker restarts
     """
 
@@ -215,7 +216,7 @@ class EvolutionCallback(BaseCallback):
         worker_start_method: str | None = None,
         seed: int | None = None,
         share_experience: bool = False,
-        train_on_shared_rows: bool = True,
+        train_on_shared_rows: bool = False,
         verbose: int = 0,
     ) -> None:
         super().__init__(verbose=verbose)
