@@ -426,7 +426,7 @@ class EvolutionCallback(BaseCallback):
             winner = select_best(result.fitness)  # line 11, Eq. 4 (never a disqualified individual)
             accepted = self._accept(population, result, winner, record)
         except EvaluationFailed as error:
-            record["shared_gradient_steps"] = self._train_on_round_rows()
+            record["shared_gradient_steps"] = self._owe_shared_steps()
             self._skip_round(error, time.perf_counter() - start, record)
             return
         alpha = self._current_alpha()
@@ -439,10 +439,10 @@ class EvolutionCallback(BaseCallback):
             if isinstance(target, nn.Module):
                 polyak_crossover_(target, best, alpha, self._evolved)
             self._team_check(record, "after")
-        record["shared_gradient_steps"] = self._train_on_round_rows()
+        record["shared_gradient_steps"] = self._owe_shared_steps()
         self._record_round(record, time.perf_counter() - start)
 
-    def _train_on_round_rows(self) -> int:
+    def _owe_shared_steps(self) -> int:
         """``train_on_shared_rows``: owe the gradient steps of the round's shared ticks (taken by
         :meth:`_pay_shared_steps` over the next rollouts). :return: the steps owed"""
         if not (self.share_experience and self.train_on_shared_rows and self._round_shared_rows):
