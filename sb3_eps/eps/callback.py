@@ -46,6 +46,7 @@ from sb3_eps.eps.mutations import (
 )
 from sb3_eps.eps.sharing import (
     record_mode,
+    rollout_gradient_steps,
     share_episodes,
     shared_gradient_steps,
     sharing_problem,
@@ -457,8 +458,7 @@ class EvolutionCallback(BaseCallback):
         if self.shared_step_debt <= 0:
             return
         model = self._model
-        own = model.gradient_steps if model.gradient_steps >= 0 else model.train_freq.frequency * model.n_envs
-        steps = train_on_shared(model, min(self.shared_step_debt, max(own, 1)))
+        steps = train_on_shared(model, min(self.shared_step_debt, max(rollout_gradient_steps(model), 1)))
         self.shared_step_debt -= steps
         self.shared_gradient_steps += steps
 
@@ -590,17 +590,15 @@ class EvolutionCallback(BaseCallback):
     def _expected_round_cost(self) -> float:
         n_reevaluations = -(-self.n_reevaluation_episodes // self.n_eval_episodes)  # ceil
         n_played = (self.n_individuals + 2 * n_reevaluations) * self.n_eval_episodes + 2 * self.n_team_check_episodes
-        done = [record for record in self.history if not record.get("skipped")]
-        if not done:  # half the most a round can cost
-            return 0.5 * n_played * self._episode_limit
         # The last round's episodes stand for the policy now; the mean of earlier rounds' costs underestimated a
         # round that reevaluated, or whose policy had learned to survive longer (16-17 % EPS shares, eps.md).
-        last = done[-1]
-        lengths = [np.ravel(last.get("episode_lengths", []))]
-        lengths.append(np.ravel(last.get("reevaluation", {}).get("episode_lengths", [])))
-        played = np.concatenate(lengths).astype(float)
+        done = [record for record in self.history if not record.get("skipped")]
+        last = done[-1] if done else {}
+        played = np.concatenate(
+            [np.ravel(last.get("episode_lengths", [])), np.ravel(last.get("reevaluation", {}).get("episode_lengths", []))]
+        ).astype(float)
         played = played[played > 0]  # disqualified individuals' unplayed episodes
-        if not played.size:
+        if not played.size:  # before the first round: half the most a round can cost
             return 0.5 * n_played * self._episode_limit
         return float(played.mean()) * n_played
 

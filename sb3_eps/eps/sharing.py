@@ -78,9 +78,15 @@ def shared_gradient_steps(model: MultiAgentOffPolicyAlgorithm, n_ticks: int) -> 
             f"train_on_shared_rows takes the gradient steps of the shared ticks, which needs train_freq in steps, not "
             f"{unit}s: set train_freq=(n, 'step') or train_on_shared_rows=False"
         )
-    ticks_per_update = frequency * model.n_worlds
-    per_update = model.gradient_steps if model.gradient_steps >= 0 else frequency * model.n_envs
-    return round(n_ticks * per_update / ticks_per_update)
+    return round(n_ticks * rollout_gradient_steps(model) / (frequency * model.n_worlds))
+
+
+def rollout_gradient_steps(model: MultiAgentOffPolicyAlgorithm) -> int:
+    """The gradient steps the model takes after each rollout of ``train_freq`` vector-env steps (SB3's ``-1``: as
+    many as the rollout's timesteps)."""
+    if model.gradient_steps >= 0:
+        return int(model.gradient_steps)
+    return int(model.train_freq.frequency * model.n_envs)
 
 
 def train_on_shared(model: MultiAgentOffPolicyAlgorithm, gradient_steps: int) -> int:
@@ -148,11 +154,7 @@ def _episode_tick(episode: TeamEpisode, tick: int, values: tuple[np.ndarray, np.
     """Tick ``tick`` of a team-world episode as the bridge would report it (``MultiAgentVecEnv.step_wait``): an agent
     is done when terminated or truncated (a finished agent's slot is terminated with the world), a truncation counts
     only without a termination, and the world ends when every agent is done."""
-    terminations, truncations, alive = (
-        episode.terminations[tick],
-        episode.truncations[tick],
-        episode.alive[tick],
-    )
+    terminations, truncations, alive = episode.terminations[tick], episode.truncations[tick], episode.alive[tick]
     dones = terminations | truncations
     return joint_tick(
         observations=episode.observations[tick],

@@ -92,9 +92,7 @@ def sample_hyperparams(
     :param n_timesteps: the trial budget (bounds ``learning_starts``)
     :param env_id: the training env id: EPS may then also search its team world (None: its default world only)
     """
-    space = next(
-        (SEARCH_SPACES[cls] for cls in spec.algorithm_class.__mro__ if cls in SEARCH_SPACES), sample_common
-    )
+    space = next((SEARCH_SPACES[cls] for cls in spec.algorithm_class.__mro__ if cls in SEARCH_SPACES), sample_common)
     params = space(trial, spec, n_timesteps)
     if spec.eps:
         params[CALLBACK_KEY] = [{EVOLUTION_CALLBACK: sample_eps(trial, env_id)}]
@@ -169,9 +167,7 @@ def sample_gdq(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str, A
     (``lin_<x>``), which ended every measured run higher than a constant one.
     """
     params: dict[str, Any] = {
-        "learning_rate": trial.suggest_categorical(
-            "learning_rate", ["lin_1e-4", "lin_3e-4", "lin_6e-4", "lin_1e-3"]
-        ),
+        "learning_rate": trial.suggest_categorical("learning_rate", ["lin_1e-4", "lin_3e-4", "lin_6e-4", "lin_1e-3"]),
         "n_steps": trial.suggest_categorical("n_steps", [20, 30, 45, 60]),
         "batch_size": trial.suggest_categorical("batch_size", [64, 128, 256]),
         "buffer_size": trial.suggest_categorical("buffer_size", [50_000, 100_000, 200_000]),
@@ -186,9 +182,7 @@ def sample_gdq(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str, A
     params["learning_starts"] = min(learning_starts, max(n_timesteps // 4, 1))
     params[POLICY_KWARGS_KEY] = {
         "net_arch": _NET_ARCHS[trial.suggest_categorical("net_arch", list(_NET_ARCHS))],
-        "global_net_arch": _GLOBAL_NET_ARCHS[
-            trial.suggest_categorical("global_net_arch", ["small", "medium"])
-        ],
+        "global_net_arch": _GLOBAL_NET_ARCHS[trial.suggest_categorical("global_net_arch", ["small", "medium"])],
     }
     return params
 
