@@ -125,6 +125,11 @@ def make_parser() -> argparse.ArgumentParser:
         default=None,
         help="seed of the sampler (default: --seed); give each process that joins a study its own",
     )
+    tuning.add_argument(
+        "--eps-only",
+        action="store_true",
+        help="eps_* algorithms: search only the EPS arguments; the base algorithm keeps the entry's settings",
+    )
     return parser
 
 

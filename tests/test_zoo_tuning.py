@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 
 import optuna
@@ -148,3 +149,40 @@ def test_a_trial_can_train_several_seeds_and_scores_their_mean(tmp_path) -> None
     assert "seeds 5-6" in load_config_entries(folder / "best_params.yml", "gdq")[ENV_ID]["notes"]
     with pytest.raises(ConfigError, match="--n-seeds-per-trial must be >= 1, got 0"):
         train.main([*argv, "--n-seeds-per-trial", "0"])
+
+
+def test_an_eps_trial_pays_its_eps_ticks_from_the_budget(tmp_path, monkeypatch) -> None:
+    # Issue 10: EPS settings are searched with their EPS ticks counted in the budget, or the search would favour
+    # the settings that spend most. Rounds every 6 world episodes here (the space's 5-20k ticks exceed the budget).
+    from sb3_eps.zoo import tuning
+
+    rounds = {"period": 6, "period_unit": "episodes", "max_eps_share": 1.0, "population_size": 2,
+              "n_eval_episodes": 1, "n_reevaluation_episodes": 1, "n_workers": 0, "sensitivity_batch_size": 16}  # fmt: skip
+    monkeypatch.setattr(tuning, "sample_eps", lambda trial, env_id=None: dict(rounds))
+    budget = 3_000  # timesteps: 1,000 ticks of the 3-agent world
+    argv = ["--algo", "eps_gdq", "--env", ENV_ID, "-n", str(budget), "--seed", "5", "-f", str(tmp_path),
+            "--verbose", "0", "--eval-episodes", "2", "--n-eval-envs", "1", "-optimize", "--n-trials", "1",
+            "--pruner", "none", "--n-evaluations", "3", "--hyperparams", "n_envs:1", "learning_starts:300"]  # fmt: skip
+    assert train.main(argv) == 0
+    (folder,) = (tmp_path / "eps_gdq").iterdir()
+    (trial,) = optuna.load_study(study_name=f"eps_gdq-{ENV_ID}", storage=f"sqlite:///{folder / 'study.db'}").trials
+    (ticks,), (eps_ticks,) = trial.user_attrs["ticks"], trial.user_attrs["eps_ticks"]
+    assert eps_ticks > 0 and ticks < budget // 3  # the training stopped early by what EPS spent...
+    assert budget // 3 <= ticks + eps_ticks < budget // 3 + 200  # ...at the budget (a round is at most 3 x 25 ticks)
+    # The evaluations fall every third of the budget of training plus EPS (counted on training alone, the third
+    # point would never be reached), the last one at the step that ends the budget.
+    assert sorted(trial.intermediate_values) == [1, 2, 3]
+    row = next(csv.DictReader((folder / "trials.csv").open()))
+    assert (int(row["ticks"]), int(row["eps_ticks"])) == (ticks, eps_ticks)
+
+
+def test_eps_only_searches_the_eps_arguments_and_keeps_the_base_settings(tmp_path) -> None:
+    # EPS is searched on top of its base algorithm's settings (the package defaults, or a tuned entry).
+    spec, env_id = ALGORITHMS["eps_gdq"], "MultiRobotNav-4-v0"
+    trial = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=0)).ask()
+    overrides = sample_hyperparams(trial, spec, 600_000, env_id, eps_only=True)
+    assert list(overrides) == ["callback"] and "eps_target_flip_share" in trial.params
+    assert not any(name in trial.params for name in ("n_steps", "learning_rate", "gamma"))
+    with pytest.raises(ConfigError, match="--eps-only searches the EPS arguments: gdq has none; use eps_gdq"):
+        train.main(["--algo", "gdq", "--env", ENV_ID, "-f", str(tmp_path), "-optimize", "--eps-only"])
+    assert not any(tmp_path.iterdir())  # nothing written

@@ -179,6 +179,9 @@ class TeamEvalCallback(BaseCallback):
     :param seed: seed of the evaluation worlds
     :param folder: where ``evaluations.npz`` and ``best_model.zip`` go (None: nowhere)
     :param eps_callbacks: callbacks whose ``eps_ticks`` are recorded with each evaluation
+    :param count_eps_ticks: evaluate every ``eval_freq`` timesteps of training plus EPS, an EPS tick counting as
+        one timestep per agent of a world (the x axis of the EPS comparisons; a tuning trial of EPS); default: of
+        training alone
     :param on_evaluation: called with each evaluation's summary; returning False stops training (pruning)
     :param verbose: 1 prints one line per evaluation
     """
@@ -193,6 +196,7 @@ class TeamEvalCallback(BaseCallback):
         eps_callbacks: Sequence[BaseCallback] = (),
         on_evaluation: Callable[[dict[str, Any]], bool] | None = None,
         verbose: int = 0,
+        count_eps_ticks: bool = False,
     ) -> None:
         super().__init__(verbose=verbose)
         self.eval_env = eval_env
@@ -201,6 +205,7 @@ class TeamEvalCallback(BaseCallback):
         self.eval_seed = int(seed)
         self.folder = Path(folder) if folder is not None else None
         self.eps_callbacks = list(eps_callbacks)
+        self.count_eps_ticks = count_eps_ticks
         self.on_evaluation = on_evaluation
         self.next_eval = self.eval_freq
         self.records: dict[str, list[Any]] = {key: [] for key in _RECORD_KEYS}
@@ -219,9 +224,12 @@ class TeamEvalCallback(BaseCallback):
         self._write_records()  # drops evaluations made after the checkpoint by a process that died
 
     def _on_step(self) -> bool:
-        if self.eval_freq <= 0 or self.num_timesteps < self.next_eval:
+        progress = self.num_timesteps
+        if self.count_eps_ticks:
+            progress += eps_ticks_of(self.eps_callbacks) * int(self.model.n_agents)  # type: ignore[attr-defined]
+        if self.eval_freq <= 0 or progress < self.next_eval:
             return True
-        self.next_eval = (self.num_timesteps // self.eval_freq + 1) * self.eval_freq
+        self.next_eval = (progress // self.eval_freq + 1) * self.eval_freq  # a round can pass several points
         summary = self.evaluate()
         return True if self.on_evaluation is None else bool(self.on_evaluation(summary))
 
@@ -279,6 +287,25 @@ class TeamEvalCallback(BaseCallback):
                 f"{summary['length_mean']:.0f} ticks",
                 flush=True,
             )
+
+
+class TickBudgetCallback(BaseCallback):
+    """Ends ``learn()`` once training and EPS together reach ``budget`` timesteps, an EPS tick counting as one
+    timestep per agent of a world: the equal-ticks budget of the EPS comparisons (the paper's x axis), used by
+    the tuning trials of EPS so that a setting's EPS ticks are paid from its training.
+
+    :param budget: timesteps (agent-steps) of training plus EPS
+    :param eps_callbacks: callbacks whose ``eps_ticks`` count
+    """
+
+    def __init__(self, budget: int, eps_callbacks: Sequence[BaseCallback]) -> None:
+        super().__init__()
+        self.budget = int(budget)
+        self.eps_callbacks = list(eps_callbacks)
+
+    def _on_step(self) -> bool:
+        eps_timesteps = eps_ticks_of(self.eps_callbacks) * int(self.model.n_agents)  # type: ignore[attr-defined]
+        return self.num_timesteps + eps_timesteps < self.budget
 
 
 _RECORD_KEYS = ("timesteps", "ticks", "eps_ticks", "results", "ep_lengths", "successes", "collisions")

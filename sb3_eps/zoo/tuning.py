@@ -19,11 +19,11 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from stable_baselines3.common.callbacks import CallbackList
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.logger import Logger
 
 from sb3_eps.gdq import GDQ
-from sb3_eps.zoo.callbacks import TeamEvalCallback
+from sb3_eps.zoo.callbacks import TeamEvalCallback, TickBudgetCallback
 from sb3_eps.zoo.checkpoint import write_text_atomic
 from sb3_eps.zoo.cli import NamespaceOptions
 from sb3_eps.zoo.config import ResolvedConfig, check_env_id, entry_yaml, resolve_config
@@ -62,6 +62,7 @@ class TuningOptions(NamespaceOptions):
     study_name: str | None = None
     sampler_seed: int | None = None
     n_seeds_per_trial: int = 1
+    eps_only: bool = False
 
     def check(self) -> None:
         """:raises ConfigError: for a count out of range."""
@@ -79,7 +80,7 @@ class TuningOptions(NamespaceOptions):
 
 # ---------------------------------------------------------------------------------------------- search spaces
 def sample_hyperparams(
-    trial: Any, spec: AlgorithmSpec, n_timesteps: int, env_id: str | None = None
+    trial: Any, spec: AlgorithmSpec, n_timesteps: int, env_id: str | None = None, eps_only: bool = False
 ) -> dict[str, Any]:
     """Sample the overrides of one trial (canonical entry keys; ``policy_kwargs`` and the EPS arguments as
     partial mappings merged over the base entry by :func:`merge_overrides`).
@@ -91,9 +92,13 @@ def sample_hyperparams(
     :param spec: the algorithm
     :param n_timesteps: the trial budget (bounds ``learning_starts``)
     :param env_id: the training env id: EPS may then also search its team world (None: its default world only)
+    :param eps_only: sample the EPS arguments alone (``--eps-only``): the base algorithm keeps the entry's settings
+    :raises ConfigError: ``eps_only`` for an algorithm without EPS
     """
+    if eps_only and not spec.eps:
+        raise ConfigError("--eps-only searches the EPS arguments: use it with an eps_* algorithm")
     space = next((SEARCH_SPACES[cls] for cls in spec.algorithm_class.__mro__ if cls in SEARCH_SPACES), sample_common)
-    params = space(trial, spec, n_timesteps)
+    params = {} if eps_only else space(trial, spec, n_timesteps)
     if spec.eps:
         params[CALLBACK_KEY] = [{EVOLUTION_CALLBACK: sample_eps(trial, env_id)}]
     return params
@@ -297,7 +302,7 @@ class _Objective:
     def __call__(self, trial: Any) -> float:
         spec = self.config.spec
         n_timesteps = int(self.config.entry["n_timesteps"])
-        overrides = sample_hyperparams(trial, spec, n_timesteps, self.config.env_id)
+        overrides = sample_hyperparams(trial, spec, n_timesteps, self.config.env_id, self.tuning.eps_only)
         entry = merge_overrides(self.config.entry, overrides, spec)
         trial.set_user_attr("hyperparams", overrides)
         if self.tuning.n_jobs > 1:
@@ -312,6 +317,8 @@ class _Objective:
             for index in range(self.tuning.n_seeds_per_trial)
         ]
         scores = [objective_score(summary, self.options.eval_episodes) for summary in summaries]
+        for key in ("ticks", "eps_ticks"):  # what each seed spent (an EPS trial's budget counts both)
+            trial.set_user_attr(key, [int(summary[key]) for summary in summaries])
         for key in ("success_rate", "collision_rate", "team_return_mean", "length_mean"):
             if all(key in summary for summary in summaries):
                 trial.set_user_attr(key, float(sum(float(summary[key]) for summary in summaries) / len(summaries)))
@@ -341,14 +348,18 @@ class _Objective:
         try:
             model = build_model(config, env, seed, self.options.device, verbose=0)
             model.set_logger(Logger(folder=None, output_formats=[]))
+            user_callbacks = [callback for _, callback in build_callbacks(config.entry, config.env_id, 0, config.source)]
+            # EPS pays its evaluation ticks from the trial's budget, and the evaluations fall at points of training
+            # plus EPS: a setting is scored at the ticks it used, as in the EPS comparisons.
+            eps_callbacks = [callback for callback in user_callbacks if hasattr(callback, "eps_ticks")]
             evaluation = TeamEvalCallback(
                 eval_env, max(n_timesteps // self.tuning.n_evaluations, 1), self.options.eval_episodes,
-                seed + EVAL_SEED_OFFSET, on_evaluation=report,
+                seed + EVAL_SEED_OFFSET, eps_callbacks=eps_callbacks, on_evaluation=report,
+                count_eps_ticks=bool(eps_callbacks),
             )  # fmt: skip
-            callbacks = [
-                evaluation,
-                *(callback for _, callback in build_callbacks(config.entry, config.env_id, 0, config.source)),
-            ]
+            callbacks: list[BaseCallback] = [evaluation, *user_callbacks]
+            if eps_callbacks:
+                callbacks.append(TickBudgetCallback(n_timesteps, eps_callbacks))
             model.learn(n_timesteps, callback=CallbackList(callbacks))
             if pruned:
                 raise optuna.TrialPruned()
@@ -373,6 +384,8 @@ def tune(options: TrainOptions, tuning: TuningOptions) -> Path:
     check_env_id(options.env)
     hyperparams = [*options.hyperparams, *(f"env_kwargs.{item}" for item in options.env_kwargs)]
     config = resolve_config(options.algo, options.env, options.conf_file, hyperparams, options.n_timesteps)
+    if tuning.eps_only and not config.spec.eps:
+        raise ConfigError(f"--eps-only searches the EPS arguments: {options.algo} has none; use eps_{options.algo}")
     if options.eval_freq <= 0:
         options.eval_freq = 1  # evaluation is the objective: it cannot be turned off here
     prepare_run(options, config).close()  # builds everything once: mistakes surface before any file exists
@@ -408,18 +421,25 @@ def tune(options: TrainOptions, tuning: TuningOptions) -> Path:
 
 
 def write_trials_csv(study: Any, path: Path) -> None:
-    """One row per trial: number, state, value, duration and every sampled parameter (no pandas needed)."""
+    """One row per trial: number, state, value, duration, the ticks and EPS ticks of each seed (``/``-joined) and
+    every sampled parameter (no pandas needed)."""
     trials = list(study.trials)
     param_names = sorted({name for trial in trials for name in trial.params})
     temporary = path.with_name(path.name + ".tmp")
+
+    def per_seed(trial: Any, key: str) -> str:
+        return "/".join(str(value) for value in trial.user_attrs.get(key, []))
+
     with temporary.open("w", newline="") as file:
         writer = csv.writer(file)
-        writer.writerow(["number", "state", "value", "duration_s", *(f"params_{name}" for name in param_names)])
+        writer.writerow(
+            ["number", "state", "value", "duration_s", "ticks", "eps_ticks", *(f"params_{name}" for name in param_names)]
+        )
         for trial in trials:
             duration = trial.duration.total_seconds() if trial.duration is not None else ""
             writer.writerow(
                 [trial.number, trial.state.name, "" if trial.value is None else trial.value, duration,
-                 *(trial.params.get(name, "") for name in param_names)]
+                 per_seed(trial, "ticks"), per_seed(trial, "eps_ticks"), *(trial.params.get(name, "") for name in param_names)]
             )  # fmt: skip
     temporary.replace(path)
 
