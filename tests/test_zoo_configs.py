@@ -91,7 +91,9 @@ def test_a_resolved_entry_holds_every_constructor_default(algo) -> None:
             value = algorithm_kwargs(entry)[name]
             assert value == default or (callable(default) and value(0.5) == default(0.5)), name  # lin_x: a schedule
     policy_kwargs = entry["policy_kwargs"]
-    assert policy_kwargs["net_arch"] == DEFAULT_NET_ARCH and policy_kwargs["stream_arch"] == DEFAULT_STREAM_ARCH
+    set_policy = set_by_file.get("policy_kwargs", {})  # a tuned entry may size its networks
+    assert policy_kwargs["net_arch"] == set_policy.get("net_arch", DEFAULT_NET_ARCH)
+    assert policy_kwargs["stream_arch"] == DEFAULT_STREAM_ARCH
     assert policy_kwargs["activation_fn"] == "nn.ReLU" and policy_kwargs["optimizer_class"] == "th.optim.Adam"
     assert policy_kwargs["agent_target"] is spec.algorithm_class.default_agent_target
     defaults = package_defaults(spec)["policy_kwargs"]
