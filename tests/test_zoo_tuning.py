@@ -174,6 +174,10 @@ def test_an_eps_trial_pays_its_eps_ticks_from_the_budget(tmp_path, monkeypatch) 
     assert sorted(trial.intermediate_values) == [1, 2, 3]
     row = next(csv.DictReader((folder / "trials.csv").open()))
     assert (int(row["ticks"]), int(row["eps_ticks"])) == (ticks, eps_ticks)
+    # How often EPS acted: its rounds and crossovers (a trial without a crossover is its base algorithm).
+    (n_rounds,), (n_crossovers,) = trial.user_attrs["eps_rounds"], trial.user_attrs["eps_crossovers"]
+    assert n_rounds >= 1 and 0 <= n_crossovers <= n_rounds
+    assert (int(row["eps_rounds"]), int(row["eps_crossovers"])) == (n_rounds, n_crossovers)
 
 
 def test_eps_only_searches_the_eps_arguments_and_keeps_the_base_settings(tmp_path) -> None:

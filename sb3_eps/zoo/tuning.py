@@ -317,8 +317,11 @@ class _Objective:
             for index in range(self.tuning.n_seeds_per_trial)
         ]
         scores = [objective_score(summary, self.options.eval_episodes) for summary in summaries]
-        for key in ("ticks", "eps_ticks"):  # what each seed spent (an EPS trial's budget counts both)
-            trial.set_user_attr(key, [int(summary[key]) for summary in summaries])
+        # What each seed spent (an EPS trial's budget counts both) and, with EPS, how often it acted: a trial whose
+        # rounds never cross over is its base algorithm evaluated a few ticks earlier.
+        for key in ("ticks", "eps_ticks", "eps_rounds", "eps_crossovers"):
+            if all(key in summary for summary in summaries):
+                trial.set_user_attr(key, [int(summary[key]) for summary in summaries])
         for key in ("success_rate", "collision_rate", "team_return_mean", "length_mean"):
             if all(key in summary for summary in summaries):
                 trial.set_user_attr(key, float(sum(float(summary[key]) for summary in summaries) / len(summaries)))
@@ -366,6 +369,15 @@ class _Objective:
             summary = evaluation.last_summary
             if summary is None or summary["timesteps"] != model.num_timesteps:
                 summary = evaluation.evaluate()
+            if eps_callbacks:
+                rounds = [
+                    record
+                    for callback in eps_callbacks
+                    for record in getattr(callback, "history", ())
+                    if not record.get("skipped")
+                ]
+                crossovers = sum(bool(record.get("accepted")) for record in rounds)
+                summary = {**summary, "eps_rounds": len(rounds), "eps_crossovers": crossovers}
         finally:
             env.close()
             eval_env.close()
@@ -420,9 +432,13 @@ def tune(options: TrainOptions, tuning: TuningOptions) -> Path:
     return folder
 
 
+#: ``trials.csv`` columns with one value per seed of a trial (``/``-joined): ticks spent, and EPS's rounds.
+PER_SEED_COLUMNS = ("ticks", "eps_ticks", "eps_rounds", "eps_crossovers")
+
+
 def write_trials_csv(study: Any, path: Path) -> None:
-    """One row per trial: number, state, value, duration, the ticks and EPS ticks of each seed (``/``-joined) and
-    every sampled parameter (no pandas needed)."""
+    """One row per trial: number, state, value, duration, :data:`PER_SEED_COLUMNS` and every sampled parameter (no
+    pandas needed)."""
     trials = list(study.trials)
     param_names = sorted({name for trial in trials for name in trial.params})
     temporary = path.with_name(path.name + ".tmp")
@@ -433,13 +449,13 @@ def write_trials_csv(study: Any, path: Path) -> None:
     with temporary.open("w", newline="") as file:
         writer = csv.writer(file)
         writer.writerow(
-            ["number", "state", "value", "duration_s", "ticks", "eps_ticks", *(f"params_{name}" for name in param_names)]
+            ["number", "state", "value", "duration_s", *PER_SEED_COLUMNS, *(f"params_{name}" for name in param_names)]
         )
         for trial in trials:
             duration = trial.duration.total_seconds() if trial.duration is not None else ""
             writer.writerow(
                 [trial.number, trial.state.name, "" if trial.value is None else trial.value, duration,
-                 per_seed(trial, "ticks"), per_seed(trial, "eps_ticks"), *(trial.params.get(name, "") for name in param_names)]
+                 *(per_seed(trial, key) for key in PER_SEED_COLUMNS), *(trial.params.get(name, "") for name in param_names)]
             )  # fmt: skip
     temporary.replace(path)
 
