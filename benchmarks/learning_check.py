@@ -75,12 +75,11 @@ class PeriodicTeamEval(BaseCallback):
         summary.pop("episodes")
         record = {"ticks": ticks, "wall_s": round(time.time() - self.start, 1), **summary}
         if self.eps is not None:
-            rounds = [r for r in self.eps.history if not r.get("skipped")]
             record.update(
                 training_ticks=int(self.model.ticks),  # type: ignore[attr-defined]
                 eps_ticks=self.eps.eps_ticks,
-                eps_rounds=len(rounds),
-                eps_crossovers=sum(bool(r.get("accepted")) for r in rounds),
+                eps_rounds=self.eps.n_rounds,
+                eps_crossovers=self.eps.n_crossovers,
                 eps_shared_rows=self.eps.shared_rows,  # replay rows from EPS episodes (share_experience)
             )
         with self.path.open("a") as file:

@@ -245,6 +245,8 @@ def test_reevaluation_decides_the_crossover(monkeypatch, fresh, crossed) -> None
     assert record["winner"] == 1 and record["gain"] == pytest.approx(0.2)
     assert record["reevaluation"]["fitness"] == pytest.approx([0.01 * f for f in fresh])
     assert len(record["reevaluation"]["episode_seeds"]) == 2 and record["accepted"] is crossed
+    assert callback.n_crossovers == sum(bool(r.get("accepted")) for r in callback.history if not r.get("skipped"))
+    assert callback.n_crossovers >= int(crossed)
     assert sum(active is not None for active in calls) == 1  # one batch of 2 fresh episodes
     changed = {
         name

@@ -305,6 +305,11 @@ class EvolutionCallback(BaseCallback):
         return self.population_size + 1
 
     @property
+    def n_crossovers(self) -> int:
+        """Rounds whose winner was crossed over into the model (of the ``n_rounds`` played)."""
+        return sum(bool(record.get("accepted")) for record in self.history if not record.get("skipped"))
+
+    @property
     def worker_pids(self) -> list[int]:
         """Process ids of the evaluation workers (empty when the envs run in the main process or are closed)."""
         return self._pool.pids if self._pool is not None else []

@@ -48,6 +48,11 @@ def eps_ticks_of(callbacks: Sequence[BaseCallback]) -> int:
     return int(sum(int(getattr(callback, "eps_ticks", 0)) for callback in callbacks))
 
 
+def eps_timesteps(model: Any, callbacks: Sequence[BaseCallback]) -> int:
+    """:return: the EPS ticks of ``callbacks`` in timesteps: one per agent of a world, as training counts them."""
+    return eps_ticks_of(callbacks) * int(model.n_agents)
+
+
 def team_score(summary: dict[str, Any]) -> tuple[float, float]:
     """:return: ``(success rate, mean team return)``, compared lexicographically (return breaks ties)."""
     return float(summary.get("success_rate", 0.0)), float(summary["team_return_mean"])
@@ -226,7 +231,7 @@ class TeamEvalCallback(BaseCallback):
     def _on_step(self) -> bool:
         progress = self.num_timesteps
         if self.count_eps_ticks:
-            progress += eps_ticks_of(self.eps_callbacks) * int(self.model.n_agents)  # type: ignore[attr-defined]
+            progress += eps_timesteps(self.model, self.eps_callbacks)
         if self.eval_freq <= 0 or progress < self.next_eval:
             return True
         self.next_eval = (progress // self.eval_freq + 1) * self.eval_freq  # a round can pass several points
@@ -304,8 +309,7 @@ class TickBudgetCallback(BaseCallback):
         self.eps_callbacks = list(eps_callbacks)
 
     def _on_step(self) -> bool:
-        eps_timesteps = eps_ticks_of(self.eps_callbacks) * int(self.model.n_agents)  # type: ignore[attr-defined]
-        return self.num_timesteps + eps_timesteps < self.budget
+        return self.num_timesteps + eps_timesteps(self.model, self.eps_callbacks) < self.budget
 
 
 _RECORD_KEYS = ("timesteps", "ticks", "eps_ticks", "results", "ep_lengths", "successes", "collisions")

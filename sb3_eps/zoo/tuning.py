@@ -370,14 +370,11 @@ class _Objective:
             if summary is None or summary["timesteps"] != model.num_timesteps:
                 summary = evaluation.evaluate()
             if eps_callbacks:
-                rounds = [
-                    record
-                    for callback in eps_callbacks
-                    for record in getattr(callback, "history", ())
-                    if not record.get("skipped")
-                ]
-                crossovers = sum(bool(record.get("accepted")) for record in rounds)
-                summary = {**summary, "eps_rounds": len(rounds), "eps_crossovers": crossovers}
+                summary = {
+                    **summary,
+                    "eps_rounds": sum(int(getattr(callback, "n_rounds", 0)) for callback in eps_callbacks),
+                    "eps_crossovers": sum(int(getattr(callback, "n_crossovers", 0)) for callback in eps_callbacks),
+                }
         finally:
             env.close()
             eval_env.close()
