@@ -16,7 +16,7 @@ import envs
 from sb3_eps.eps import EvolutionCallback
 from sb3_eps.eps import callback as callback_module
 from sb3_eps.eps.callback import PAPER_SETTINGS, gain_accepted, scheduled_alpha
-from sb3_eps.eps.diagnostics import RoundLog, read_round_log
+from sb3_eps.eps.diagnostics import RoundLog, read_round_log, team_check_changes
 from sb3_eps.eps.evaluation import (
     InProcessEnvPool,
     PopulationResult,
@@ -376,6 +376,14 @@ def test_the_team_check_plays_the_training_env_before_and_after_the_crossover(mo
         record
     )
     assert callback.eps_ticks == record["ticks_spent"] == (4 * 2 + 2 * 2 + 2 * 2) * MPE_EPISODE
+    # the summary that benchmarks/crossover_effects.py prints: one paired change per checked crossover
+    skipped, rejected = {"round": 0, "skipped": True}, {**record, "round": 9, "accepted": False}
+    for key in ("team_success_before", "team_success_after", "team_return_before", "team_return_after"):
+        rejected.pop(key)
+    (change,) = team_check_changes([skipped, record, rejected])
+    assert change["round"] == record["round"] and change["alpha"] == record["alpha"]
+    assert change["success_change"] == record["team_success_after"] - record["team_success_before"]
+    assert change["return_change"] == pytest.approx(record["team_return_after"] - record["team_return_before"])
 
 
 # ---------------------------------------------------------------------- settings and the world

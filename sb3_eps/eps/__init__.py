@@ -1,7 +1,7 @@
 """Evolutionary Policy Search (Marchesini & Farinelli, ICRA 2022) as an SB3 callback, and its math."""
 
 from sb3_eps.eps.callback import PAPER_SETTINGS, EvolutionCallback, sample_visited_observations
-from sb3_eps.eps.diagnostics import RoundLog, read_round_log
+from sb3_eps.eps.diagnostics import RoundLog, read_round_log, team_check_changes
 from sb3_eps.eps.evaluation import (
     EvaluationFailed,
     InProcessEnvPool,
@@ -41,4 +41,5 @@ __all__ = [
     "safe_mutation_step",
     "sample_visited_observations",
     "select_best",
+    "team_check_changes",
 ]
