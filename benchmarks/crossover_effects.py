@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import math
 import pathlib
+import statistics
 
 from sb3_eps.eps.diagnostics import DIAGNOSTICS_NAME, read_round_log, team_check_changes
 
@@ -46,10 +47,10 @@ def report(folders: list[pathlib.Path]) -> str:
 
 
 def _mean_se(values: list[float], digits: int = 1) -> str:
-    mean = sum(values) / len(values)
+    mean = statistics.fmean(values)
     if len(values) < 2:
         return f"{mean:+.{digits}f}"
-    sd = math.sqrt(sum((value - mean) ** 2 for value in values) / (len(values) - 1))
+    sd = statistics.stdev(values)
     return f"{mean:+.{digits}f} (SD {sd:.{digits}f}, SE {sd / math.sqrt(len(values)):.{digits}f})"
 
 
