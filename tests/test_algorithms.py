@@ -362,3 +362,58 @@ def test_gdq_diagnostics_measure_the_global_head_gain(init, gain) -> None:
     assert logs["global_gain_sum"] == pytest.approx(3 * gain, rel=1e-5)
     assert 0.0 <= logs["action_margin_small"] <= 1.0 and logs["action_margin"] >= 0.0
     assert logs["agent_value_std"] > 0.0
+
+
+def test_read_step_flags_the_agents_cut_by_another_agents_collision() -> None:
+    """others_end_bootstrap: in a world where one robot collided, the others that neither collided nor arrived are
+    cut; a world that ended by arrivals or by the time limit has none; envs without per-agent collisions none."""
+    from sb3_eps.common.off_policy import _read_step
+
+    def info(collided, arrived=False, truncated=False):
+        return {"collided": collided, "arrived": arrived, "TimeLimit.truncated": truncated, "terminal_observation": 0}
+
+    infos = [info(True), info(False), info(False, arrived=True)]  # world 0: a crash, a bystander, an arrival
+    infos += [info(False, truncated=True), info(False, truncated=True), info(False, arrived=True)]  # world 1: time limit
+    infos += [{"terminal_observation": 0}] * 3  # world 2: an env without per-agent collisions
+    obs, dones = np.zeros((9, 2), dtype=np.float32), np.ones(9, dtype=bool)
+    step = _read_step(obs, dones, infos, (3, 3), others_end=True)
+    assert step.cut.tolist() == [[False, True, False], [False, False, False], [False, False, False]]
+    assert not _read_step(obs, dones, infos, (3, 3)).cut.any()
+    from sb3_eps.common.buffers import joint_tick
+
+    flags = {key: np.ones(3, dtype=bool) for key in ("alive", "ended")}
+    tick = joint_tick(
+        observations=obs[:3], actions=np.zeros(3, dtype=np.int64), rewards=np.zeros(3, dtype=np.float32),
+        next_observations=obs[:3], truncated=step.truncated[0], cut=step.cut[0], world_ended=True,
+        state=np.zeros(0), next_state=np.zeros(0), **flags,
+    )  # fmt: skip
+    # The bystander's own target bootstraps; the team's episode still terminated.
+    assert tick.terminated.tolist() == [True, False, True] and tick.world_terminated
+
+
+@pytest.mark.parametrize("others_end", [False, True])
+def test_others_end_bootstrap_on_the_robot_world(others_end) -> None:
+    """Random driving on 2 robots ends episodes in collisions: with others_end_bootstrap the rows that end a
+    terminated team episode keep a bootstrapping agent (its own done 0) and GDQ's V_G' reads its v'; without,
+    every agent of those rows is done."""
+    model = tiny_model(
+        GDQ, env_id="MultiRobotNav-2-v0", n_envs=1, learning_starts=10_000, n_steps=1,
+        others_end_bootstrap=others_end, global_timeout_bootstrap=False,
+    )  # fmt: skip
+    model.learn(3_000)
+    buffer = model.replay_buffer
+    rows = buffer.size()
+    team_end = buffer.team_dones[:rows] == 1
+    bootstrapping = (buffer.alive[:rows] == 1) & (buffer.dones[:rows] == 0)
+    cut_rows = team_end & bootstrapping.any(axis=1)
+    assert team_end.sum() >= 3
+    assert cut_rows.any() if others_end else not cut_rows.any()
+    if others_end:
+        index = np.flatnonzero(cut_rows)
+        batch = buffer._to_samples(index, np.ones(len(index), dtype=np.float32))
+        seen = []
+        hook = model.policy.global_value_net_target.register_forward_hook(lambda m, args, out: seen.append(args[0]))
+        model._compute_loss(batch)
+        hook.remove()
+        cut = (batch.alive * (1.0 - batch.dones)).bool()
+        assert (seen[0][cut] != 0).all()

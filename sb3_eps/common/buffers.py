@@ -360,6 +360,7 @@ def joint_tick(
     state: np.ndarray,
     next_state: np.ndarray,
     values: tuple[np.ndarray, np.ndarray] | None = None,
+    cut: np.ndarray | None = None,
 ) -> _Tick:
     """One world's tick for the n-step collector, from what the bridge says of each agent (``(n_agents, ...)``
     arrays), with the termination flags derived from ``ended`` and ``truncated``: the training rollout
@@ -371,13 +372,15 @@ def joint_tick(
     :param truncated: the agents whose end was the time limit
     :param world_ended: every agent of the world is done
     :param values: ``(v, v')`` to store with the tick (GDQ's ``global_values="stored"``), or None
+    :param cut: the agents whose end is not a terminal for their own targets though the world's episode
+        terminated (another agent's collision, ``others_end_bootstrap``); None: none
     """
     return _Tick(
         observations=observations,
         actions=actions,
         rewards=rewards,
         next_observations=next_observations,
-        terminated=ended & ~truncated,
+        terminated=ended & ~truncated if cut is None else ended & ~truncated & ~cut,
         ended=ended,
         alive=alive,
         state=state,

@@ -120,6 +120,14 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         side by side. The only change to training: a tick's own transition joins the replay buffer after the
         gradient steps of that tick instead of before them. Same seed, same results with worlds in process or in
         workers. Needs ``train_freq`` in steps
+    :param others_end_bootstrap: an agent whose episode ends only because another agent's collision ended its
+        world's episode (its own infos say it neither ``collided`` nor ``arrived``) is cut, not terminated: its own
+        target keeps bootstrapping from its last observation, as at a time limit (SB3's
+        ``handle_timeout_termination``). The team's episode still terminates (team targets, mixers and ``V_G``
+        are unchanged), and so does the colliding agent's. Off by default (the episode is a terminal for every
+        agent, as the env says). Not in the papers: with n-step returns, another agent's collision otherwise
+        ends the targets of every agent's last ``n_steps`` rows at 0, however they drove
+        (docs/results/baselines.md). Envs without per-agent ``collided`` infos are not affected
     :param stats_window_size: episodes (worlds, not agents) averaged in the rollout logs
     :param tensorboard_log: TensorBoard log folder (None: no TensorBoard)
     :param policy_kwargs: keyword arguments of the policy (``net_arch``, ``stream_arch``, ``agent_target``...)
@@ -168,6 +176,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         max_grad_norm: float = 10.0,
         team_reward_mode: TeamRewardMode = "sum",
         overlap_training: bool = False,
+        others_end_bootstrap: bool = False,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -233,6 +242,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self.max_grad_norm = max_grad_norm
         self.team_reward_mode = team_reward_mode
         self.overlap_training = bool(overlap_training)
+        self.others_end_bootstrap = bool(others_end_bootstrap)
         self._trained_ahead = False  # overlap_training ran this collection's gradient steps already
         self._collector: NStepJointCollector | None = None
         self._last_state: np.ndarray | None = None
@@ -538,7 +548,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         """
         assert self._collector is not None and self._last_state is not None and self._last_obs is not None
         shape = (self.n_worlds, self.n_agents)
-        step = _read_step(new_obs, dones, infos, shape)
+        step = _read_step(new_obs, dones, infos, shape, self.others_end_bootstrap)
         new_state = self._global_state()
         last_obs = np.asarray(self._last_obs, dtype=np.float32).reshape((*shape, -1))
         next_obs = step.next_observations.reshape((*shape, -1))
@@ -564,6 +574,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                     alive=step.alive[world],
                     ended=step.ended[world],
                     truncated=step.truncated[world],
+                    cut=step.cut[world],
                     world_ended=bool(step.world_ended[world]),
                     state=self._last_state[world],
                     next_state=np.asarray(next_state, dtype=np.float32),
@@ -788,12 +799,20 @@ class _Step(NamedTuple):
     truncated: np.ndarray  # its episode was cut by the time limit
     ended: np.ndarray  # its episode (its life) ended at this tick
     world_ended: np.ndarray  # (n_worlds,): every agent of the world is done
+    cut: np.ndarray  # its episode ended only because another agent's collision ended the world's (when asked for)
 
 
 def _read_step(
-    new_obs: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]], shape: tuple[int, int]
+    new_obs: np.ndarray,
+    dones: np.ndarray,
+    infos: list[dict[str, Any]],
+    shape: tuple[int, int],
+    others_end: bool = False,
 ) -> _Step:
-    """Read the bridge's flags from a step's infos; patch in the terminal observations SB3 moved to the infos."""
+    """Read the bridge's flags from a step's infos; patch in the terminal observations SB3 moved to the infos.
+
+    :param others_end: also flag the agents cut by another agent's collision (``others_end_bootstrap``)
+    """
     next_obs = np.array(new_obs, dtype=np.float32, copy=True)
     for index in np.flatnonzero(dones):
         next_obs[index] = infos[index]["terminal_observation"]
@@ -803,12 +822,26 @@ def _read_step(
     )
     dones = np.asarray(dones, dtype=bool)
     ended = dones & alive
+    cut = np.zeros(len(infos), dtype=bool)
+    if others_end and ended.any():
+        for index in np.flatnonzero(ended & ~truncated):
+            info = infos[index]
+            # Only envs that say who collided (the robot worlds) can tell a cut agent from a crashed one.
+            cut[index] = (
+                "collided" in info and not info["collided"] and not info.get("arrived", False)
+            )
+        # An agent is cut only where some agent of its world did collide.
+        world_collided = np.fromiter(
+            (bool(info.get("collided", False)) for info in infos), dtype=bool, count=len(infos)
+        ).reshape(shape).any(axis=1)
+        cut = cut.reshape(shape) & world_collided[:, None]
     return _Step(
         next_observations=next_obs,
         alive=alive.reshape(shape),
         truncated=truncated.reshape(shape),
         ended=ended.reshape(shape),
         world_ended=dones.reshape(shape).all(axis=1),
+        cut=cut.reshape(shape),
     )
 
 

@@ -95,6 +95,9 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         ``handle_timeout_termination``; QMIX does the same). False (the default): they enter as 0, as agents that
         arrived; measured on 2 and 4 robots, the option made no difference that the seeds' spread lets one see
         (``docs/results/baselines.md``)
+    :param others_end_bootstrap: see :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`; in GDQ the
+        cut agents' targets bootstrap from ``V_G'`` reading every agent whose own target bootstraps (as with
+        ``global_timeout_bootstrap``; the colliding agent enters as 0)
     """
 
     policy: GDQPolicy
@@ -130,6 +133,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         max_grad_norm: float = 10.0,
         team_reward_mode: TeamRewardMode = "mean",
         overlap_training: bool = False,
+        others_end_bootstrap: bool = False,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -247,7 +251,9 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             assert next_values is not None
             # V_G' reads the agents still driving after the window, and with global_timeout_bootstrap also those
             # cut by the time limit (v' of their last observation), as QMIX's mixer does.
-            mask = batch.bootstrap_alive(self.global_timeout_bootstrap)
+            # With others_end_bootstrap it reads every agent whose own target bootstraps (those cut by another's
+            # collision too): the agents' targets need V_G' there, the team's target ignores it (the team ended).
+            mask = batch.bootstrap_alive(self.global_timeout_bootstrap or self.others_end_bootstrap)
             global_next = self.policy.global_value_net_target(next_values * mask)
             agent_targets = gdq_agent_targets(
                 batch.rewards,

@@ -175,6 +175,7 @@ ALGORITHM_PARAMS: dict[str, Param] = {
     "max_grad_norm": Param("float", low=0, open_low=True),
     "team_reward_mode": Param("choice", choices=buffers.TEAM_REWARD_MODES),
     "overlap_training": Param("bool"),
+    "others_end_bootstrap": Param("bool"),
     "stats_window_size": Param("int", low=1),
 }
 #: Deprecated keys (one release) -> their new name; an entry with the old key loads with a DeprecationWarning.
