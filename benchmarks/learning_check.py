@@ -8,7 +8,8 @@ acceptance check)::
 
 With ``--eps`` (a JSON dict of ``EvolutionCallback`` arguments, ``{}`` for its defaults) the run is EPS-<algo>: the
 ticks of the budget, of the evaluation points and of every record count the EPS evaluation ticks too (``ticks`` =
-training ticks + ``eps_ticks``), as the paper's curves do, and training stops when that total reaches ``--ticks``.
+training ticks + ``eps_ticks``), as the paper's curves do, and training stops when that total reaches ``--ticks``
+(``sb3_eps.zoo.callbacks.TickBudgetCallback``): the schedules (a decaying learning rate, EPS's alpha) end there too.
 A round's EPS ticks can carry the total past an evaluation point: the evaluation then comes at the next step, with
 the total it has reached. The files are named ``eps_<algo>_<env>_seed<k>.jsonl``.
 """
@@ -28,6 +29,7 @@ from stable_baselines3.common.utils import LinearSchedule
 import envs  # noqa: F401
 from sb3_eps import GDQ, IQL, QMIX, VDN, EvolutionCallback, make_vec_env
 from sb3_eps.common.evaluation import evaluate_team
+from sb3_eps.zoo.callbacks import TickBudgetCallback
 
 ALGORITHMS = {"iql": IQL, "gdq": GDQ, "qmix": QMIX, "vdn": VDN}
 
@@ -43,10 +45,9 @@ class PeriodicTeamEval(BaseCallback):
         path: pathlib.Path,
         seed: int,
         eps: EvolutionCallback | None = None,
-        budget: int | None = None,
     ) -> None:
         super().__init__()
-        self.eps, self.budget = eps, budget
+        self.eps = eps
         self.env_id, self.eval_every, self.n_episodes, self.path, self.seed = (
             env_id,
             eval_every,
@@ -68,7 +69,7 @@ class PeriodicTeamEval(BaseCallback):
             while self.next_eval <= ticks:  # an EPS round can jump over several evaluation points
                 self.next_eval += self.eval_every
             self.evaluate(ticks)
-        return self.budget is None or ticks < self.budget
+        return True
 
     def evaluate(self, ticks: int) -> dict[str, Any]:
         summary = evaluate_team(self.model, self.env_id, self.n_episodes, n_envs=4, seed=10_000 + self.seed)
@@ -117,6 +118,12 @@ def main() -> None:
         default=None,
         help="JSON dict of EvolutionCallback arguments ({} = its defaults): train EPS-<algo>, EPS ticks counted",
     )
+    parser.add_argument(
+        "--schedules-ignore-eps",
+        action="store_true",
+        help="EPS runs: let the schedules (learning rate, alpha) run over the whole budget as training ticks, as in "
+        "the records made before 2026-12-01 (default: they end when training plus EPS ticks reach the budget)",
+    )
     args = parser.parse_args()
     th.set_num_threads(1)
     out = pathlib.Path(args.out)
@@ -151,10 +158,13 @@ def main() -> None:
                 )
             eps_kwargs.setdefault("verbose", 1)
             eps = EvolutionCallback(**eps_kwargs)
-        callback = PeriodicTeamEval(
-            args.env, args.eval_every, args.eval_episodes, path, seed, eps, args.ticks
-        )
-        callbacks = CallbackList([eps, callback]) if eps is not None else callback
+        callback = PeriodicTeamEval(args.env, args.eval_every, args.eval_episodes, path, seed, eps)
+        callbacks: BaseCallback = callback
+        if eps is not None:  # training stops when its ticks plus the EPS ticks reach the budget
+            budget = TickBudgetCallback(
+                args.ticks * venv.n_agents, [eps], schedules_follow=not args.schedules_ignore_eps
+            )
+            callbacks = CallbackList([eps, callback, budget])
         model.learn(args.ticks * venv.n_agents, callback=callbacks, log_interval=args.log_interval)
         if callback.next_eval - callback.eval_every < args.ticks:
             callback.evaluate(callback.total_ticks())

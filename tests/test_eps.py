@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 import torch as th
 from stable_baselines3 import DQN, PPO
+from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.logger import Logger, configure
+from stable_baselines3.common.utils import LinearSchedule
 from torch import nn
 
 import envs
@@ -31,6 +33,7 @@ from sb3_eps.eps.mutations import network_parameters
 from sb3_eps.gdq import GDQ
 from sb3_eps.iql import IQL
 from sb3_eps.qmix import QMIX, VDN
+from sb3_eps.zoo.callbacks import TickBudgetCallback
 
 MPE, MPE_SINGLE = "CooperativeNavigation-v0", "CooperativeNavigationSingle-v0"
 TINY = {"net_arch": [16], "stream_arch": [16]}
@@ -343,6 +346,27 @@ def test_it_runs_with_every_algorithm_on_cooperative_navigation(algorithm) -> No
     model.learn(600, callback=callback)
     assert callback.n_rounds >= 1 and callback.n_skipped_rounds == 0
     assert all(np.isfinite(record["fitness"][0]) for record in callback.history)
+
+
+@pytest.mark.parametrize("schedules_follow", [True, False])
+def test_a_tick_budget_pays_the_eps_ticks_from_training_and_ends_the_schedules_with_it(schedules_follow) -> None:
+    """TickBudgetCallback: training stops when its timesteps plus EPS's reach the budget. With ``schedules_follow``
+    the schedules count the EPS ticks as spent, so a decaying learning rate has reached about 0 when training
+    stops, as in a run without EPS; without it the schedule stops short by about EPS's share of the budget."""
+    budget = 2_400  # timesteps: one round (600 timesteps) at about 1,000, then training to the budget
+    model = tiny_model(GDQ, learning_rate=LinearSchedule(1e-3, 0.0, 1.0))
+    callback = tiny_callback(n_workers=0, max_eps_share=0.3)
+    model.learn(budget, callback=CallbackList([callback, TickBudgetCallback(budget, [callback], schedules_follow)]))
+    spent, step = callback.eps_ticks * model.n_agents, model.get_env().num_envs
+    assert callback.n_rounds >= 1 and spent >= 10 * step
+    assert budget <= model.num_timesteps + spent < budget + step
+    remaining = model._current_progress_remaining  # as the last gradient steps saw it (one step before the end)
+    learning_rate = model.policy.optimizer.param_groups[0]["lr"]
+    if schedules_follow:
+        assert 0.0 <= remaining <= step / (budget - spent) + 1e-9
+    else:
+        assert remaining == pytest.approx(spent / budget, abs=step / budget + 1e-9)
+    assert learning_rate == pytest.approx(1e-3 * remaining, abs=1e-3 * 2 * step / (budget - spent))  # train_freq 2
 
 
 def test_gaussian_mutation_and_per_robot_sensitivity_run() -> None:
