@@ -31,7 +31,7 @@ SAVE_FREQ = 100_000
 # benchmarks/learning_check.py; docs/results/eps.md), drawn beside the run so that a newcomer sees what EPS did.
 REFERENCES = {
     "GDQ, seeds 0-4": "docs/results/baselines/gdq4_final",
-    "EPS-GDQ, seeds 0-4": "docs/results/eps/eps_gdq4",
+    "EPS-GDQ, seeds 0-4": "docs/results/eps/eps_gdq4_budget",  # this version's EPS (schedules end with the budget)
 }
 
 
