@@ -9,7 +9,8 @@ acceptance check)::
 With ``--eps`` (a JSON dict of ``EvolutionCallback`` arguments, ``{}`` for its defaults) the run is EPS-<algo>: the
 ticks of the budget, of the evaluation points and of every record count the EPS evaluation ticks too (``ticks`` =
 training ticks + ``eps_ticks``), as the paper's curves do, and training stops when that total reaches ``--ticks``
-(``sb3_eps.zoo.callbacks.TickBudgetCallback``): the schedules (a decaying learning rate, EPS's alpha) end there too.
+(``sb3_eps.zoo.callbacks.TickBudgetCallback``): the schedules (a decaying learning rate, PER's exponent, EPS's
+alpha) end there too.
 A round's EPS ticks can carry the total past an evaluation point: the evaluation then comes at the next step, with
 the total it has reached. The files are named ``eps_<algo>_<env>_seed<k>.jsonl``.
 """
@@ -121,8 +122,9 @@ def main() -> None:
     parser.add_argument(
         "--schedules-ignore-eps",
         action="store_true",
-        help="EPS runs: let the schedules (learning rate, alpha) run over the whole budget as training ticks, as in "
-        "the records made before 2026-12-01 (default: they end when training plus EPS ticks reach the budget)",
+        help="EPS runs: let the schedules (learning rate, PER exponent, alpha) run over the whole budget as training "
+        "ticks, as in the records made before 2026-12-01 (default: they end when training plus EPS ticks reach the "
+        "budget)",
     )
     args = parser.parse_args()
     th.set_num_threads(1)
