@@ -303,8 +303,8 @@ class TickBudgetCallback(BaseCallback):
     The schedules end with the budget: the model's ``_total_timesteps``, which SB3's ``_current_progress_remaining``
     counts down to, becomes ``budget`` minus the EPS timesteps spent so far. So a decaying learning rate (GDQ's
     ``lin_3e-4``), the exploration schedule, the PER exponent's annealing to 1 and EPS's ``alpha_schedule`` reach
-    their end when training stops, as in a run without EPS. Without this an EPS-GDQ run on 4 robots stopped at about 93 % of its schedule, with a learning
-    rate of about 2e-5 where GDQ's had decayed to 0.
+    their end when training stops, as in a run without EPS. Without this an EPS-GDQ run on 4 robots stopped at about
+    93 % of its schedule, with a learning rate of about 2e-5 where GDQ's had decayed to 0.
 
     :param budget: timesteps (agent-steps) of training plus EPS, counted from 0 (``model.num_timesteps``)
     :param eps_callbacks: callbacks whose ``eps_ticks`` count
