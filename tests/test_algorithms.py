@@ -212,8 +212,8 @@ GDQ_OPTIONS = ("global_values", "global_bootstrap", "global_timeout_bootstrap") 
 def _gdq_with(tmp_path=None, **options):
     venv = make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=0)
     kwargs = {"learning_starts": 60, "batch_size": 16, "buffer_size": 2_000, "train_freq": 2, "seed": 0}
-    kwargs.update((key, value) for key, value in options.items() if key in GDQ_OPTIONS)
-    policy_kwargs = {key: value for key, value in options.items() if key not in GDQ_OPTIONS}
+    kwargs.update((key, value) for key, value in options.items() if key in (*GDQ_OPTIONS, "n_steps"))
+    policy_kwargs = {key: value for key, value in options.items() if key not in (*GDQ_OPTIONS, "n_steps")}
     return GDQ("MlpPolicy", venv, policy_kwargs={**TINY, "global_net_arch": [16], **policy_kwargs}, **kwargs)
 
 
@@ -237,6 +237,33 @@ def test_gdq_stored_values_are_the_networks_values_at_collection_time(tmp_path) 
     model.save(tmp_path / "model")
     loaded = GDQ.load(tmp_path / "model", env=make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=1))
     assert loaded.global_values == "stored" and loaded.replay_buffer.store_values
+
+
+@pytest.mark.parametrize("bootstrap", [None, 1.0], ids=["package-defaults", "paper-target"])
+def test_gdq_defaults_are_gdq_lambda_and_the_paper_target_is_one_argument(bootstrap, monkeypatch) -> None:
+    """The package defaults train GDQ-lambda 0.1 with 3-step returns (docs/results/baselines.md, "Eleventh
+    session"); global_bootstrap=1.0 is the paper's target, which ignores the agents' own next values."""
+    from sb3_eps.gdq import gdq as gdq_module
+
+    lambdas, own_values = [], []
+    original = gdq_module.gdq_agent_targets
+
+    def spy(*args):
+        own_values.append(args[5])
+        lambdas.append(args[6])
+        return original(*args)
+
+    monkeypatch.setattr(gdq_module, "gdq_agent_targets", spy)
+    model = _gdq_with() if bootstrap is None else _gdq_with(global_bootstrap=bootstrap, n_steps=30)
+    if bootstrap is None:
+        assert (model.global_bootstrap, model.n_steps) == (0.1, 3)
+    model.learn(200)
+    expected = 0.1 if bootstrap is None else 1.0
+    assert lambdas and set(lambdas) == {expected}
+    # The paper's target does not move with the agents' own next values; GDQ-lambda does.
+    targets = [original(th.zeros(2, 3), th.ones(2, 3), th.zeros(2, 3), th.ones(2), th.zeros(2, 3), own, expected)
+               for own in (th.zeros(2, 3), th.ones(2, 3))]
+    assert th.equal(targets[0], targets[1]) is (bootstrap == 1.0)
 
 
 def test_gdq_target_values_are_the_default_and_not_stored() -> None:

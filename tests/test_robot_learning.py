@@ -1,9 +1,9 @@
 """A short learning test on a robot world, with the package defaults.
 
-The corridor tests (tests/test_algorithms.py) cannot see what fails on the robots: GDQ with its former defaults
-(3-step returns, no agent target network) solved the corridor and stayed at 0-1 % team success on
+The corridor tests (tests/test_algorithms.py) cannot see what fails on the robots: GDQ with the paper's target
+and 3-step returns (an early default) solved the corridor and stayed at 0-1 % team success on
 ``MultiRobotNav-2-v0``. This test trains GDQ exactly as a user would, ``GDQ("MlpPolicy", venv, seed=...)``, for
-20k ticks and asks for greedy team success well above what those defaults reached. Measured budgets and
+20k ticks and asks for greedy team success well above what that setting reached. Measured budgets and
 curves: docs/results/baselines.md.
 """
 
@@ -17,9 +17,11 @@ from sb3_eps.common.evaluation import evaluate_team
 
 TICKS = 20_000
 EPISODES = 40
-# Measured for this seed on the 2-core VM: 75 % with the package defaults, 0 % with the former ones (3-step
-# returns, no agent target network, sum team reward, random V_G). About 45 s of CPU.
-MIN_SUCCESS = 0.4
+# Measured for this seed on the 2-core VM (2026-12-01), about 45 s of CPU: 50 % with the package defaults
+# (GDQ-lambda 0.1, 3-step returns), 88 % with the paper's target and 30-step returns (the defaults until
+# 2026-12-01: faster here, but 58 % against GDQ-lambda's 86 % on 4 robots at 150k ticks), 0 % with the paper's
+# target and 3-step returns.
+MIN_SUCCESS = 0.3
 
 
 def test_gdq_package_defaults_learn_the_two_robot_world() -> None:

@@ -108,7 +108,8 @@ def test_a_file_value_wins_over_the_constructor_default(tmp_path) -> None:
     path = tmp_path / "gdq.yml"
     path.write_text("default:\n  n_timesteps: 100\n  gamma: 0.5\n  policy_kwargs: {net_arch: [8]}\n")
     entry = resolve_config("gdq", "MultiRobotNav-4-v0", conf_file=path).entry
-    assert entry["gamma"] == 0.5 and entry["n_steps"] == 30 and entry["learning_rate"] == "lin_0.0003"
+    assert entry["gamma"] == 0.5 and entry["n_steps"] == 3 and entry["learning_rate"] == "lin_0.0003"
+    assert entry["global_bootstrap"] == 0.1  # GDQ-lambda 0.1, the package default since 2026-12-01
     assert entry["policy_kwargs"]["net_arch"] == [8] and entry["policy_kwargs"]["global_net_arch"] == [64, 64]
     assert list(entry)[:2] == ["n_timesteps", "learning_rate"]  # schema order, as config.yml writes it
 
