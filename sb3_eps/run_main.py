@@ -30,8 +30,8 @@ SAVE_FREQ = 100_000
 # Committed greedy evaluations of the package defaults on the same world (100 episodes every 10k ticks, seeds 0-4,
 # benchmarks/learning_check.py; docs/results/eps.md), drawn beside the run so that a newcomer sees what EPS did.
 REFERENCES = {
-    "GDQ, seeds 0-4": "docs/results/baselines/gdq4_final",
-    "EPS-GDQ, seeds 0-4": "docs/results/eps/eps_gdq4_budget",  # this version's EPS (schedules end with the budget)
+    "GDQ, seeds 0-4": "docs/results/baselines/gdq4_lambda_report",  # the package defaults since 2026-12-01
+    "EPS-GDQ, seeds 0-4": "docs/results/eps/eps_gdq4_lambda",  # with them, schedules ending with the budget
 }
 
 
