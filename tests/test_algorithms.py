@@ -212,8 +212,9 @@ GDQ_OPTIONS = ("global_values", "global_bootstrap", "global_timeout_bootstrap") 
 def _gdq_with(tmp_path=None, **options):
     venv = make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=0)
     kwargs = {"learning_starts": 60, "batch_size": 16, "buffer_size": 2_000, "train_freq": 2, "seed": 0}
-    kwargs.update((key, value) for key, value in options.items() if key in (*GDQ_OPTIONS, "n_steps"))
-    policy_kwargs = {key: value for key, value in options.items() if key not in (*GDQ_OPTIONS, "n_steps")}
+    arguments = (*GDQ_OPTIONS, "n_steps")  # GDQ's arguments these tests set; the rest are policy_kwargs
+    kwargs.update((key, value) for key, value in options.items() if key in arguments)
+    policy_kwargs = {key: value for key, value in options.items() if key not in arguments}
     return GDQ("MlpPolicy", venv, policy_kwargs={**TINY, "global_net_arch": [16], **policy_kwargs}, **kwargs)
 
 
@@ -245,11 +246,10 @@ def test_gdq_defaults_are_gdq_lambda_and_the_paper_target_is_one_argument(bootst
     session"); global_bootstrap=1.0 is the paper's target, which ignores the agents' own next values."""
     from sb3_eps.gdq import gdq as gdq_module
 
-    lambdas, own_values = [], []
+    lambdas = []
     original = gdq_module.gdq_agent_targets
 
     def spy(*args):
-        own_values.append(args[5])
         lambdas.append(args[6])
         return original(*args)
 
