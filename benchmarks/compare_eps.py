@@ -88,6 +88,27 @@ def summary(runs: dict[int, EvaluationRun], seeds: list[int], budget: int, every
     }
 
 
+def paired_difference(base_last3: list[float], eps_last3: list[float]) -> dict[str, float]:
+    """The seed-by-seed differences EPS minus base of the mean of the last 3 (the runs of a seed share everything
+    up to the first EPS round, so the pairs are the unit of comparison).
+
+    :return: ``mean`` and ``std`` (sample, ``ddof=1``) of the differences, ``sem`` (``std / sqrt(n)``; NaN for
+        one seed), ``n`` and ``ahead`` (seeds where EPS is above its base)
+    """
+    differences = np.asarray(eps_last3, dtype=float) - np.asarray(base_last3, dtype=float)
+    if differences.size == 0:
+        raise ValueError("no pairs to compare")
+    n = int(differences.size)
+    std = float(differences.std(ddof=1)) if n > 1 else float("nan")
+    return {
+        "mean": float(differences.mean()),
+        "std": std,
+        "sem": std / np.sqrt(n),
+        "n": n,
+        "ahead": int((differences > 0).sum()),
+    }
+
+
 def mean_curve(runs: dict[int, EvaluationRun], seeds: list[int], at: list[int]) -> list[float]:
     """:return: the mean over seeds of success interpolated at ``at`` ticks."""
     curves = [np.interp(at, runs[s].ticks, runs[s].metrics["success_rate"]) for s in seeds]
@@ -139,6 +160,12 @@ def report(
     )
     lines.append(
         f"Floor (EPS at most 3 points below at equal total ticks): {'met' if gap >= -3 else 'NOT met'}."
+    )
+    pairs = paired_difference(figures["base"]["last3"], figures["eps"]["last3"])
+    lines.append(
+        f"Seed by seed (EPS minus base, mean of the last 3): {100 * pairs['mean']:+.1f} points on average, "
+        f"standard deviation {100 * pairs['std']:.1f}, standard error {100 * pairs['sem']:.1f}; EPS ahead on "
+        f"{pairs['ahead']} of {pairs['n']} seeds."
     )
     grid = list(range(10_000, target_ticks + 1, 10_000))
     eps_mean = mean_curve(eps, seeds, grid)

@@ -39,3 +39,17 @@ def test_an_evaluation_a_round_carried_past_its_point_counts_for_that_point(comp
     text = compare_eps.report(tmp_path / "base", tmp_path / "eps", budget=30_000, target_ticks=30_000)
     assert "base 40.0%, eps 53.3% (+13.3 points)" in text
     assert "Floor (EPS at most 3 points below at equal total ticks): met." in text
+
+
+def test_the_paired_difference_is_per_seed_and_can_show_eps_behind(compare_eps) -> None:
+    """The differences are taken seed by seed: the spread of the pairs, not of the runs, sets the standard error."""
+    pairs = compare_eps.paired_difference([0.80, 0.90, 0.70], [0.78, 0.86, 0.72])
+    assert pairs["mean"] == pytest.approx((-0.02 - 0.04 + 0.02) / 3)
+    assert pairs["std"] == pytest.approx(0.0305505, rel=1e-4)  # sample std of (-0.02, -0.04, +0.02)
+    assert pairs["sem"] == pytest.approx(0.0305505 / 3**0.5, rel=1e-4)
+    assert (pairs["n"], pairs["ahead"]) == (3, 1)
+    single = compare_eps.paired_difference([0.5], [0.4])
+    assert single["mean"] == pytest.approx(-0.1) and single["ahead"] == 0
+    assert single["std"] != single["std"]  # NaN: one pair has no spread
+    with pytest.raises(ValueError, match="no pairs"):
+        compare_eps.paired_difference([], [])
