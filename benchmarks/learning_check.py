@@ -120,6 +120,12 @@ def main() -> None:
         help="JSON dict of EvolutionCallback arguments ({} = its defaults): train EPS-<algo>, EPS ticks counted",
     )
     parser.add_argument(
+        "--save-models",
+        action="store_true",
+        help="save each seed's final model next to its records (<algo>_<env>_seed<k>.zip), to look into later "
+        "(benchmarks/failure_anatomy.py)",
+    )
+    parser.add_argument(
         "--schedules-ignore-eps",
         action="store_true",
         help="EPS runs: let the schedules (learning rate, PER exponent, alpha) run over the whole budget as training "
@@ -170,6 +176,8 @@ def main() -> None:
         model.learn(args.ticks * venv.n_agents, callback=callbacks, log_interval=args.log_interval)
         if callback.next_eval - callback.eval_every < args.ticks:
             callback.evaluate(callback.total_ticks())
+        if args.save_models:
+            model.save(path.with_suffix(".zip"))
         venv.close()
 
 

@@ -1,0 +1,205 @@
+"""What a trained team's failed greedy episodes are made of, on a TurtleBot3 world.
+
+A greedy team episode fails by a collision (every robot ends) or by the time limit (the robots still driving are
+truncated). Team success asks every robot to arrive, so one robot that never does fails the team. This script runs
+a saved model greedily on fresh episodes of one world and sorts every failure by what the robots did:
+
+- a collision: with a robot still driving, with a parked robot (one that has arrived and stands on its target) or
+  with a wall;
+- a time-out, per robot that had not arrived when the time ran out, by its last ``--window`` ticks:
+  ``near target`` (it ended within 0.5 m of its target), ``standing`` (it drove less than 0.1 m), ``looping``
+  (it drove more than 3 times its net displacement), ``slow`` (anything else), and whether a parked robot stands
+  within 0.4 m of its target (``target crowded``: arriving there means squeezing next to a parked robot).
+
+It prints the counts and writes one JSON line per episode with ``--out``. It selects nothing.
+
+    python benchmarks/learning_check.py --algo gdq --env MultiRobotNav-4-v0 --ticks 150000 --seeds 154 \\
+        --save-models --out runs/anatomy
+    python benchmarks/failure_anatomy.py --algo gdq --model runs/anatomy/gdq_MultiRobotNav-4-v0_seed154.zip
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import pathlib
+from typing import Any
+
+import numpy as np
+
+import envs
+from envs.turtlebot3.robot import ROBOT_RADIUS
+from sb3_eps import GDQ, IQL, QMIX, VDN
+
+ALGORITHMS = {"iql": IQL, "gdq": GDQ, "qmix": QMIX, "vdn": VDN}
+NEAR_TARGET_M = 0.5
+STANDING_M = 0.1
+LOOPING_RATIO = 3.0
+CROWDED_M = 0.4
+CONTACT_M = 2 * ROBOT_RADIUS + 0.02  # two footprints touching, with the physics' margin
+
+
+def classify_timeout(
+    path: np.ndarray, heading: np.ndarray, target: np.ndarray, parked: np.ndarray, observation: np.ndarray
+) -> dict[str, Any]:
+    """:param path: ``(k, 2)`` the robot's positions over its last ticks
+    :param heading: ``(k,)`` its headings over the same ticks [rad]
+    :param target: ``(2,)`` its target
+    :param parked: ``(p, 2)`` the parked robots' positions at the end
+    :param observation: its last observation (28 lidar ranges / 3.5 m, target distance / 10 m, bearing / pi)
+    :return: ``kind``, ``final_distance``, ``driven``, ``displacement``, ``turned`` (radians turned in the window),
+        ``nearest_obstacle`` (the shortest lidar range at the end, m), ``bearing`` (the target's bearing at the end,
+        degrees), ``target_crowded`` and ``nearest_parked`` (centre to centre, m; None without parked robots)
+    """
+    driven = float(np.hypot(*np.diff(path, axis=0).T).sum()) if len(path) > 1 else 0.0
+    turned = float(np.abs(np.angle(np.exp(1j * np.diff(heading)))).sum()) if len(heading) > 1 else 0.0
+    displacement = float(np.hypot(*(path[-1] - path[0])))
+    final_distance = float(np.hypot(*(target - path[-1])))
+    if final_distance < NEAR_TARGET_M:
+        kind = "near target"
+    elif driven < STANDING_M:
+        kind = "standing"
+    elif driven > LOOPING_RATIO * max(displacement, 1e-9):
+        kind = "looping"
+    else:
+        kind = "slow"
+    crowded = bool(len(parked) and np.hypot(*(parked - target).T).min() < CROWDED_M)
+    nearest_parked = float(np.hypot(*(parked - path[-1]).T).min()) if len(parked) else None
+    return {
+        "kind": kind,
+        "final_distance": final_distance,
+        "driven": driven,
+        "displacement": displacement,
+        "turned": turned,
+        "nearest_obstacle": float(observation[:28].min() * 3.5),
+        "bearing": float(observation[29] * 180.0),
+        "target_crowded": crowded,
+        "nearest_parked": nearest_parked,
+    }
+
+
+def classify_collision(xy: np.ndarray, robot: int, live: np.ndarray) -> str:
+    """:param xy: ``(n, 2)`` every robot's position at the collision
+    :param robot: the robot that collided
+    :param live: ``(n,)`` which robots were still driving
+    :return: ``"robot"``, ``"parked robot"`` or ``"wall"``
+    """
+    distance = np.hypot(*(xy - xy[robot]).T)
+    distance[robot] = np.inf
+    touching = distance < CONTACT_M
+    if (touching & live).any():
+        return "robot"
+    if (touching & ~live).any():
+        return "parked robot"
+    return "wall"
+
+
+def run_episode(model: Any, env: Any, seed: int, window: int) -> dict[str, Any]:
+    """One greedy team episode; :return: its outcome and, for a failure, what each failing robot did."""
+    observations, _ = env.reset(seed=seed)
+    n = env.n_robots
+    history: list[np.ndarray] = []  # (n, 3): x, y, heading after each tick
+    last_observation: dict[str, np.ndarray] = {}
+    arrived_at = [None] * n
+    collisions: list[str] = []
+    while env.agents:
+        agents = list(env.agents)
+        live = np.array([agent in agents for agent in env.possible_agents])
+        actions, _ = model.predict(np.stack([observations[a] for a in agents]), deterministic=True)
+        observations, _, _, _, infos = env.step(dict(zip(agents, np.asarray(actions).reshape(-1).tolist())))
+        last_observation.update(observations)
+        state = env.state().reshape(n, 9)
+        history.append(np.column_stack([state[:, :2], np.arctan2(state[:, 3], state[:, 2])]))
+        for agent in agents:
+            index = env.possible_agents.index(agent)
+            if infos[agent]["collided"]:
+                collisions.append(classify_collision(state[:, :2], index, live))
+            elif infos[agent]["arrived"]:
+                arrived_at[index] = len(history)
+    team = next(iter(infos.values()))["team"]
+    state = env.state().reshape(n, 9)
+    record: dict[str, Any] = {
+        "seed": seed,
+        "ticks": team["ticks"],
+        "n_arrived": team["n_arrived"],
+        "arrived_at": arrived_at,
+    }
+    if team["success"]:
+        record["outcome"] = "success"
+    elif team["collision"]:
+        record["outcome"] = "collision"
+        record["collisions"] = collisions
+    else:
+        record["outcome"] = "time-out"
+        poses = np.stack(history)[-window:]  # (ticks, n, 3)
+        arrived = state[:, 8] > 0.5
+        record["stragglers"] = [
+            classify_timeout(
+                poses[:, i, :2], poses[:, i, 2], state[i, 6:8], state[arrived, :2],
+                last_observation[env.possible_agents[i]],
+            )
+            for i in range(n)
+            if not arrived[i]
+        ]
+    return record
+
+
+def summarize(records: list[dict[str, Any]]) -> str:
+    """:return: the printed table."""
+    outcomes = collections.Counter(record["outcome"] for record in records)
+    lines = [f"{len(records)} episodes: " + ", ".join(f"{k} {v}" for k, v in sorted(outcomes.items()))]
+    collisions = collections.Counter(c for record in records for c in record.get("collisions", []))
+    if collisions:
+        lines.append("  collisions with: " + ", ".join(f"{k} {v}" for k, v in collisions.most_common()))
+    stragglers = [s for record in records for s in record.get("stragglers", [])]
+    if stragglers:
+        per_episode = collections.Counter(len(record["stragglers"]) for record in records if "stragglers" in record)
+        lines.append(
+            "  robots short of their target per time-out: "
+            + ", ".join(f"{k}: {v} episodes" for k, v in sorted(per_episode.items()))
+        )
+        kinds = collections.Counter(s["kind"] for s in stragglers)
+        lines.append("  what they did in the last window: " + ", ".join(f"{k} {v}" for k, v in kinds.most_common()))
+        for kind in kinds:
+            group = [s for s in stragglers if s["kind"] == kind]
+            lines.append(
+                f"    {kind}: median turned {np.median([s['turned'] for s in group]):.1f} rad, "
+                f"nearest obstacle {np.median([s['nearest_obstacle'] for s in group]):.2f} m, "
+                f"|bearing| {np.median([abs(s['bearing']) for s in group]):.0f} deg, "
+                f"distance {np.median([s['final_distance'] for s in group]):.2f} m"
+            )
+        crowded = sum(s["target_crowded"] for s in stragglers)
+        blocked = sum(s["nearest_parked"] is not None and s["nearest_parked"] < CONTACT_M + 0.1 for s in stragglers)
+        lines.append(f"  ending within 0.1 m of touching a parked robot: {blocked} of {len(stragglers)}")
+        lines.append(
+            f"  target crowded by a parked robot (< {CROWDED_M} m): {crowded} of {len(stragglers)}; "
+            f"median final distance {np.median([s['final_distance'] for s in stragglers]):.2f} m"
+        )
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--algo", choices=sorted(ALGORITHMS), required=True)
+    parser.add_argument("--model", required=True, help="a model saved by learning_check.py --save-models")
+    parser.add_argument("--env", default="MultiRobotNav-4-v0")
+    parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--seed", type=int, default=20_000, help="episode k is reset with seed + k")
+    parser.add_argument("--window", type=int, default=200, help="ticks read before a time-out")
+    parser.add_argument("--out", default=None, help="write one JSON line per episode here")
+    args = parser.parse_args()
+    model = ALGORITHMS[args.algo].load(args.model, env=None, device="cpu", buffer_size=1)
+    env = envs.make_parallel_env(args.env)
+    try:
+        records = [run_episode(model, env, args.seed + k, args.window) for k in range(args.episodes)]
+    finally:
+        env.close()
+    if args.out:
+        pathlib.Path(args.out).write_text("".join(json.dumps(record) + "\n" for record in records))
+    print(f"{args.model} on {args.env}")
+    print(summarize(records))
+
+
+if __name__ == "__main__":
+    main()
