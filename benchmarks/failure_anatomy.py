@@ -7,9 +7,14 @@ a saved model greedily on fresh episodes of one world and sorts every failure by
 - a collision: with a robot still driving, with a parked robot (one that has arrived and stands on its target) or
   with a wall;
 - a time-out, per robot that had not arrived when the time ran out, by its last ``--window`` ticks:
-  ``near target`` (it ended within 0.5 m of its target), ``standing`` (it drove less than 0.1 m), ``looping``
-  (it drove more than 3 times its net displacement), ``slow`` (anything else), and whether a parked robot stands
-  within 0.4 m of its target (``target crowded``: arriving there means squeezing next to a parked robot).
+  ``near target`` (it ended within 0.5 m of its target), ``standing still`` (it drove less than 0.1 m and turned
+  less than 0.5 rad), ``turning in place`` (it drove less than 0.1 m and turned more), ``looping`` (it drove more
+  than 3 times its net displacement), ``slow`` (anything else), the actions it took most in that window, and
+  whether a parked robot stands within 0.4 m of its target (``target crowded``: arriving there means squeezing next
+  to a parked robot).
+
+``--epsilon`` replays the same episodes with training's epsilon-greedy actions instead, to tell a trap of the
+deterministic policy (a state it never leaves) from a skill the policy lacks.
 
 It prints the counts and writes one JSON line per episode with ``--out``. It selects nothing.
 
@@ -29,7 +34,7 @@ from typing import Any
 import numpy as np
 
 import envs
-from envs.turtlebot3.robot import ROBOT_RADIUS
+from envs.turtlebot3.robot import ANGULAR_SPEEDS_DEG, LINEAR_SPEEDS, ROBOT_RADIUS
 from sb3_eps import GDQ, IQL, QMIX, VDN
 
 ALGORITHMS = {"iql": IQL, "gdq": GDQ, "qmix": QMIX, "vdn": VDN}
@@ -37,6 +42,7 @@ NEAR_TARGET_M = 0.5
 STANDING_M = 0.1
 LOOPING_RATIO = 3.0
 CROWDED_M = 0.4
+TURNING_RAD = 0.5
 CONTACT_M = 2 * ROBOT_RADIUS + 0.02  # two footprints touching, with the physics' margin
 
 
@@ -59,7 +65,7 @@ def classify_timeout(
     if final_distance < NEAR_TARGET_M:
         kind = "near target"
     elif driven < STANDING_M:
-        kind = "standing"
+        kind = "standing still" if turned < TURNING_RAD else "turning in place"
     elif driven > LOOPING_RATIO * max(displacement, 1e-9):
         kind = "looping"
     else:
@@ -95,19 +101,31 @@ def classify_collision(xy: np.ndarray, robot: int, live: np.ndarray) -> str:
     return "wall"
 
 
-def run_episode(model: Any, env: Any, seed: int, window: int) -> dict[str, Any]:
-    """One greedy team episode; :return: its outcome and, for a failure, what each failing robot did."""
+def run_episode(model: Any, env: Any, seed: int, window: int, epsilon: float = 0.0) -> dict[str, Any]:
+    """One team episode, greedy unless ``epsilon`` > 0 (then each robot takes a uniformly random action with that
+    probability each tick, drawn from a generator seeded by ``seed``, as in training's epsilon-greedy rollouts).
+
+    :return: its outcome and, for a failure, what each failing robot did
+    """
+    rng = np.random.default_rng(seed)
     observations, _ = env.reset(seed=seed)
     n = env.n_robots
     history: list[np.ndarray] = []  # (n, 3): x, y, heading after each tick
     last_observation: dict[str, np.ndarray] = {}
     arrived_at = [None] * n
+    taken: dict[str, list[int]] = collections.defaultdict(list)
     collisions: list[str] = []
     while env.agents:
         agents = list(env.agents)
         live = np.array([agent in agents for agent in env.possible_agents])
         actions, _ = model.predict(np.stack([observations[a] for a in agents]), deterministic=True)
-        observations, _, _, _, infos = env.step(dict(zip(agents, np.asarray(actions).reshape(-1).tolist())))
+        actions = np.asarray(actions).reshape(-1)
+        if epsilon > 0:
+            explore = rng.random(len(agents)) < epsilon
+            actions = np.where(explore, rng.integers(0, env.action_space(agents[0]).n, len(agents)), actions)
+        for agent, action in zip(agents, actions.tolist()):
+            taken[agent].append(int(action))
+        observations, _, _, _, infos = env.step(dict(zip(agents, actions.tolist())))
         last_observation.update(observations)
         state = env.state().reshape(n, 9)
         history.append(np.column_stack([state[:, :2], np.arctan2(state[:, 3], state[:, 2])]))
@@ -134,15 +152,29 @@ def run_episode(model: Any, env: Any, seed: int, window: int) -> dict[str, Any]:
         record["outcome"] = "time-out"
         poses = np.stack(history)[-window:]  # (ticks, n, 3)
         arrived = state[:, 8] > 0.5
-        record["stragglers"] = [
-            classify_timeout(
-                poses[:, i, :2], poses[:, i, 2], state[i, 6:8], state[arrived, :2],
-                last_observation[env.possible_agents[i]],
+        record["stragglers"] = []
+        for i in np.flatnonzero(~arrived):
+            agent = env.possible_agents[i]
+            straggler = classify_timeout(
+                poses[:, i, :2], poses[:, i, 2], state[i, 6:8], state[arrived, :2], last_observation[agent]
             )
-            for i in range(n)
-            if not arrived[i]
-        ]
+            straggler["robot"] = int(i)
+            straggler["actions"] = collections.Counter(taken[agent][-window:]).most_common(3)
+            record["stragglers"].append(straggler)
     return record
+
+
+def action_name(action: int) -> str:
+    """:return: ``"<index> (v <m/s>, w <deg/s>)"`` for one of the 20 actions."""
+    return f"{action} (v {LINEAR_SPEEDS[action // 5]:g}, w {ANGULAR_SPEEDS_DEG[action % 5]:g})"
+
+
+def sum_actions(stragglers: list[dict[str, Any]]) -> collections.Counter:
+    """:return: how often each action was taken in the stragglers' windows (their top 3 each)."""
+    total: collections.Counter = collections.Counter()
+    for straggler in stragglers:
+        total.update({int(a): int(c) for a, c in straggler["actions"]})
+    return total
 
 
 def summarize(records: list[dict[str, Any]]) -> str:
@@ -167,7 +199,8 @@ def summarize(records: list[dict[str, Any]]) -> str:
                 f"    {kind}: median turned {np.median([s['turned'] for s in group]):.1f} rad, "
                 f"nearest obstacle {np.median([s['nearest_obstacle'] for s in group]):.2f} m, "
                 f"|bearing| {np.median([abs(s['bearing']) for s in group]):.0f} deg, "
-                f"distance {np.median([s['final_distance'] for s in group]):.2f} m"
+                f"distance {np.median([s['final_distance'] for s in group]):.2f} m; actions "
+                + ", ".join(f"{action_name(a)} x{c}" for a, c in sum_actions(group).most_common(3))
             )
         crowded = sum(s["target_crowded"] for s in stragglers)
         blocked = sum(s["nearest_parked"] is not None and s["nearest_parked"] < CONTACT_M + 0.1 for s in stragglers)
@@ -187,17 +220,20 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=20_000, help="episode k is reset with seed + k")
     parser.add_argument("--window", type=int, default=200, help="ticks read before a time-out")
+    parser.add_argument(
+        "--epsilon", type=float, default=0.0, help="random actions with this probability (0: greedy, the evaluation)"
+    )
     parser.add_argument("--out", default=None, help="write one JSON line per episode here")
     args = parser.parse_args()
     model = ALGORITHMS[args.algo].load(args.model, env=None, device="cpu", buffer_size=1)
     env = envs.make_parallel_env(args.env)
     try:
-        records = [run_episode(model, env, args.seed + k, args.window) for k in range(args.episodes)]
+        records = [run_episode(model, env, args.seed + k, args.window, args.epsilon) for k in range(args.episodes)]
     finally:
         env.close()
     if args.out:
         pathlib.Path(args.out).write_text("".join(json.dumps(record) + "\n" for record in records))
-    print(f"{args.model} on {args.env}")
+    print(f"{args.model} on {args.env}" + (f", epsilon {args.epsilon}" if args.epsilon else ", greedy"))
     print(summarize(records))
 
 

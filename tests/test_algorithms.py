@@ -206,7 +206,7 @@ def test_runs_on_the_robot_world(algorithm) -> None:
     assert actions.shape == (5,) and ((actions >= 0) & (actions < 20)).all()
 
 
-GDQ_OPTIONS = ("global_values", "global_bootstrap", "global_timeout_bootstrap")  # GDQ's own arguments; the others are policy_kwargs
+GDQ_OPTIONS = ("global_values", "global_bootstrap", "global_timeout_bootstrap", "advantage_learning")  # GDQ's own arguments; the others are policy_kwargs
 
 
 def _gdq_with(tmp_path=None, **options):
@@ -354,6 +354,39 @@ def test_gdq_global_timeout_bootstrap_reads_the_agents_cut_by_the_time_limit(tim
     hook.remove()
     cut = truncated.bool()
     assert (seen[0][cut] != 0).all() if timeout_bootstrap else (seen[0][cut] == 0).all()
+
+
+def test_gdq_advantage_learning_lowers_each_target_by_alpha_times_the_action_gap(monkeypatch, tmp_path) -> None:
+    """Advantage learning: y_i = (the GDQ target) - alpha (max_b Q_target(s_i, b) - Q_target(s_i, a_i)); the gap is
+    0 for the target network's greedy actions and positive for the others."""
+    import sb3_eps.gdq.gdq as gdq_module
+
+    model = _gdq_with(advantage_learning=0.5)
+    model.learn(400)
+    batch = model.replay_buffer.sample(32)
+    seen = []
+    original = gdq_module.masked_huber
+
+    def spy(prediction, target, mask, weights):
+        seen.append(target.clone())
+        return original(prediction, target, mask, weights)
+
+    monkeypatch.setattr(gdq_module, "masked_huber", spy)
+    model._compute_loss(batch)
+    model.advantage_learning = 0.0
+    model._compute_loss(batch)
+    with th.no_grad():
+        gap = model._action_gap(batch)
+        greedy = model.policy.q_net_target.advantage(batch.observations.reshape(-1, 18)).argmax(dim=1)
+    assert gap.shape == batch.actions.shape[:2] and (gap >= 0).all()
+    is_greedy = (batch.actions.reshape(-1) == greedy).reshape(gap.shape)
+    assert (gap[is_greedy] == 0).all() and (gap[~is_greedy] > 0).all() and (~is_greedy).any()
+    th.testing.assert_close(seen[0], seen[1] - 0.5 * gap)
+    model.advantage_learning = 0.5
+    model.save(tmp_path / "al")
+    assert GDQ.load(tmp_path / "al").advantage_learning == 0.5
+    with pytest.raises(ValueError, match=r"advantage_learning must be in \[0, 1\)"):
+        _gdq_with(advantage_learning=1.0)
 
 
 def test_gdq_options_in_policy_kwargs_still_work_with_a_deprecation_warning(tmp_path) -> None:

@@ -42,10 +42,11 @@ def test_a_team_that_stands_still_times_out_standing(anatomy) -> None:
     finally:
         env.close()
     assert record["outcome"] == "time-out" and record["ticks"] == 60 and record["n_arrived"] == 0
-    assert [s["kind"] for s in record["stragglers"]] == ["standing", "standing"]
+    assert [s["kind"] for s in record["stragglers"]] == ["standing still", "standing still"]
+    assert [s["actions"] for s in record["stragglers"]] == [[(STAND_STILL, 50)], [(STAND_STILL, 50)]]
     assert all(s["driven"] == 0.0 and s["turned"] == 0.0 for s in record["stragglers"])
     assert all(s["nearest_parked"] is None for s in record["stragglers"])
-    assert "what they did in the last window: standing 2" in anatomy.summarize([record])
+    assert "what they did in the last window: standing still 2" in anatomy.summarize([record])
 
 
 def test_a_team_that_drives_straight_ends_in_a_collision_that_is_named(anatomy) -> None:
@@ -73,7 +74,19 @@ def test_the_time_out_kinds_follow_the_path(anatomy) -> None:
     assert result["kind"] == "near target" and result["target_crowded"]
     spinning = np.tile([0.0, 0.0], (50, 1))
     result = anatomy.classify_timeout(spinning, np.linspace(0, 10, 50), target, parked, observation)
-    assert result["kind"] == "standing" and result["turned"] == pytest.approx(10.0)
+    assert result["kind"] == "turning in place" and result["turned"] == pytest.approx(10.0)
+
+
+def test_epsilon_greedy_replays_are_seeded_and_leave_a_standing_team_moving(anatomy) -> None:
+    env = envs.make_parallel_env("MultiRobotNav-2-v0", max_episode_steps=60)
+    try:
+        first = anatomy.run_episode(Scripted(STAND_STILL), env, seed=3, window=50, epsilon=0.5)
+        again = anatomy.run_episode(Scripted(STAND_STILL), env, seed=3, window=50, epsilon=0.5)
+    finally:
+        env.close()
+    assert first == again
+    if first["outcome"] == "time-out":
+        assert all(s["driven"] > 0 for s in first["stragglers"])
 
 
 def test_a_collision_names_what_was_touched(anatomy) -> None:

@@ -107,6 +107,13 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         ``handle_timeout_termination``; QMIX does the same). False (the default): they enter as 0, as agents that
         arrived; measured on 2 and 4 robots, the option made no difference that the seeds' spread lets one see
         (``docs/results/baselines.md``)
+    :param advantage_learning: ``alpha`` of advantage learning (Bellemare et al., "Increasing the Action Gap", AAAI
+        2016): every agent's target is lowered by ``alpha (max_b Q(s, b) - Q(s, a))`` (target network), which keeps
+        the fixed point's greedy actions and widens the gap between the best action and the others. At 20 Hz one
+        tick changes little, so in a state where a robot makes no progress (its target behind it) standing still
+        is worth only ``(1 - gamma) V + 0.005`` less than the best turn, less than the network's error: the greedy
+        robot then stands or swings in place until the time limit (``docs/results/baselines.md``, thirteenth
+        session). 0 (the default): the plain target
     :param others_end_bootstrap: see :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`; in GDQ the
         cut agents' targets bootstrap from ``V_G'`` reading every agent whose own target bootstraps (as with
         ``global_timeout_bootstrap``; the colliding agent enters as 0)
@@ -157,6 +164,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         global_values: GlobalValues = DEFAULT_GLOBAL_VALUES,
         global_bootstrap: float = DEFAULT_GLOBAL_BOOTSTRAP,
         global_timeout_bootstrap: bool = False,
+        advantage_learning: float = 0.0,
     ) -> None:
         # GDQ's own defaults differ from the base's in global_bootstrap (0.1, GDQ-lambda: the paper's full V_G'
         # bootstrap cost 28 points on 4 robots, held-out seeds), team_reward_mode ("mean":
@@ -164,7 +172,10 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         # decaying linearly to 0 over the call's budget, RL Zoo's lin_3e-4: the greedy policy stops churning
         # as the budget ends); docs/results/baselines.md.
         arguments = dict(locals())
-        for name in ("self", "__class__", "policy", "env", "global_timeout_bootstrap", *_FORMER_POLICY_OPTIONS):
+        for name in (
+            "self", "__class__", "policy", "env", "global_timeout_bootstrap", "advantage_learning",
+            *_FORMER_POLICY_OPTIONS,
+        ):
             arguments.pop(name, None)
         options: dict[str, Any] = {"global_values": global_values, "global_bootstrap": global_bootstrap}
         if any(name in (policy_kwargs or {}) for name in _FORMER_POLICY_OPTIONS):
@@ -185,6 +196,9 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         self.global_values: GlobalValues = options["global_values"]
         self.global_bootstrap = float(options["global_bootstrap"])
         self.global_timeout_bootstrap = bool(global_timeout_bootstrap)
+        if not 0.0 <= advantage_learning < 1.0:
+            raise ValueError(f"advantage_learning must be in [0, 1), got {advantage_learning}")
+        self.advantage_learning = float(advantage_learning)
         super().__init__(policy, env, **arguments)
 
     def _diagnostics(self, inputs: th.Tensor, terms: TDTerms, batch: JointReplayBufferSamples) -> dict[str, float]:
@@ -205,6 +219,19 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             "agent_value_mean": float(values.mean()),
             "agent_value_std": float(values.std()),
         }
+
+    def _action_gap(self, batch: JointReplayBufferSamples) -> th.Tensor:
+        """``max_b Q(s, b) - Q(s, a)`` of the taken actions, from the agent target network (the online one without
+        it): what advantage learning (Bellemare et al., AAAI 2016) subtracts from the targets, times ``alpha``.
+        With the dueling head it is ``max_b A(s, b) - A(s, a)``.
+
+        :return: ``(batch, n_agents)``
+        """
+        network = self.policy.q_net_target if self.policy.q_net_target is not None else self.policy.q_net
+        observations = batch.observations.reshape(-1, batch.observations.shape[-1])
+        advantages = network.advantage(observations)
+        taken = advantages.gather(1, batch.actions.reshape(-1, 1)).squeeze(1)
+        return (advantages.max(dim=1).values - taken).reshape(batch.actions.shape[:2])
 
     def _setup_model(self) -> None:
         # A model saved before these options were GDQ's kept them in its policy_kwargs: move them over.
@@ -276,6 +303,8 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
                 own_next,
                 self.global_bootstrap,
             )
+            if self.advantage_learning:
+                agent_targets = agent_targets - self.advantage_learning * self._action_gap(batch)
             global_targets = td_target(
                 batch.team_rewards, batch.team_discounts, batch.team_dones, global_next
             )
