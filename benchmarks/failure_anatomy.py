@@ -214,8 +214,8 @@ def summarize(records: list[dict[str, Any]]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--algo", choices=sorted(ALGORITHMS), required=True)
-    parser.add_argument("--model", required=True, help="a model saved by learning_check.py --save-models")
+    parser.add_argument("--algo", choices=sorted(ALGORITHMS), default="gdq")
+    parser.add_argument("--model", help="a model saved by learning_check.py --save-models")
     parser.add_argument("--env", default="MultiRobotNav-4-v0")
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=20_000, help="episode k is reset with seed + k")
@@ -224,7 +224,14 @@ def main() -> None:
         "--epsilon", type=float, default=0.0, help="random actions with this probability (0: greedy, the evaluation)"
     )
     parser.add_argument("--out", default=None, help="write one JSON line per episode here")
+    parser.add_argument("--from-records", default=None, help="print the table of a file written by --out; run nothing")
     args = parser.parse_args()
+    if args.from_records:
+        lines = pathlib.Path(args.from_records).read_text().splitlines()
+        print(summarize([json.loads(line) for line in lines if line.strip()]))
+        return
+    if not args.model:
+        parser.error("--model is needed (or --from-records)")
     model = ALGORITHMS[args.algo].load(args.model, env=None, device="cpu", buffer_size=1)
     env = envs.make_parallel_env(args.env)
     try:
