@@ -32,6 +32,7 @@ import pathlib
 from typing import Any
 
 import numpy as np
+import torch as th
 
 import envs
 from envs.turtlebot3.robot import ANGULAR_SPEEDS_DEG, LINEAR_SPEEDS, ROBOT_RADIUS
@@ -101,6 +102,18 @@ def classify_collision(xy: np.ndarray, robot: int, live: np.ndarray) -> str:
     return "wall"
 
 
+def q_lead(model: Any, observation: np.ndarray) -> float | None:
+    """:return: how far the greedy action's Q value leads the second best's at ``observation`` (None for a model
+    without a ``policy.q_net``)."""
+    network = getattr(getattr(model, "policy", None), "q_net", None)
+    if network is None:
+        return None
+    with th.no_grad():
+        q_values = network(th.as_tensor(observation[None], dtype=th.float32))[0]
+    top = th.topk(q_values, 2).values
+    return float(top[0] - top[1])
+
+
 def run_episode(model: Any, env: Any, seed: int, window: int, epsilon: float = 0.0) -> dict[str, Any]:
     """One team episode, greedy unless ``epsilon`` > 0 (then each robot takes a uniformly random action with that
     probability each tick, drawn from a generator seeded by ``seed``, as in training's epsilon-greedy rollouts).
@@ -159,6 +172,7 @@ def run_episode(model: Any, env: Any, seed: int, window: int, epsilon: float = 0
                 poses[:, i, :2], poses[:, i, 2], state[i, 6:8], state[arrived, :2], last_observation[agent]
             )
             straggler["robot"] = int(i)
+            straggler["q_lead"] = q_lead(model, last_observation[agent])
             straggler["actions"] = collections.Counter(taken[agent][-window:]).most_common(3)
             record["stragglers"].append(straggler)
     return record
@@ -199,7 +213,13 @@ def summarize(records: list[dict[str, Any]]) -> str:
                 f"    {kind}: median turned {np.median([s['turned'] for s in group]):.1f} rad, "
                 f"nearest obstacle {np.median([s['nearest_obstacle'] for s in group]):.2f} m, "
                 f"|bearing| {np.median([abs(s['bearing']) for s in group]):.0f} deg, "
-                f"distance {np.median([s['final_distance'] for s in group]):.2f} m; actions "
+                f"distance {np.median([s['final_distance'] for s in group]):.2f} m, "
+                + (
+                    f"greedy Q lead {np.median([s['q_lead'] for s in group]):.4f}, "
+                    if all(s.get("q_lead") is not None for s in group)
+                    else ""
+                )
+                + "actions "
                 + ", ".join(f"{action_name(a)} x{c}" for a, c in sum_actions(group).most_common(3))
             )
         crowded = sum(s["target_crowded"] for s in stragglers)
