@@ -252,6 +252,8 @@ def main() -> None:
         return
     if not args.model:
         parser.error("--model is needed (or --from-records)")
+    if not args.env.startswith("MultiRobotNav"):
+        parser.error(f"--env {args.env!r}: the anatomy reads TurtleBot3 worlds (MultiRobotNav-<n>-v0, ...)")
     model = ALGORITHMS[args.algo].load(args.model, env=None, device="cpu", buffer_size=1)
     env = envs.make_parallel_env(args.env)
     try:
