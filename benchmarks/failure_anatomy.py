@@ -35,10 +35,9 @@ import numpy as np
 import torch as th
 
 import envs
-from envs.turtlebot3.robot import ANGULAR_SPEEDS_DEG, LINEAR_SPEEDS, ROBOT_RADIUS
-from sb3_eps import GDQ, IQL, QMIX, VDN
+from envs.turtlebot3.robot import ACTION_ANGULAR, ACTION_LINEAR, N_BEAMS, RANGE_MAX, ROBOT_RADIUS
+from sb3_eps.zoo.schema import ALGORITHMS, algorithm_spec
 
-ALGORITHMS = {"iql": IQL, "gdq": GDQ, "qmix": QMIX, "vdn": VDN}
 NEAR_TARGET_M = 0.5
 STANDING_M = 0.1
 LOOPING_RATIO = 3.0
@@ -79,8 +78,8 @@ def classify_timeout(
         "driven": driven,
         "displacement": displacement,
         "turned": turned,
-        "nearest_obstacle": float(observation[:28].min() * 3.5),
-        "bearing": float(observation[29] * 180.0),
+        "nearest_obstacle": float(observation[:N_BEAMS].min() * RANGE_MAX),
+        "bearing": float(np.rad2deg(observation[N_BEAMS + 1] * np.pi)),
         "target_crowded": crowded,
         "nearest_parked": nearest_parked,
     }
@@ -180,7 +179,7 @@ def run_episode(model: Any, env: Any, seed: int, window: int, epsilon: float = 0
 
 def action_name(action: int) -> str:
     """:return: ``"<index> (v <m/s>, w <deg/s>)"`` for one of the 20 actions."""
-    return f"{action} (v {LINEAR_SPEEDS[action // 5]:g}, w {ANGULAR_SPEEDS_DEG[action % 5]:g})"
+    return f"{action} (v {ACTION_LINEAR[action]:g}, w {np.rad2deg(ACTION_ANGULAR[action]):g})"
 
 
 def sum_actions(stragglers: list[dict[str, Any]]) -> collections.Counter:
@@ -254,7 +253,7 @@ def main() -> None:
         parser.error("--model is needed (or --from-records)")
     if not args.env.startswith("MultiRobotNav"):
         parser.error(f"--env {args.env!r}: the anatomy reads TurtleBot3 worlds (MultiRobotNav-<n>-v0, ...)")
-    model = ALGORITHMS[args.algo].load(args.model, env=None, device="cpu", buffer_size=1)
+    model = algorithm_spec(args.algo).algorithm_class.load(args.model, env=None, device="cpu", buffer_size=1)
     env = envs.make_parallel_env(args.env)
     try:
         records = [run_episode(model, env, args.seed + k, args.window, args.epsilon) for k in range(args.episodes)]
