@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 import torch as th
+from stable_baselines3.common.torch_layers import NatureCNN
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 import envs
@@ -477,3 +478,47 @@ def test_others_end_bootstrap_on_the_robot_world(others_end) -> None:
         hook.remove()
         cut = (batch.alive * (1.0 - batch.dones)).bool()
         assert (seen[0][cut] != 0).all()
+
+
+def test_angle_features_feed_the_bearing_as_sine_and_cosine_and_close_the_seam() -> None:
+    """The robot worlds' bearing (entry 29, bearing / pi) jumps from +1 to -1 behind the robot; with
+    angle_features=[29] the network sees (sin, cos), so a target just left and just right of straight behind look
+    alike, while the other 29 entries pass through unchanged."""
+    from sb3_eps.common.policies import AngleFeaturesExtractor
+
+    model = tiny_model(GDQ, env_id="MultiRobotNav-2-v0", n_envs=1, learning_starts=100)
+    model.policy_kwargs = {**model.policy_kwargs, "angle_features": [29]}
+    model._setup_model()
+    extractor = model.policy.q_net.features_extractor
+    assert isinstance(extractor, AngleFeaturesExtractor) and extractor.features_dim == 31
+    assert isinstance(model.policy.q_net_target.features_extractor, AngleFeaturesExtractor)
+    rng = np.random.default_rng(0)
+    obs = th.as_tensor(rng.uniform(0, 1, (2, 30)).astype(np.float32))
+    obs[:, 29] = th.tensor([0.999, -0.999])  # the target 0.18 deg left and right of straight behind
+    features = extractor(obs)
+    np.testing.assert_array_equal(features[:, :29].numpy(), obs[:, :29].numpy())
+    np.testing.assert_allclose(features[:, 29].numpy(), np.sin(np.pi * obs[:, 29].numpy()), atol=1e-6)
+    np.testing.assert_allclose(features[:, 30].numpy(), np.cos(np.pi * obs[:, 29].numpy()), atol=1e-6)
+    assert th.dist(features[0, 29:], features[1, 29:]) < 0.01 < abs(float(obs[0, 29] - obs[1, 29]))
+    model.learn(300)  # trains through it
+
+
+def test_angle_features_survive_save_load_and_reject_bad_indices(tmp_path) -> None:
+    from sb3_eps.common.policies import AngleFeaturesExtractor
+
+    venv = make_vec_env("MultiRobotNav-2-v0", n_envs=1, seed=0)
+    model = VDN("MlpPolicy", venv, policy_kwargs={**TINY, "angle_features": [29]}, learning_starts=50, seed=0)
+    model.learn(200)
+    model.save(tmp_path / "model")
+    loaded = VDN.load(tmp_path / "model", env=venv)
+    assert loaded.policy.angle_features == [29]
+    obs = th.as_tensor(np.random.default_rng(2).uniform(-1, 1, (8, 30)).astype(np.float32))
+    with th.no_grad():
+        np.testing.assert_allclose(loaded.policy.q_net(obs).numpy(), model.policy.q_net(obs).numpy(), rtol=1e-6)
+    for bad, match in (([30], "outside the observation"), ([29, 29], "twice"), ([], "at least one")):
+        with pytest.raises(ValueError, match=match):
+            VDN("MlpPolicy", venv, policy_kwargs={"angle_features": bad})
+    with pytest.raises(ValueError, match="not both"):
+        VDN("MlpPolicy", venv, policy_kwargs={"angle_features": [29], "features_extractor_class": NatureCNN})
+    with pytest.raises(ValueError, match="scale"):
+        AngleFeaturesExtractor(venv.observation_space, [29], scale=float("nan"))

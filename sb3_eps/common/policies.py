@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from typing import Any
 
 import torch as th
@@ -15,6 +17,48 @@ from sb3_eps.common.utils import dueling_aggregation
 
 DEFAULT_NET_ARCH = [128, 64]
 DEFAULT_STREAM_ARCH = [64]
+
+
+class AngleFeaturesExtractor(BaseFeaturesExtractor):
+    """Flattens the observation and feeds each angle entry to the network as its sine and cosine.
+
+    An angle stored as ``angle / scale`` in ``[-1, 1)`` (the robot worlds' target bearing, entry 29, is
+    ``bearing / pi``) jumps from +1 to -1 where +pi and -pi meet: a target straight behind a robot, a little to its
+    left or a little to its right, gives two inputs as far apart as they can be, and the network must learn
+    opposite turns on both sides of that seam. ``(sin, cos)`` of the angle is continuous there. The other entries
+    pass through unchanged, in their order; the ``2 k`` new features follow them (sines, then cosines).
+
+    :param observation_space: one agent's observation space (flattened here)
+    :param angle_features: indices, in the flattened observation, of the entries that hold an angle
+    :param scale: what an entry is multiplied by to give radians (``pi`` for ``angle / pi``)
+    """
+
+    def __init__(self, observation_space: spaces.Space, angle_features: Sequence[int], scale: float = math.pi) -> None:
+        n_inputs = spaces.utils.flatdim(observation_space)
+        indices = [int(index) for index in angle_features]
+        if not indices:
+            raise ValueError("angle_features must name at least one observation entry")
+        bad = [index for index in indices if not 0 <= index < n_inputs]
+        if bad:
+            raise ValueError(
+                f"angle_features {bad} are outside the observation's {n_inputs} entries (0 to {n_inputs - 1})"
+            )
+        if len(set(indices)) != len(indices):
+            raise ValueError(f"angle_features names an entry twice: {indices}")
+        if not (math.isfinite(scale) and scale > 0):
+            raise ValueError(f"scale must be a finite number > 0, got {scale!r}")
+        super().__init__(observation_space, n_inputs + len(indices))
+        self.angle_features = indices
+        self.scale = float(scale)
+        others = [index for index in range(n_inputs) if index not in set(indices)]
+        # Not saved with the weights: they follow from the constructor's arguments.
+        self.register_buffer("_angles", th.tensor(indices, dtype=th.long), persistent=False)
+        self.register_buffer("_others", th.tensor(others, dtype=th.long), persistent=False)
+
+    def forward(self, observations: th.Tensor) -> th.Tensor:
+        flat = th.flatten(observations, start_dim=1)
+        radians = flat.index_select(1, self._angles) * self.scale
+        return th.cat([flat.index_select(1, self._others), th.sin(radians), th.cos(radians)], dim=1)
 
 
 class DuelingQNetwork(BasePolicy):
@@ -116,6 +160,9 @@ class MultiAgentQPolicy(BasePolicy):
     :param optimizer_class: optimizer class (Adam)
     :param optimizer_kwargs: optimizer keyword arguments other than the learning rate
     :param agent_target: whether the agent network has a target network
+    :param angle_features: indices of observation entries that hold an angle as ``angle / pi``; each is fed to the
+        network as its sine and cosine (:class:`AngleFeaturesExtractor`). None (the default) feeds the observation
+        as it is. Replaces ``features_extractor_class``, so the two cannot be given together.
     :param n_agents: agents per world (used by the joint modules)
     :param state_dim: length of the global state (used by state-conditioned mixers)
     """
@@ -137,9 +184,19 @@ class MultiAgentQPolicy(BasePolicy):
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
         agent_target: bool = True,
+        angle_features: list[int] | None = None,
         n_agents: int = 1,
         state_dim: int = 0,
     ) -> None:
+        self.angle_features = None if angle_features is None else [int(index) for index in angle_features]
+        if self.angle_features is not None:
+            # (A saved model comes back with AngleFeaturesExtractor and the angles in its kwargs: the same thing.)
+            if features_extractor_class not in (FlattenExtractor, AngleFeaturesExtractor):
+                raise ValueError(
+                    "angle_features builds its own features extractor; give it or features_extractor_class, not both"
+                )
+            features_extractor_class = AngleFeaturesExtractor
+            features_extractor_kwargs = {**(features_extractor_kwargs or {}), "angle_features": self.angle_features}
         super().__init__(
             observation_space,
             action_space,
@@ -229,6 +286,7 @@ class MultiAgentQPolicy(BasePolicy):
             features_extractor_class=self.features_extractor_class,
             features_extractor_kwargs=self.features_extractor_kwargs,
             agent_target=self.agent_target,
+            angle_features=self.angle_features,
             n_agents=self.n_agents,
             state_dim=self.state_dim,
         )

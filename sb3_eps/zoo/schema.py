@@ -198,6 +198,7 @@ COMMON_POLICY_PARAMS: dict[str, Param] = {
     "optimizer_class": Param("optimizer"),
     "optimizer_kwargs": Param("mapping"),
     "agent_target": Param("bool"),
+    "angle_features": Param("int_list", low=0),
     "normalize_images": Param("bool"),
 }
 # ---------------------------------------------------------------------------------------------- algorithms
