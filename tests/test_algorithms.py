@@ -522,3 +522,62 @@ def test_angle_features_survive_save_load_and_reject_bad_indices(tmp_path) -> No
         VDN("MlpPolicy", venv, policy_kwargs={"angle_features": [29], "features_extractor_class": NatureCNN})
     with pytest.raises(ValueError, match="scale"):
         AngleFeaturesExtractor(venv.observation_space, [29], scale=float("nan"))
+
+
+@pytest.mark.parametrize("vec_env_cls", ["dummy", "subproc"])
+def test_angle_features_auto_reads_the_worlds_metadata(vec_env_cls, tmp_path) -> None:
+    """"auto": the robot worlds name their bearing (entry 29) in metadata["angle_observations"], so it is fed as
+    (sin, cos); the MPE world names none and is fed as it is. The saved model names what it was built with; the
+    default (None) feeds every world as it is."""
+    from sb3_eps.common.policies import AngleFeaturesExtractor
+
+    robots = make_vec_env("MultiRobotNav-2-v0", n_envs=2, seed=0, vec_env_cls=vec_env_cls)
+    particles = make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=0, vec_env_cls=vec_env_cls)
+    auto = {"angle_features": "auto"}
+    try:
+        assert robots.angle_observations == [29] and particles.angle_observations == []
+        model = GDQ("MlpPolicy", robots, policy_kwargs=auto, seed=0)
+        assert model.policy_kwargs["angle_features"] == [29] and auto == {"angle_features": "auto"}  # not mutated
+        assert isinstance(model.policy.q_net.features_extractor, AngleFeaturesExtractor)
+        model.save(tmp_path / "model")
+        assert GDQ.load(tmp_path / "model").policy.angle_features == [29]  # no env needed
+        assert GDQ("MlpPolicy", particles, policy_kwargs=auto, seed=0).policy.angle_features is None
+        assert GDQ("MlpPolicy", robots).policy.angle_features is None  # the default
+    finally:
+        robots.close()
+        particles.close()
+
+
+def test_a_policy_default_of_auto_is_read_by_the_algorithm() -> None:
+    """A policy class whose angle_features default is "auto" gets the env's angles without any argument: how an
+    algorithm makes them its default."""
+    from sb3_eps.gdq.policies import GDQPolicy
+
+    class AutoAnglePolicy(GDQPolicy):
+        def __init__(self, *args, angle_features="auto", **kwargs) -> None:
+            super().__init__(*args, angle_features=angle_features, **kwargs)
+
+    venv = make_vec_env("MultiRobotNav-2-v0", n_envs=1, seed=0)
+    assert GDQ(AutoAnglePolicy, venv, seed=0).policy.angle_features == [29]
+
+
+def test_a_model_saved_before_angle_features_loads_without_them(tmp_path) -> None:
+    """A model saved before the option existed has no angle_features in its policy_kwargs: it loads as it was
+    built, with the plain observation, even on a world that names angles."""
+    venv = make_vec_env("MultiRobotNav-2-v0", n_envs=1, seed=0)
+    model = IQL("MlpPolicy", venv, policy_kwargs={"angle_features": None}, seed=0)
+    model.save(tmp_path / "old")
+    loaded = IQL.load(tmp_path / "old", env=venv, custom_objects={"policy_kwargs": {}})
+    assert loaded.policy.angle_features is None
+    obs = th.as_tensor(np.random.default_rng(3).uniform(-1, 1, (4, 30)).astype(np.float32))
+    with th.no_grad():
+        np.testing.assert_allclose(loaded.policy.q_net(obs).numpy(), model.policy.q_net(obs).numpy(), rtol=1e-6)
+
+
+def test_bad_angle_metadata_is_a_clear_error() -> None:
+    from sb3_eps.common.vec_env import angle_observations
+
+    assert angle_observations({"angle_observations": (3, 5)}) == [3, 5] and angle_observations({}) == []
+    for bad in ("29", [-1], [1.5], [True]):
+        with pytest.raises(ValueError, match="list of observation indices"):
+            angle_observations({"angle_observations": bad})

@@ -91,6 +91,9 @@ class MultiRobotNavEnv(ParallelEnv):
         "render_modes": ["rgb_array", "human"],
         "render_fps": 20,
         "is_parallelizable": True,
+        # Entries of a robot's observation that hold an angle as angle / pi (the target bearing): sb3_eps's
+        # policies feed them to the network as sine and cosine (policy_kwargs angle_features="auto").
+        "angle_observations": [N_BEAMS + 1],
     }
 
     def __init__(

@@ -43,6 +43,7 @@ class SingleRobotNavEnv(gymnasium.Env):
         "name": "single_robot_nav_v0",
         "render_modes": ["rgb_array", "human"],
         "render_fps": 20,
+        "angle_observations": MultiRobotNavEnv.metadata["angle_observations"],  # the target bearing
     }
 
     def __init__(

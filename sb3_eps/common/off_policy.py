@@ -12,6 +12,7 @@ SuperSuit makes every agent a sub-env; ``ticks`` counts simulator steps of one w
 
 from __future__ import annotations
 
+import inspect
 import io
 import pathlib
 import warnings
@@ -247,6 +248,10 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self._collector: NStepJointCollector | None = None
         self._last_state: np.ndarray | None = None
         self.n_refused_updates = 0  # gradient steps refused for a non-finite loss or gradient
+        # "auto" (given, or the policy's default) becomes the env's angle entries now, so that a saved model names
+        # the ones it was built with (a model saved before the option existed has none, and loads without them).
+        angles = self.policy_kwargs.get("angle_features", _policy_default(self.policy_class, "angle_features"))
+        self.policy_kwargs = {**self.policy_kwargs, "angle_features": self._resolve_angle_features(angles)}
         if _init_setup_model:
             self._setup_model()
 
@@ -323,8 +328,18 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self._collector = None
         self._last_state = None
 
+    def _resolve_angle_features(self, value: Any) -> list[int] | None:
+        """:return: ``value``, with ``"auto"`` read from the env (the entries its worlds' metadata names as angles;
+        None when it names none or there is no env)."""
+        if not (isinstance(value, str) and value == "auto"):
+            return value
+        angles = list(getattr(find_multi_agent_env(self.env), "angle_observations", [])) if self.env else []
+        return angles or None
+
     def _policy_constructor_kwargs(self) -> dict[str, Any]:
         kwargs = {"agent_target": self.default_agent_target, **self.policy_kwargs}
+        # A model saved before angle_features existed has no such key: it was built without them.
+        kwargs["angle_features"] = self._resolve_angle_features(kwargs.get("angle_features"))
         kwargs.update(n_agents=self.n_agents, state_dim=self.state_dim)
         return kwargs
 
@@ -893,4 +908,17 @@ def _load_mismatch(cls: type[MultiAgentOffPolicyAlgorithm], path: Any, env: GymE
                 f"{name} was trained with {kind} {describe_space(data.get(kind))}, the env has "
                 f"{describe_space(ours)}: use an env of the same kind (robots with robots, MPE with MPE)"
             )
+    return None
+
+
+def _policy_default(policy_class: Any, name: str) -> Any:
+    """:return: the default of ``name`` in the nearest ``__init__`` along ``policy_class``'s MRO that declares it
+    (None when none does, or for a policy given as an alias that SB3 has not resolved)."""
+    for owner in getattr(policy_class, "__mro__", ()):
+        init = vars(owner).get("__init__")
+        if init is None:
+            continue
+        parameter = inspect.signature(init).parameters.get(name)
+        if parameter is not None and parameter.default is not inspect.Parameter.empty:
+            return parameter.default
     return None

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Literal
 
 import torch as th
 from gymnasium import spaces
@@ -161,8 +161,11 @@ class MultiAgentQPolicy(BasePolicy):
     :param optimizer_kwargs: optimizer keyword arguments other than the learning rate
     :param agent_target: whether the agent network has a target network
     :param angle_features: indices of observation entries that hold an angle as ``angle / pi``; each is fed to the
-        network as its sine and cosine (:class:`AngleFeaturesExtractor`). None (the default) feeds the observation
-        as it is. Replaces ``features_extractor_class``, so the two cannot be given together.
+        network as its sine and cosine (:class:`AngleFeaturesExtractor`). ``"auto"``: the entries the env's worlds
+        name in their ``metadata["angle_observations"]`` (the robot worlds: ``[29]``, the target bearing; none for
+        the others), read by the algorithm (a policy built without an algorithm has no env and takes none). None
+        (the default) feeds the observation as it is. Replaces ``features_extractor_class``, so the two cannot be
+        given together.
     :param n_agents: agents per world (used by the joint modules)
     :param state_dim: length of the global state (used by state-conditioned mixers)
     """
@@ -184,10 +187,14 @@ class MultiAgentQPolicy(BasePolicy):
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
         agent_target: bool = True,
-        angle_features: list[int] | None = None,
+        angle_features: list[int] | Literal["auto"] | None = None,
         n_agents: int = 1,
         state_dim: int = 0,
     ) -> None:
+        if isinstance(angle_features, str):
+            if angle_features != "auto":
+                raise ValueError(f"angle_features must be a list of indices, 'auto' or None, got {angle_features!r}")
+            angle_features = None  # no env here: the algorithm resolves "auto" before it builds the policy
         self.angle_features = None if angle_features is None else [int(index) for index in angle_features]
         if self.angle_features is not None:
             # (A saved model comes back with AngleFeaturesExtractor and the angles in its kwargs: the same thing.)

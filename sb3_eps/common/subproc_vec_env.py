@@ -284,7 +284,16 @@ def _worker_main(
     try:
         venv = _build_worker_env(payload, t_start)
         remote.send(
-            ("ok", (venv.possible_agents, venv.observation_space, venv.action_space, venv.state_space))
+            (
+                "ok",
+                (
+                    venv.possible_agents,
+                    venv.observation_space,
+                    venv.action_space,
+                    venv.state_space,
+                    venv.angle_observations,
+                ),
+            )
         )
         poll = True
         while True:
@@ -457,8 +466,17 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         _OPEN.add(self)
         if self._local is not None:
             local = self._local
-            infos.insert(0, (local.possible_agents, local.observation_space, local.action_space, local.state_space))
-        possible_agents, observation_space, action_space, state_space = infos[0]
+            infos.insert(
+                0,
+                (
+                    local.possible_agents,
+                    local.observation_space,
+                    local.action_space,
+                    local.state_space,
+                    local.angle_observations,
+                ),
+            )
+        possible_agents, observation_space, action_space, state_space, angles = infos[0]
         for info in infos[1:]:
             if info[0] != possible_agents:
                 self._terminate()
@@ -466,6 +484,7 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         self.possible_agents = list(possible_agents)
         self.n_agents = len(self.possible_agents)
         self.state_space = state_space
+        self.angle_observations = list(angles)
         self._main_slice = slice(0, len(self._main_block) * self.n_agents)
         self._slices = [
             slice(block.start * self.n_agents, block.stop * self.n_agents) for block in self._blocks

@@ -43,6 +43,23 @@ from sb3_eps.common.parallel_wrappers import FixedAgentSet, SingleAgentParallelE
 
 # Keys of the env's ``info["team"]`` that the episode dict already carries as SB3's "r" and "l".
 _EPISODE_RENAMED_KEYS = ("team_return", "ticks")
+#: The ``metadata`` key under which a world lists the entries of an agent's observation that hold an angle as
+#: ``angle / pi`` (the robot worlds' target bearing); policies built with ``angle_features="auto"`` read it.
+ANGLE_OBSERVATIONS_KEY = "angle_observations"
+
+
+def angle_observations(metadata: Any) -> list[int]:
+    """:return: the observation entries a world's ``metadata`` names as angles (none when it names none)."""
+    entries = metadata.get(ANGLE_OBSERVATIONS_KEY) if isinstance(metadata, dict) else None
+    if entries is None:
+        return []
+    if not isinstance(entries, list | tuple) or not all(
+        isinstance(entry, int | np.integer) and not isinstance(entry, bool) and entry >= 0 for entry in entries
+    ):
+        raise ValueError(
+            f"metadata[{ANGLE_OBSERVATIONS_KEY!r}] must be a list of observation indices (ints >= 0), got {entries!r}"
+        )
+    return [int(entry) for entry in entries]
 
 
 class MultiAgentVecEnv(VecEnv):
@@ -80,6 +97,7 @@ class MultiAgentVecEnv(VecEnv):
             if world.possible_agents != self.possible_agents:
                 raise ValueError("all worlds must have the same possible_agents")
         self.state_space: spaces.Box = first.state_space
+        self.angle_observations = angle_observations(first.metadata)
         # SuperSuit: each world becomes a vector env of its agents (it checks that they share their spaces).
         self._agent_venvs = [pettingzoo_env_to_vec_env_v1(world) for world in self._worlds]
         self._slices = [slice(w * self.n_agents, (w + 1) * self.n_agents) for w in range(self.n_worlds)]

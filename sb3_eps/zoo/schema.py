@@ -101,7 +101,7 @@ class Param:
             "choice": f"one of {allowed(self.choices)}",
             "schedule": f"a number{bounds} or a linear schedule 'lin_<initial value>' (e.g. lin_1e-3)",
             "train_freq": "an int >= 1 or a list [int >= 1, 'step' or 'episode']",
-            "int_list": f"a list of ints{bounds}",
+            "int_list": f"a list of ints{bounds}" + (f" or one of {allowed(self.choices)}" if self.choices else ""),
             "list": "a list",
             "any": "plain data (numbers, strings, lists, mappings)",
             "mapping": "a mapping of names to values (or a 'dict(...)' string)",
@@ -198,7 +198,7 @@ COMMON_POLICY_PARAMS: dict[str, Param] = {
     "optimizer_class": Param("optimizer"),
     "optimizer_kwargs": Param("mapping"),
     "agent_target": Param("bool"),
-    "angle_features": Param("int_list", low=0),
+    "angle_features": Param("int_list", low=0, choices=("auto",), nullable=True),
     "normalize_images": Param("bool"),
 }
 # ---------------------------------------------------------------------------------------------- algorithms
@@ -555,6 +555,8 @@ def _check_train_freq(value: Any, param: Param) -> Any:
 
 
 def _check_int_list(value: Any, param: Param) -> Any:
+    if isinstance(value, str) and value in param.choices:
+        return value
     if not isinstance(value, list | tuple):
         return _INVALID
     items = [_check_int(item, param) for item in value]
