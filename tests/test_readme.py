@@ -47,3 +47,17 @@ def test_the_readme_example_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     exec(compile(code, "README.md example", "exec"), namespace)
     assert namespace["model"].num_timesteps >= 600
     assert (tmp_path / "gdq_2.zip").is_file()
+
+
+def test_every_picture_and_local_link_in_the_docs_exists() -> None:
+    """Each ``![...](path)`` and ``[...](path)`` of the README and docs/ that points into the repository names a file
+    that is there (two results pictures were linked from the wrong folder until this test)."""
+    missing = []
+    for page in [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]:
+        for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text()):
+            path = target.split("#")[0]
+            if not path or re.match(r"^[a-z]+:", path):  # a web address or an anchor on the page
+                continue
+            if not (page.parent / path).exists() and not (ROOT / path).exists():
+                missing.append(f"{page.relative_to(ROOT)}: {target}")
+    assert not missing, "links to files that are not there:\n" + "\n".join(missing)
