@@ -320,7 +320,7 @@ def load_agent_weights(model: MultiAgentOffPolicyAlgorithm, path: str | Path) ->
         first = str(error).splitlines()[1:2] or [str(error)]
         raise ConfigError(
             f"--init-from: the agent network of {path} does not fit this model (use the same policy_kwargs "
-            f"net_arch / stream_arch / activation_fn): {first[0].strip()}"
+            f"net_arch / stream_arch / activation_fn / angle_features): {first[0].strip()}"
         ) from None
 
 
