@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import signal
+import time
 
 import numpy as np
 import pytest
@@ -322,11 +323,14 @@ def test_a_hung_worker_times_out_and_the_round_is_skipped(monkeypatch) -> None:
     original = SubprocessEnvPool.evaluate
     stopped: list[int] = []
 
-    def stop_then_evaluate(self, *args, **kwargs):
+    def stop_then_evaluate(self, population, seeds, valid, deadline):
         if not stopped:
             stopped.append(self.pids[-1])
             os.kill(self.pids[-1], signal.SIGSTOP)
-        return original(self, *args, **kwargs)
+            return original(self, population, seeds, valid, deadline)  # the 1 s deadline: this round times out
+        # Later rounds (restarted workers) get a deadline a loaded CI machine can meet: at 1 s a healthy round
+        # once timed out too, beside two training runs on the 2 cores.
+        return original(self, population, seeds, valid, time.monotonic() + 120.0)
 
     monkeypatch.setattr(SubprocessEnvPool, "evaluate", stop_then_evaluate)
     model = tiny_model(IQL)
