@@ -337,9 +337,9 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         return angles or None
 
     def _policy_constructor_kwargs(self) -> dict[str, Any]:
+        # angle_features was resolved in __init__; a model saved before it existed has no such key and gets the
+        # policy's default, which builds no angle features without an env to read (as it was built).
         kwargs = {"agent_target": self.default_agent_target, **self.policy_kwargs}
-        # A model saved before angle_features existed has no such key: it was built without them.
-        kwargs["angle_features"] = self._resolve_angle_features(kwargs.get("angle_features"))
         kwargs.update(n_agents=self.n_agents, state_dim=self.state_dim)
         return kwargs
 

@@ -50,7 +50,8 @@ class AngleFeaturesExtractor(BaseFeaturesExtractor):
         super().__init__(observation_space, n_inputs + len(indices))
         self.angle_features = indices
         self.scale = float(scale)
-        others = [index for index in range(n_inputs) if index not in set(indices)]
+        angles = set(indices)
+        others = [index for index in range(n_inputs) if index not in angles]
         # Not saved with the weights: they follow from the constructor's arguments.
         self.register_buffer("_angles", th.tensor(indices, dtype=th.long), persistent=False)
         self.register_buffer("_others", th.tensor(others, dtype=th.long), persistent=False)
