@@ -18,14 +18,14 @@ ALGORITHMS = [IQL, GDQ, QMIX, VDN]
 TINY = {"net_arch": [16], "stream_arch": [16]}
 
 
-def tiny_model(algorithm, env_id="CooperativeNavigation-v0", n_envs=2, seed=0, **kwargs):
+def tiny_model(algorithm, env_id="CooperativeNavigation-v0", n_envs=2, seed=0, policy_extra=None, **kwargs):
     venv = make_vec_env(env_id, n_envs=n_envs, seed=seed)
     extra = {"mixing_embed_dim": 8, "hypernet_hidden_dim": 16} if algorithm in (QMIX, VDN) else {}
     if algorithm is GDQ:
         extra = {"global_net_arch": [16]}
     defaults = {"learning_starts": 60, "batch_size": 16, "buffer_size": 2_000, "train_freq": 2, "seed": seed}
     defaults.update(kwargs)
-    return algorithm("MlpPolicy", venv, policy_kwargs={**TINY, **extra}, **defaults)
+    return algorithm("MlpPolicy", venv, policy_kwargs={**TINY, **extra, **(policy_extra or {})}, **defaults)
 
 
 @pytest.mark.parametrize("algorithm", ALGORITHMS, ids=lambda a: a.__name__)
@@ -581,3 +581,89 @@ def test_bad_angle_metadata_is_a_clear_error() -> None:
     for bad in ("29", [-1], [1.5], [True]):
         with pytest.raises(ValueError, match="list of observation indices"):
             angle_observations({"angle_observations": bad})
+
+
+def _q_argmax(net, obs) -> np.ndarray:
+    with th.no_grad():
+        return net(th.as_tensor(obs)).argmax(dim=1).numpy()
+
+
+@pytest.mark.parametrize("algorithm", ALGORITHMS, ids=lambda a: a.__name__)
+def test_weight_average_is_an_ema_of_the_online_weights_and_leaves_training_unchanged(algorithm) -> None:
+    """weight_average_tau keeps avg <- (1 - tau) avg + tau theta after every gradient step, starting at the initial
+    weights; training (the online weights, the replay) is the same as without it, bit for bit."""
+    tau = 0.05
+    plain = tiny_model(algorithm)
+    plain.learn(400)  # before the second model is built: both seed the global generators
+    averaged = tiny_model(algorithm, policy_extra={"weight_average_tau": tau})
+    assert plain.policy.q_net_average is None and averaged.policy.weight_average_tau == tau
+    expected = [p.detach().clone() for p in averaged.policy.q_net.parameters()]
+    online_update = averaged.policy.update_weight_average
+    n_calls = []
+
+    def tracking_update() -> None:
+        for e, p in zip(expected, averaged.policy.q_net.parameters(), strict=True):
+            e.mul_(1 - tau).add_(p.detach(), alpha=tau)
+        n_calls.append(1)
+        online_update()
+
+    averaged.policy.update_weight_average = tracking_update
+    averaged.learn(400)
+    assert len(n_calls) == averaged._n_updates > 0
+    for (name, p), q in zip(plain.policy.named_parameters(), averaged.policy.parameters(), strict=False):
+        assert th.equal(p, q), name  # q_net_average is registered last: zip stops before it
+    average, online = list(averaged.policy.q_net_average.parameters()), list(averaged.policy.q_net.parameters())
+    for e, a in zip(expected, average, strict=True):
+        th.testing.assert_close(a, e, rtol=1e-5, atol=1e-6)
+    assert any(not th.equal(a, p) for a, p in zip(average, online, strict=True))
+    assert all(not p.requires_grad for p in averaged.policy.q_net_average.parameters())
+
+
+def test_greedy_actions_come_from_the_average_and_exploring_ones_from_the_online_network(tmp_path) -> None:
+    model = tiny_model(GDQ, policy_extra={"weight_average_tau": 0.01})
+    other = tiny_model(GDQ, seed=7)  # different weights for the average, so the two networks disagree
+    model.policy.q_net_average.load_state_dict(other.policy.q_net.state_dict())
+    obs = np.random.default_rng(4).uniform(-2, 2, (64, 18)).astype(np.float32)
+    online, average = _q_argmax(model.policy.q_net, obs), _q_argmax(model.policy.q_net_average, obs)
+    assert (online != average).any()
+    np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], average)
+    model.exploration_rate = 0.0
+    np.testing.assert_array_equal(model.predict(obs, deterministic=False)[0], online)
+    model._last_obs = obs
+    model.num_timesteps = model.learning_starts
+    np.testing.assert_array_equal(model._sample_action(model.learning_starts, None, 64)[0], online)
+    # The average is saved and loaded with the model; the greedy actions stay the same.
+    model.save(tmp_path / "model")
+    loaded = GDQ.load(tmp_path / "model")
+    assert loaded.policy.weight_average_tau == 0.01
+    np.testing.assert_array_equal(loaded.predict(obs, deterministic=True)[0], average)
+
+
+def test_weight_average_export_and_bad_values(tmp_path) -> None:
+    import onnxruntime
+
+    model = tiny_model(VDN, policy_extra={"weight_average_tau": 0.5})
+    model.policy.q_net_average.load_state_dict(tiny_model(VDN, seed=3).policy.q_net.state_dict())
+    onnx_path, _ = export_policy(model, tmp_path / "policy")
+    obs = np.random.default_rng(5).uniform(-2, 2, (32, 18)).astype(np.float32)
+    (onnx_q,) = onnxruntime.InferenceSession(onnx_path, providers=["CPUExecutionProvider"]).run(
+        ["q_values"], {"obs": obs}
+    )
+    with th.no_grad():
+        expected = model.policy.q_net_average(th.as_tensor(obs)).numpy()
+    np.testing.assert_allclose(onnx_q, expected, rtol=1e-5, atol=1e-5)
+    venv = make_vec_env("CooperativeNavigation-v0", n_envs=1, seed=0)
+    for bad in (0.0, -0.1, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="weight_average_tau must be in"):
+            IQL("MlpPolicy", venv, policy_kwargs={"weight_average_tau": bad})
+
+
+def test_a_warm_start_sets_the_weight_average_to_the_loaded_network(tmp_path) -> None:
+    from sb3_eps.zoo.exp_manager import load_agent_weights
+
+    source = tiny_model(GDQ, seed=5)
+    source.save(tmp_path / "source")
+    model = tiny_model(GDQ, policy_extra={"weight_average_tau": 0.01})
+    load_agent_weights(model, tmp_path / "source.zip")
+    for a, p in zip(model.policy.q_net_average.parameters(), source.policy.q_net.parameters(), strict=True):
+        assert th.equal(a, p)

@@ -219,3 +219,17 @@ def test_angle_features_in_a_config(tmp_path) -> None:
     path.write_text("default:\n  n_timesteps: 100\n  policy_kwargs: {angle_features: sometimes}\n")
     with pytest.raises(ConfigError, match="angle_features must be a list of ints >= 0 or one of"):
         resolve_config("gdq", "MultiRobotNav-4-v0", conf_file=path)
+
+
+def test_weight_average_tau_in_a_config(tmp_path) -> None:
+    """weight_average_tau is off by default; a config may give a number in (0, 1] or null, nothing else."""
+    assert "weight_average_tau" not in package_defaults(algorithm_spec("vdn"))["policy_kwargs"]
+    path = tmp_path / "vdn.yml"
+    for value, expected in (("0.0005", 0.0005), ("null", None)):
+        path.write_text(f"default:\n  n_timesteps: 100\n  policy_kwargs: {{weight_average_tau: {value}}}\n")
+        entry = resolve_config("vdn", "MultiRobotNav-4-v0", conf_file=path).entry
+        assert entry["policy_kwargs"]["weight_average_tau"] == expected
+    for bad in ("0", "2", "often"):
+        path.write_text(f"default:\n  n_timesteps: 100\n  policy_kwargs: {{weight_average_tau: {bad}}}\n")
+        with pytest.raises(ConfigError, match="weight_average_tau must be"):
+            resolve_config("vdn", "MultiRobotNav-4-v0", conf_file=path)

@@ -30,7 +30,9 @@ def export_policy(model: Any, path: str | os.PathLike[str], opset_version: int =
     :param opset_version: ONNX opset
     :return: the paths of the ONNX and JSON files
     """
-    q_net = getattr(getattr(model, "policy", None), "q_net", None)
+    policy = getattr(model, "policy", None)
+    # The network the greedy actions come from: the weight average when the policy keeps one (weight_average_tau).
+    q_net = policy.greedy_net() if hasattr(policy, "greedy_net") else getattr(policy, "q_net", None)
     if q_net is None:
         raise ValueError(f"{type(model).__name__} has no agent Q-network (policy.q_net) to export")
     if importlib.util.find_spec("onnx") is None:  # torch's exporter needs it; checked before any file is made

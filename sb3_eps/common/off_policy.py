@@ -470,7 +470,9 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         Exploration draws one epsilon coin PER AGENT (SB3's DQN draws one for the whole batch, so all agents
         would explore on the same steps).
         """
-        actions, state = self.policy.predict(observation, state, episode_start, deterministic=True)
+        # deterministic: the greedy network (the weight average when the policy keeps one); otherwise the online
+        # network, as in training, with epsilon-greedy exploration on top.
+        actions, state = self.policy.predict(observation, state, episode_start, deterministic=deterministic)
         if deterministic or self.exploration_rate <= 0:
             return actions, state
         n_actions = int(self.action_space.n)  # type: ignore[attr-defined]
@@ -489,7 +491,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             self.policy.set_training_mode(False)
             with th.no_grad():
                 observation = th.as_tensor(self._last_obs, device=self.device)
-                actions = self.policy._predict(observation, deterministic=True).cpu().numpy()
+                actions = self.policy._predict(observation, deterministic=False).cpu().numpy()  # online network
             if self.exploration_rate > 0:
                 actions, _ = epsilon_greedy(actions, self.exploration_rate, int(self.action_space.n))  # type: ignore[attr-defined]
         return actions, actions
@@ -693,6 +695,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                 self._refuse_update(batch)  # nothing of this step reaches the weights, moments or priorities
                 continue
             self.policy.optimizer.step()
+            self.policy.update_weight_average()
             self.replay_buffer.update_priorities(batch.indices, td_errors)
             self._n_updates += 1
             if self._n_updates % self.gradient_steps_per_target_update == 0:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Sequence
 from typing import Any, Literal
@@ -13,7 +14,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, Flatten
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
-from sb3_eps.common.utils import dueling_aggregation
+from sb3_eps.common.utils import dueling_aggregation, polyak_update_tensors_
 
 DEFAULT_NET_ARCH = [128, 64]
 DEFAULT_STREAM_ARCH = [64]
@@ -167,6 +168,11 @@ class MultiAgentQPolicy(BasePolicy):
         the others), read by the algorithm (a policy built without an algorithm has no env and takes none). None
         (the default) feeds the observation as it is. Replaces ``features_extractor_class``, so the two cannot be
         given together.
+    :param weight_average_tau: keep ``q_net_average``, an exponential moving average of the agent network's
+        weights (``avg <- (1 - tau) avg + tau theta`` after every gradient step, :meth:`update_weight_average`), and
+        take the greedy actions (``predict(deterministic=True)``, evaluation, export) from it; training's
+        epsilon-greedy actions keep the online network, so training itself is unchanged. None (the default): no
+        average, greedy actions from ``q_net``.
     :param n_agents: agents per world (used by the joint modules)
     :param state_dim: length of the global state (used by state-conditioned mixers)
     """
@@ -189,9 +195,13 @@ class MultiAgentQPolicy(BasePolicy):
         optimizer_kwargs: dict[str, Any] | None = None,
         agent_target: bool = True,
         angle_features: list[int] | Literal["auto"] | None = None,
+        weight_average_tau: float | None = None,
         n_agents: int = 1,
         state_dim: int = 0,
     ) -> None:
+        if weight_average_tau is not None and not 0.0 < float(weight_average_tau) <= 1.0:
+            raise ValueError(f"weight_average_tau must be in (0, 1] or None, got {weight_average_tau!r}")
+        self.weight_average_tau = None if weight_average_tau is None else float(weight_average_tau)
         if isinstance(angle_features, str):
             if angle_features != "auto":
                 raise ValueError(f"angle_features must be a list of indices, 'auto' or None, got {angle_features!r}")
@@ -257,6 +267,38 @@ class MultiAgentQPolicy(BasePolicy):
             # for our small networks (benchmarks/train_throughput.py); pass fused=False to opt out.
             kwargs["fused"] = True
         self.optimizer = self.optimizer_class(parameters, lr=lr_schedule(1), **kwargs)
+        self.q_net_average: DuelingQNetwork | None = None
+        if self.weight_average_tau is not None:  # built after the optimizer: never trained, only averaged
+            # A copy, not make_q_net(): a fresh initialisation would draw from torch's generator and change
+            # what training draws after it (the option would no longer leave training as it is).
+            self.q_net_average = copy.deepcopy(self.q_net)
+            self.q_net_average.requires_grad_(False)
+            self.q_net_average.set_training_mode(False)
+
+    def reset_weight_average(self) -> None:
+        """Set ``q_net_average`` (when there is one) to the online network's weights (a warm start does this)."""
+        if self.q_net_average is not None:
+            self.q_net_average.load_state_dict(self.q_net.state_dict())
+
+    def update_weight_average(self) -> None:
+        """One step of the weight average toward the online network (the algorithm calls it after every
+        gradient step); nothing without ``weight_average_tau``."""
+        if self.q_net_average is None:
+            return
+        cache = getattr(self, "_average_lists", None)
+        if cache is None or cache[0] is not self.q_net_average or cache[1] is not self.q_net:
+            lists = [
+                list(part) for net in (self.q_net_average, self.q_net) for part in (net.parameters(), net.buffers())
+            ]
+            cache = (self.q_net_average, self.q_net, lists)
+            self._average_lists = cache
+        average_params, average_buffers, params, buffers = cache[2]
+        assert self.weight_average_tau is not None
+        polyak_update_tensors_(average_params, params, average_buffers, buffers, self.weight_average_tau)
+
+    def greedy_net(self) -> DuelingQNetwork:
+        """:return: the network the greedy actions come from: ``q_net_average`` when kept, else ``q_net``."""
+        return self.q_net if self.q_net_average is None else self.q_net_average
 
     def _build_joint_modules(self) -> None:
         """Create the algorithm's joint modules and their targets (none for independent learners)."""
@@ -280,7 +322,10 @@ class MultiAgentQPolicy(BasePolicy):
         return self._predict(obs, deterministic=deterministic)
 
     def _predict(self, obs: PyTorchObs, deterministic: bool = True) -> th.Tensor:
-        return self.q_net._predict(obs, deterministic=deterministic)
+        """Greedy actions: from :meth:`greedy_net` when ``deterministic``, else from the online network (the
+        algorithm adds epsilon-greedy exploration on top of those)."""
+        net = self.greedy_net() if deterministic else self.q_net
+        return net._predict(obs, deterministic=True)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
@@ -295,6 +340,7 @@ class MultiAgentQPolicy(BasePolicy):
             features_extractor_kwargs=self.features_extractor_kwargs,
             agent_target=self.agent_target,
             angle_features=self.angle_features,
+            weight_average_tau=self.weight_average_tau,
             n_agents=self.n_agents,
             state_dim=self.state_dim,
         )

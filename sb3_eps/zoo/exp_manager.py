@@ -292,8 +292,9 @@ def check_callback_worlds(
 
 def load_agent_weights(model: MultiAgentOffPolicyAlgorithm, path: str | Path) -> None:
     """Warm start (paper Table III): copy the agent network (``q_net`` and its target) of a saved model into
-    ``model``, e.g. from a single-robot model trained on ``SingleRobotNav-v0`` into a multi-robot one. The joint
-    modules (GDQ's ``V_G``, mixers) and the optimizer state start fresh.
+    ``model``, e.g. from a single-robot model trained on ``SingleRobotNav-v0`` into a multi-robot one; a weight
+    average (``weight_average_tau``) starts from the loaded network. The joint modules (GDQ's ``V_G``, mixers) and
+    the optimizer state start fresh.
 
     :param model: the new model
     :param path: a model ``.zip`` with the same agent network architecture and spaces
@@ -316,6 +317,7 @@ def load_agent_weights(model: MultiAgentOffPolicyAlgorithm, path: str | Path) ->
         model.policy.q_net.load_state_dict(online)
         if model.policy.q_net_target is not None:
             model.policy.q_net_target.load_state_dict(target or online)
+        model.policy.reset_weight_average()  # a kept weight average starts from the loaded network
     except RuntimeError as error:
         first = str(error).splitlines()[1:2] or [str(error)]
         raise ConfigError(

@@ -199,6 +199,7 @@ COMMON_POLICY_PARAMS: dict[str, Param] = {
     "optimizer_kwargs": Param("mapping"),
     "agent_target": Param("bool"),
     "angle_features": Param("int_list", low=0, choices=("auto",), nullable=True),
+    "weight_average_tau": Param("float", low=0, high=1, open_low=True, nullable=True),
     "normalize_images": Param("bool"),
 }
 # ---------------------------------------------------------------------------------------------- algorithms
