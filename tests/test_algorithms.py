@@ -667,3 +667,22 @@ def test_a_warm_start_sets_the_weight_average_to_the_loaded_network(tmp_path) ->
     load_agent_weights(model, tmp_path / "source.zip")
     for a, p in zip(model.policy.q_net_average.parameters(), source.policy.q_net.parameters(), strict=True):
         assert th.equal(a, p)
+
+
+def test_weight_average_tau_is_written_into_the_saved_model_and_old_models_load_without_it(tmp_path) -> None:
+    """A policy class whose default keeps an average: the algorithm writes the tau into policy_kwargs, so the saved
+    model names it; a model saved before the option existed (no such key) loads without an average."""
+    from sb3_eps.gdq.policies import GDQPolicy
+
+    class AveragingPolicy(GDQPolicy):
+        def __init__(self, *args, weight_average_tau=0.01, **kwargs) -> None:
+            super().__init__(*args, weight_average_tau=weight_average_tau, **kwargs)
+
+    venv = make_vec_env("CooperativeNavigation-v0", n_envs=1, seed=0)
+    model = GDQ(AveragingPolicy, venv, seed=0)
+    assert model.policy_kwargs["weight_average_tau"] == 0.01 and model.policy.q_net_average is not None
+    assert GDQ("MlpPolicy", venv, seed=0).policy_kwargs["weight_average_tau"] is None  # the default: no average
+    old = GDQ("MlpPolicy", venv, policy_kwargs={"weight_average_tau": None}, seed=0)
+    old.save(tmp_path / "old")
+    loaded = GDQ.load(tmp_path / "old", custom_objects={"policy_kwargs": {}, "policy_class": AveragingPolicy})
+    assert loaded.policy.q_net_average is None

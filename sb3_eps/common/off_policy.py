@@ -252,6 +252,11 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         # the ones it was built with (a model saved before the option existed has none, and loads without them).
         angles = self.policy_kwargs.get("angle_features", _policy_default(self.policy_class, "angle_features"))
         self.policy_kwargs = {**self.policy_kwargs, "angle_features": self._resolve_angle_features(angles)}
+        # The weight average's tau is written into policy_kwargs too (given, or the policy's default), so a saved
+        # model names it; a model saved before the option existed names none and loads without an average.
+        if "weight_average_tau" not in self.policy_kwargs:
+            tau = _policy_default(self.policy_class, "weight_average_tau")
+            self.policy_kwargs = {**self.policy_kwargs, "weight_average_tau": tau}
         if _init_setup_model:
             self._setup_model()
 
@@ -338,8 +343,9 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
 
     def _policy_constructor_kwargs(self) -> dict[str, Any]:
         # angle_features was resolved in __init__; a model saved before it existed has no such key and gets the
-        # policy's default, which builds no angle features without an env to read (as it was built).
-        kwargs = {"agent_target": self.default_agent_target, **self.policy_kwargs}
+        # policy's default, which builds no angle features without an env to read (as it was built). The same for
+        # weight_average_tau: a model saved without the key was built without an average, whatever the default.
+        kwargs = {"agent_target": self.default_agent_target, "weight_average_tau": None, **self.policy_kwargs}
         kwargs.update(n_agents=self.n_agents, state_dim=self.state_dim)
         return kwargs
 
