@@ -644,7 +644,11 @@ def test_weight_average_export_and_bad_values(tmp_path) -> None:
 
     model = tiny_model(VDN, policy_extra={"weight_average_tau": 0.5})
     model.policy.q_net_average.load_state_dict(tiny_model(VDN, seed=3).policy.q_net.state_dict())
-    onnx_path, _ = export_policy(model, tmp_path / "policy")
+    onnx_path, json_path = export_policy(model, tmp_path / "policy")
+    description = json.loads(open(json_path).read())
+    assert description["network"] == "q_net_average" and description["weight_average_tau"] == 0.5
+    _, plain_json = export_policy(tiny_model(VDN), tmp_path / "plain")
+    assert json.loads(open(plain_json).read())["network"] == "q_net"
     obs = np.random.default_rng(5).uniform(-2, 2, (32, 18)).astype(np.float32)
     (onnx_q,) = onnxruntime.InferenceSession(onnx_path, providers=["CPUExecutionProvider"]).run(
         ["q_values"], {"obs": obs}

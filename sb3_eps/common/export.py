@@ -70,6 +70,9 @@ def export_policy(model: Any, path: str | os.PathLike[str], opset_version: int =
         "input": {"name": "obs", "shape": ["batch", obs_dim], "dtype": "float32"},
         "output": {"name": "q_values", "shape": ["batch", int(action_space.n)], "dtype": "float32"},
         "action_selection": "argmax over q_values (decentralised: each agent from its own observation)",
+        # Which weights: the online network's, or their moving average when the policy keeps one.
+        "network": "q_net_average" if getattr(policy, "q_net_average", None) is not None else "q_net",
+        "weight_average_tau": getattr(policy, "weight_average_tau", None),
         "observation_space": {
             "low": np.asarray(observation_space.low, dtype=float).reshape(-1).tolist(),
             "high": np.asarray(observation_space.high, dtype=float).reshape(-1).tolist(),
