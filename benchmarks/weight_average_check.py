@@ -33,6 +33,7 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 import learning_check
 
 from sb3_eps.common.evaluation import evaluate_team
+from sb3_eps.common.utils import polyak_update_tensors_
 
 
 def average_path(path: pathlib.Path, tau: float) -> pathlib.Path:
@@ -59,10 +60,8 @@ def averaged_eval_class(taus: list[float], average_from: int, also: list[int]) -
             if k > 0:
                 self.seen_updates = self.model._n_updates
                 params = [p.detach() for p in self.model.policy.q_net.parameters()]
-                with th.no_grad():
-                    for tau, average in self.averages.items():
-                        weight = 1.0 - (1.0 - tau) ** k
-                        th._foreach_lerp_(average, params, weight)
+                for tau, average in self.averages.items():
+                    polyak_update_tensors_(average, params, [], [], 1.0 - (1.0 - tau) ** k)
             return super()._on_step()
 
         def evaluate(self, ticks: int) -> dict[str, Any]:
