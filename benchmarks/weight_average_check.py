@@ -1,9 +1,10 @@
 """One training run per seed, evaluated greedily with the online network and with moving averages of its weights.
 
 ``benchmarks/learning_check.py`` with one addition: besides the model's own network, the run keeps an exponential
-moving average of the agent network's weights for each ``--average-taus`` value (``avg <- (1 - tau) avg + tau
-theta`` after every gradient step, from the initial weights: what ``policy_kwargs=dict(weight_average_tau=tau)``
-keeps), and at every evaluation point from ``--average-from`` on (and at ``--average-also``) it evaluates each
+moving average of the agent network's weights for each ``--average-taus`` value (``avg <- (1 - r) avg + r theta``
+after the n-th gradient step, ``r = max(tau, 4 / (n + 3))``, ``sb3_eps.common.policies.weight_average_rate``: what
+``policy_kwargs=dict(weight_average_tau=tau)`` keeps; until the sixteenth session both used ``r = tau`` from the
+initial weights, which the records of T12-T17 hold), and at every evaluation point from ``--average-from`` on (and at ``--average-also``) it evaluates each
 average on the same evaluation worlds as the model. The averages only read the weights, so the training run is
 the one ``learning_check.py`` makes with the same arguments, and each comparison is paired within one run.
 Fifteenth session, rules T12/T13 (``docs/results/fifteenth_session/rules.md``).
@@ -15,13 +16,17 @@ The model's records are written as ``learning_check.py`` writes them; each avera
     python benchmarks/weight_average_check.py --average-taus 5e-4 2e-4 -- \
         --algo gdq --env MultiRobotNav-4-v0 --ticks 150000 --seeds 163 --eval-every 10000 --eval-episodes 50
 
-A seed whose run restarts (its record file had no final evaluation) starts its average files afresh too.
+A seed whose run restarts (its record file had no final evaluation) starts its average files afresh too. The model
+itself must act greedily with its online network: GDQ keeps a weight average by default (sixteenth session, rule
+T17), so a GDQ run here takes ``--hyperparams '{"policy_kwargs": {"weight_average_tau": null}}'``; the script says so
+and stops before it trains otherwise.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import pathlib
 import sys
 import time
@@ -33,6 +38,7 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 import learning_check
 
 from sb3_eps.common.evaluation import evaluate_team
+from sb3_eps.common.policies import weight_average_rate
 from sb3_eps.common.utils import polyak_update_tensors_
 
 
@@ -46,6 +52,13 @@ def averaged_eval_class(taus: list[float], average_from: int, also: list[int]) -
 
     class AveragedTeamEval(learning_check.PeriodicTeamEval):
         def _on_training_start(self) -> None:
+            if getattr(self.model.policy, "q_net_average", None) is not None:
+                # The model's own evaluations would then be its average's, not the online network's.
+                raise SystemExit(
+                    f"the model keeps its own weight average (weight_average_tau="
+                    f"{self.model.policy.weight_average_tau}, GDQ's default): this script compares the online "
+                    'network with averages, so pass --hyperparams \'{"policy_kwargs": {"weight_average_tau": null}}\''
+                )
             net = self.model.policy.q_net
             self.averages = {tau: [p.detach().clone() for p in net.parameters()] for tau in taus}
             self.seen_updates = self.model._n_updates
@@ -58,10 +71,14 @@ def averaged_eval_class(taus: list[float], average_from: int, also: list[int]) -
             # k = 1, the default train_freq of 1 and gradient_steps of 1).
             k = self.model._n_updates - self.seen_updates
             if k > 0:
-                self.seen_updates = self.model._n_updates
+                first, self.seen_updates = self.seen_updates + 1, self.model._n_updates
                 params = [p.detach() for p in self.model.policy.q_net.parameters()]
                 for tau, average in self.averages.items():
-                    polyak_update_tensors_(average, params, [], [], 1.0 - (1.0 - tau) ** k)
+                    # the option's n-th step moves the average by weight_average_rate(tau, n); k steps toward the
+                    # same weights compose into one move by 1 - prod(1 - rate)
+                    rates = [weight_average_rate(tau, n) for n in range(first, first + k)]
+                    rate = rates[0] if k == 1 else 1.0 - math.prod(1.0 - r for r in rates)
+                    polyak_update_tensors_(average, params, [], [], rate)
             return super()._on_step()
 
         def evaluate(self, ticks: int) -> dict[str, Any]:

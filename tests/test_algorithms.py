@@ -590,10 +590,11 @@ def _q_argmax(net, obs) -> np.ndarray:
 
 @pytest.mark.parametrize("algorithm", ALGORITHMS, ids=lambda a: a.__name__)
 def test_weight_average_is_an_ema_of_the_online_weights_and_leaves_training_unchanged(algorithm) -> None:
-    """weight_average_tau keeps avg <- (1 - tau) avg + tau theta after every gradient step, starting at the initial
-    weights; training (the online weights, the replay) is the same as without it, bit for bit."""
-    tau = 0.05
-    plain = tiny_model(algorithm)
+    """weight_average_tau keeps avg <- (1 - r) avg + r theta after the n-th gradient step, r = max(tau, 4 / (n + 3))
+    (a polynomial-decay average, then the moving average); training (the online weights, the replay) is the same as
+    without it, bit for bit."""
+    tau = 0.2
+    plain = tiny_model(algorithm, policy_extra={"weight_average_tau": None})  # GDQ keeps one by default
     plain.learn(400)  # before the second model is built: both seed the global generators
     averaged = tiny_model(algorithm, policy_extra={"weight_average_tau": tau})
     assert plain.policy.q_net_average is None and averaged.policy.weight_average_tau == tau
@@ -601,15 +602,17 @@ def test_weight_average_is_an_ema_of_the_online_weights_and_leaves_training_unch
     online_update = averaged.policy.update_weight_average
     n_calls = []
 
-    def tracking_update() -> None:
-        for e, p in zip(expected, averaged.policy.q_net.parameters(), strict=True):
-            e.mul_(1 - tau).add_(p.detach(), alpha=tau)
+    def tracking_update(n_updates) -> None:
         n_calls.append(1)
-        online_update()
+        assert n_updates == len(n_calls)
+        rate = max(tau, 4 / (len(n_calls) + 3))
+        for e, p in zip(expected, averaged.policy.q_net.parameters(), strict=True):
+            e.mul_(1 - rate).add_(p.detach(), alpha=rate)
+        online_update(n_updates)
 
     averaged.policy.update_weight_average = tracking_update
     averaged.learn(400)
-    assert len(n_calls) == averaged._n_updates > 0
+    assert len(n_calls) == averaged._n_updates > 4 / tau  # both the warm-up's steps and the moving average's
     for (name, p), q in zip(plain.policy.named_parameters(), averaged.policy.parameters(), strict=False):
         assert th.equal(p, q), name  # q_net_average is registered last: zip stops before it
     average, online = list(averaged.policy.q_net_average.parameters()), list(averaged.policy.q_net.parameters())
@@ -685,7 +688,11 @@ def test_weight_average_tau_is_written_into_the_saved_model_and_old_models_load_
     venv = make_vec_env("CooperativeNavigation-v0", n_envs=1, seed=0)
     model = GDQ(AveragingPolicy, venv, seed=0)
     assert model.policy_kwargs["weight_average_tau"] == 0.01 and model.policy.q_net_average is not None
-    assert GDQ("MlpPolicy", venv, seed=0).policy_kwargs["weight_average_tau"] is None  # the default: no average
+    # The package defaults: GDQ keeps a 2e-4 average (rule T17), the other algorithms none.
+    assert GDQ("MlpPolicy", venv, seed=0).policy_kwargs["weight_average_tau"] == 2e-4
+    assert GDQ("MlpPolicy", venv, seed=0).policy.q_net_average is not None
+    for other in (IQL, QMIX, VDN):
+        assert other("MlpPolicy", venv, seed=0).policy_kwargs["weight_average_tau"] is None
     old = GDQ("MlpPolicy", venv, policy_kwargs={"weight_average_tau": None}, seed=0)
     old.save(tmp_path / "old")
     loaded = GDQ.load(tmp_path / "old", custom_objects={"policy_kwargs": {}, "policy_class": AveragingPolicy})

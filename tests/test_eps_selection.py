@@ -366,10 +366,29 @@ def test_diagnostics_path_choices(tmp_path) -> None:
 
 
 def test_the_team_check_plays_the_training_env_before_and_after_the_crossover(monkeypatch) -> None:
+    import sb3_eps.common.evaluation as evaluation
+
     model = tiny_model(GDQ, learning_starts=10**6, n_steps=1)
+    assert model.policy.q_net_average is not None  # GDQ's default: greedy actions from a weight average
     _scripted(monkeypatch, [0.0, 20.0, 1.0, 2.0], [0.0, 30.0], [])
+    played = []
+    real_evaluate_team = evaluation.evaluate_team
+
+    def recording_evaluate_team(policy, *args, **kwargs):
+        played.append(policy)
+        return real_evaluate_team(policy, *args, **kwargs)
+
+    monkeypatch.setattr(evaluation, "evaluate_team", recording_evaluate_team)
     callback = new_callback(period=1, n_team_check_episodes=2, alpha_schedule="constant")
     model.learn(2 * 3 * 2, callback=callback)
+    # The checks play the online network (the one the crossover changed), not the model's weight average.
+    assert len(played) == 2
+    observations = np.random.default_rng(2).uniform(-2, 2, (64, 18)).astype(np.float32)
+    with th.no_grad():
+        online = model.policy.q_net(th.as_tensor(observations)).argmax(dim=1).numpy()
+        average = model.policy.q_net_average(th.as_tensor(observations)).argmax(dim=1).numpy()
+    assert (online != average).any()  # the crossover moved the online network away from the average
+    np.testing.assert_array_equal(played[1].predict(observations, deterministic=True)[0], online)
     record = callback.history[0]
     assert record["accepted"] and record["team_check_ticks"] == 2 * 2 * MPE_EPISODE
     assert {"team_success_before", "team_success_after", "team_return_before", "team_return_after"} <= set(

@@ -222,8 +222,13 @@ def test_angle_features_in_a_config(tmp_path) -> None:
 
 
 def test_weight_average_tau_in_a_config(tmp_path) -> None:
-    """weight_average_tau is off by default; a config may give a number in (0, 1] or null, nothing else."""
+    """weight_average_tau is off by default but for GDQ (2e-4); a config may give a number in (0, 1] or null (no
+    average, GDQ's too), nothing else."""
     assert "weight_average_tau" not in package_defaults(algorithm_spec("vdn"))["policy_kwargs"]
+    assert package_defaults(algorithm_spec("gdq"))["policy_kwargs"]["weight_average_tau"] == 2e-4
+    gdq_path = tmp_path / "gdq.yml"
+    gdq_path.write_text("default:\n  n_timesteps: 100\n  policy_kwargs: {weight_average_tau: null}\n")
+    assert resolve_config("gdq", "MultiRobotNav-4-v0", conf_file=gdq_path).entry["policy_kwargs"]["weight_average_tau"] is None
     path = tmp_path / "vdn.yml"
     for value, expected in (("0.0005", 0.0005), ("null", None)):
         path.write_text(f"default:\n  n_timesteps: 100\n  policy_kwargs: {{weight_average_tau: {value}}}\n")

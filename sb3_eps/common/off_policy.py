@@ -701,7 +701,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                 self._refuse_update(batch)  # nothing of this step reaches the weights, moments or priorities
                 continue
             self.policy.optimizer.step()
-            self.policy.update_weight_average()
+            self.policy.update_weight_average(self._n_updates + 1)
             self.replay_buffer.update_priorities(batch.indices, td_errors)
             self._n_updates += 1
             if self._n_updates % self.gradient_steps_per_target_update == 0:

@@ -20,6 +20,21 @@ DEFAULT_NET_ARCH = [128, 64]
 DEFAULT_STREAM_ARCH = [64]
 
 
+#: The warm-up of the weight average: polynomial-decay averaging (Shamir & Zhang, ICML 2013) with this eta.
+WEIGHT_AVERAGE_WARMUP_ETA = 3
+
+
+def weight_average_rate(tau: float, n_updates: int) -> float:
+    """:return: how far the ``n_updates``-th gradient step (counting from 1) moves the weight average toward the
+    online weights: ``max(tau, (eta + 1) / (n + eta))``, eta = :data:`WEIGHT_AVERAGE_WARMUP_ETA`. Early on, the
+    polynomial-decay average (weights growing as ``n^eta``, none left on the initial network after the first step)
+    keeps up with a short run; once its rate falls to ``tau`` it is the exponential moving average. Chosen in the
+    sixteenth session (rule T17, ``docs/results/sixteenth_session/rules.md``): the mean of all weights so far
+    (``eta`` 0) lagged a 20k-tick robot run by 15-20 points of greedy success, ``eta`` 3 and 7 kept up with it."""
+    eta = WEIGHT_AVERAGE_WARMUP_ETA
+    return max(float(tau), (eta + 1.0) / (max(int(n_updates), 1) + eta))
+
+
 class AngleFeaturesExtractor(BaseFeaturesExtractor):
     """Flattens the observation and feeds each angle entry to the network as its sine and cosine.
 
@@ -168,11 +183,13 @@ class MultiAgentQPolicy(BasePolicy):
         the others), read by the algorithm (a policy built without an algorithm has no env and takes none). None
         (the default) feeds the observation as it is. Replaces ``features_extractor_class``, so the two cannot be
         given together.
-    :param weight_average_tau: keep ``q_net_average``, an exponential moving average of the agent network's
-        weights (``avg <- (1 - tau) avg + tau theta`` after every gradient step, :meth:`update_weight_average`), and
-        take the greedy actions (``predict(deterministic=True)``, evaluation, export) from it; training's
-        epsilon-greedy actions keep the online network, so training itself is unchanged. None (the default): no
-        average, greedy actions from ``q_net``.
+    :param weight_average_tau: keep ``q_net_average``, a moving average of the agent network's weights
+        (``avg <- (1 - r) avg + r theta`` after every gradient step, ``r = max(tau, 4 / (n + 3))`` at the n-th,
+        :func:`weight_average_rate`: an average over about the last fifth of the run so far, then, from
+        ``n = 4 / tau``, the exponential moving average with ``tau``; :meth:`update_weight_average`), and take the
+        greedy actions (``predict(deterministic=True)``, evaluation,
+        export) from it; training's epsilon-greedy actions keep the online network, so training itself is
+        unchanged. None (this class's default; GDQ's is ``2e-4``): no average, greedy actions from ``q_net``.
     :param n_agents: agents per world (used by the joint modules)
     :param state_dim: length of the global state (used by state-conditioned mixers)
     """
@@ -280,9 +297,13 @@ class MultiAgentQPolicy(BasePolicy):
         if self.q_net_average is not None:
             self.q_net_average.load_state_dict(self.q_net.state_dict())
 
-    def update_weight_average(self) -> None:
+    def update_weight_average(self, n_updates: int | None = None) -> None:
         """One step of the weight average toward the online network (the algorithm calls it after every
-        gradient step); nothing without ``weight_average_tau``."""
+        gradient step); nothing without ``weight_average_tau``.
+
+        :param n_updates: the gradient steps so far, this one included (n): the step moves the average by
+            :func:`weight_average_rate`, ``max(tau, 4 / (n + 3))``. None: by ``tau``.
+        """
         if self.q_net_average is None:
             return
         cache = getattr(self, "_average_lists", None)
@@ -294,7 +315,8 @@ class MultiAgentQPolicy(BasePolicy):
             self._average_lists = cache
         average_params, average_buffers, params, buffers = cache[2]
         assert self.weight_average_tau is not None
-        polyak_update_tensors_(average_params, params, average_buffers, buffers, self.weight_average_tau)
+        rate = self.weight_average_tau if n_updates is None else weight_average_rate(self.weight_average_tau, n_updates)
+        polyak_update_tensors_(average_params, params, average_buffers, buffers, rate)
 
     def greedy_net(self) -> DuelingQNetwork:
         """:return: the network the greedy actions come from: ``q_net_average`` when kept, else ``q_net``."""

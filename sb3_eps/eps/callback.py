@@ -576,9 +576,10 @@ class EvolutionCallback(BaseCallback):
         env_id = self.model.get_env().env_id  # type: ignore[union-attr]  # checked in _check_model
         if when == "before":
             record["team_check_seed"] = int(self._rng.integers(2**31 - 1))  # type: ignore[union-attr]
-        summary = evaluate_team(
-            self.model, env_id, self.n_team_check_episodes, n_envs=1, seed=record["team_check_seed"]
-        )
+        # The online network, the one the crossover changed (a kept weight average, GDQ's default, follows it only
+        # slowly): its greedy actions without the model's exploration.
+        online = _OnlineGreedy(self.model.policy)
+        summary = evaluate_team(online, env_id, self.n_team_check_episodes, n_envs=1, seed=record["team_check_seed"])
         ticks = int(sum(episode["l"] for episode in summary["episodes"]))
         self.eps_ticks += ticks
         record[f"team_success_{when}"] = summary.get("success_rate", float("nan"))
@@ -851,6 +852,21 @@ class EvolutionCallback(BaseCallback):
                 shared_gradient_steps(self.model, 0)  # a train_freq in episodes: the error says what to set
         finally:
             env.close()
+
+
+class _OnlineGreedy:
+    """A policy's greedy actions from its online network: ``predict`` for :func:`evaluate_team`, whatever network
+    the model's own ``predict(deterministic=True)`` takes (``q_net_average`` when the policy keeps one). The
+    package's policies and SB3's ``DQNPolicy`` both take the online network's argmax with ``deterministic=False``
+    (exploration is the algorithm's)."""
+
+    def __init__(self, policy: Any) -> None:
+        self.policy = policy
+
+    def predict(
+        self, observation: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True
+    ) -> tuple[np.ndarray, Any]:
+        return self.policy.predict(observation, state, episode_start, deterministic=False)
 
 
 def visited_mask(replay_buffer: Any, robot: int | None = None) -> np.ndarray:

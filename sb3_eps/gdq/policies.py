@@ -13,6 +13,8 @@ from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.common.utils import moved_names
 
 DEFAULT_GLOBAL_NET_ARCH = [64, 64]
+# GDQ greedy-acts from a weight average of its agent network by default (rule T17, sixteenth session).
+DEFAULT_WEIGHT_AVERAGE_TAU = 2e-4
 GlobalInit = Literal["random", "sum", "mean"]
 GLOBAL_INITS: tuple[str, ...] = typing.get_args(GlobalInit)
 
@@ -91,6 +93,10 @@ class GDQPolicy(MultiAgentQPolicy):
 
     :param global_net_arch: hidden sizes of the global value head (default ``[64, 64]``)
     :param global_init: initialisation of the global value head, see :class:`GlobalValueNetwork`
+    :param weight_average_tau: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`, but on by default for GDQ
+        (``2e-4``: greedy actions from an exponential moving average of the agent network's weights over about
+        5,000 gradient steps; training is unchanged). Chosen by the rule T17 (``docs/results/baselines.md``,
+        "Sixteenth session"); ``None`` takes the greedy actions from the online network.
     :param kwargs: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`
 
     GDQ's learning options (``global_values``, ``global_bootstrap``) are arguments of :class:`~sb3_eps.gdq.GDQ`.
@@ -104,11 +110,12 @@ class GDQPolicy(MultiAgentQPolicy):
         *args: Any,
         global_net_arch: list[int] | None = None,
         global_init: GlobalInit = "mean",
+        weight_average_tau: float | None = DEFAULT_WEIGHT_AVERAGE_TAU,
         **kwargs: Any,
     ) -> None:
         self.global_net_arch = list(global_net_arch or DEFAULT_GLOBAL_NET_ARCH)
         self.global_init = global_init
-        super().__init__(*args, **kwargs)
+        super().__init__(*args, weight_average_tau=weight_average_tau, **kwargs)
 
     def _build_joint_modules(self) -> None:
         # Dense ReLU layers as the paper's V_G, whatever the agent network's activation (the sum/mean
