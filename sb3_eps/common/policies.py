@@ -30,7 +30,8 @@ def weight_average_rate(tau: float, n_updates: int) -> float:
     polynomial-decay average (weights growing as ``n^eta``, none left on the initial network after the first step)
     keeps up with a short run; once its rate falls to ``tau`` it is the exponential moving average. Chosen in the
     sixteenth session (rule T17, ``docs/results/sixteenth_session/rules.md``): the mean of all weights so far
-    (``eta`` 0) lagged a 20k-tick robot run by 15-20 points of greedy success, ``eta`` 3 and 7 kept up with it."""
+    (``eta`` 0) lagged a 20k-tick robot run by about 17 points of greedy success on three held-out seeds, ``eta`` 3
+    and 7 kept up with it (``benchmarks/average_warmup_check.py``)."""
     eta = WEIGHT_AVERAGE_WARMUP_ETA
     return max(float(tau), (eta + 1.0) / (max(int(n_updates), 1) + eta))
 
@@ -187,9 +188,8 @@ class MultiAgentQPolicy(BasePolicy):
         (``avg <- (1 - r) avg + r theta`` after every gradient step, ``r = max(tau, 4 / (n + 3))`` at the n-th,
         :func:`weight_average_rate`: an average over about the last fifth of the run so far, then, from
         ``n = 4 / tau``, the exponential moving average with ``tau``; :meth:`update_weight_average`), and take the
-        greedy actions (``predict(deterministic=True)``, evaluation,
-        export) from it; training's epsilon-greedy actions keep the online network, so training itself is
-        unchanged. None (this class's default; GDQ's is ``2e-4``): no average, greedy actions from ``q_net``.
+        greedy actions (``predict(deterministic=True)``, evaluation, export) from it; training's epsilon-greedy
+        actions keep the online network, so training itself is unchanged. None (this class's default; GDQ's is ``2e-4``): no average, greedy actions from ``q_net``.
     :param n_agents: agents per world (used by the joint modules)
     :param state_dim: length of the global state (used by state-conditioned mixers)
     """
