@@ -23,6 +23,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 import envs  # noqa: F401
 from sb3_eps import GDQ, make_vec_env
 from sb3_eps.common.evaluation import evaluate_team
+from sb3_eps.common.policies import weight_average_rate
 from sb3_eps.common.utils import polyak_update_tensors_
 
 
@@ -42,7 +43,7 @@ class WarmupAverages(BaseCallback):
             self.seen += 1
             params = [p.detach() for p in self.model.policy.q_net.parameters()]
             for eta, average in self.averages.items():
-                polyak_update_tensors_(average, params, [], [], max(self.tau, (eta + 1) / (self.seen + eta)))
+                polyak_update_tensors_(average, params, [], [], weight_average_rate(self.tau, self.seen, eta))
         return True
 
 
