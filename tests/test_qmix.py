@@ -139,3 +139,45 @@ def test_mixer_learns_at_its_fraction_of_the_agents_rate(tmp_path) -> None:
     for bad in (0, -0.1, True, "0.1"):
         with pytest.raises(ValueError, match="mixer_lr_scale must be a number > 0"):
             tiny_model(QMIX, policy_kwargs={**TINY, "mixer_lr_scale": bad})
+
+
+@pytest.mark.parametrize("algorithm", [QMIX, VDN], ids=lambda a: a.__name__)
+def test_advantage_learning_lowers_the_team_target_by_alpha_times_the_joint_action_gap(
+    algorithm, monkeypatch, tmp_path
+) -> None:
+    """y = (the plain team target) - alpha (mixer'(max_b Q_i'(s_i, b); s) - mixer'(Q_i'(s_i, a_i); s)); with VDN's sum
+    the gap is the sum of the acting agents' own gaps, 0 only where every acting agent took its greedy action."""
+    import sb3_eps.qmix.qmix as qmix_module
+
+    model = tiny_model(algorithm, advantage_learning=0.5)
+    model.learn(400)
+    batch = model.replay_buffer.sample(32)
+    seen = []
+    original = qmix_module.weighted_huber
+
+    def spy(prediction, target, weights):
+        seen.append(target.clone())
+        return original(prediction, target, weights)
+
+    monkeypatch.setattr(qmix_module, "weighted_huber", spy)
+    model._compute_loss(batch)
+    model.advantage_learning = 0.0
+    model._compute_loss(batch)
+    with th.no_grad():
+        gap = model._team_action_gap(batch)
+        q_values = model.policy.q_net_target(batch.observations.reshape(-1, batch.observations.shape[-1]))
+        own_gaps = (q_values.max(dim=1).values - q_values.gather(1, batch.actions.reshape(-1, 1)).squeeze(1)).reshape(
+            batch.actions.shape[:2]
+        ) * batch.alive
+    assert gap.shape == seen[0].shape and (gap >= -1e-6).all() and (gap > 0).any()
+    th.testing.assert_close(seen[0], seen[1] - 0.5 * gap)
+    if algorithm is VDN:
+        th.testing.assert_close(gap, own_gaps.sum(dim=1))
+    all_greedy = (own_gaps == 0).all(dim=1)
+    th.testing.assert_close(gap[all_greedy], th.zeros_like(gap[all_greedy]), atol=1e-5, rtol=0)
+    model.advantage_learning = 0.5
+    model.save(tmp_path / "al")
+    assert algorithm.load(tmp_path / "al").advantage_learning == 0.5
+    assert tiny_model(algorithm).advantage_learning == 0.0  # off by default
+    with pytest.raises(ValueError, match=r"advantage_learning must be in \[0, 1\)"):
+        tiny_model(algorithm, advantage_learning=1.0)

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
+import inspect
+from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
@@ -18,6 +19,9 @@ from sb3_eps.qmix.policies import QMIXPolicy, VDNPolicy, apply_lr_scales
 #: QMIX's and VDN's default learning rate: 3e-4 decaying linearly to 0 over the budget (RL Zoo's ``lin_3e-4``), as
 #: GDQ's: the greedy policy stops churning as the budget ends (docs/results/baselines.md).
 DEFAULT_LEARNING_RATE = LinearSchedule(3e-4, 0.0, 1.0)
+
+#: the base's ``__init__`` with QMIX's own default learning rate; QMIX's ``__init__`` adds ``advantage_learning``.
+_base_init = init_with_defaults(MultiAgentOffPolicyAlgorithm.__init__, learning_rate=DEFAULT_LEARNING_RATE)
 
 
 class QMIX(MultiAgentOffPolicyAlgorithm):
@@ -35,7 +39,13 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     state path alone, ``mixer'(0, ..., 0; s')``, a value no agent is trained towards (the class attribute
     ``handle_timeout_termination = False`` restores that for comparison; ``docs/results/baselines.md``).
     Arguments are those of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`, with the learning rate
-    decaying linearly from 3e-4 to 0 over the budget by default.
+    decaying linearly from 3e-4 to 0 over the budget by default, and one of QMIX's own:
+
+    :param advantage_learning: ``alpha`` of advantage learning (Bellemare et al., "Increasing the Action Gap", AAAI
+        2016) on the team's target: it is lowered by ``alpha (mixer'(max_b Q_i'(s_i, b); s) - mixer'(Q_i'(s_i, a_i);
+        s))``, the gap between the joint greedy action and the joint action taken (the mixer is monotonic, so the
+        joint greedy action is every agent's own; with VDN's sum it is the sum of the agents' gaps). The agent target
+        network reads both. 0 (the default): the plain target
     """
 
     policy: QMIXPolicy
@@ -45,7 +55,18 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     handle_timeout_termination: ClassVar[bool] = True
 
     # QMIX's and VDN's own default: the learning rate (lin_3e-4, as GDQ's; docs/results/baselines.md).
-    __init__ = init_with_defaults(MultiAgentOffPolicyAlgorithm.__init__, learning_rate=DEFAULT_LEARNING_RATE)
+    def __init__(self, *args: Any, advantage_learning: float = 0.0, **kwargs: Any) -> None:
+        if not 0.0 <= advantage_learning < 1.0:
+            raise ValueError(f"advantage_learning must be in [0, 1), got {advantage_learning}")
+        self.advantage_learning = float(advantage_learning)
+        _base_init(self, *args, **kwargs)
+
+    __init__.__signature__ = inspect.signature(_base_init).replace(  # type: ignore[attr-defined]
+        parameters=[
+            *inspect.signature(_base_init).parameters.values(),
+            inspect.Parameter("advantage_learning", inspect.Parameter.KEYWORD_ONLY, default=0.0, annotation=float),
+        ]
+    )
 
     def _update_learning_rate(self, optimizers: list[th.optim.Optimizer] | th.optim.Optimizer) -> None:
         super()._update_learning_rate(optimizers)
@@ -64,6 +85,8 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
             next_q = (terms.next_values + terms.next_advantage_term) * self._bootstrap_mask(batch)
             next_total = self.policy.mixer_target(next_q, batch.next_states)
             targets = td_target(batch.team_rewards, batch.team_discounts, batch.team_dones, next_total)
+            if self.advantage_learning:
+                targets = targets - self.advantage_learning * self._team_action_gap(batch)
         loss = weighted_huber(q_total, targets, batch.weights)
         priorities = (q_total - targets).detach().abs()
         q_total_detached = q_total.detach()
@@ -76,6 +99,22 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
         if self._n_updates % self.diagnostics_interval == 0:
             logs.update(self._diagnostics(terms.q_taken * batch.alive, next_q, next_total, batch))
         return loss, priorities.cpu().numpy(), logs
+
+    def _team_action_gap(self, batch: JointReplayBufferSamples) -> th.Tensor:
+        """``mixer'(max_b Q_i'(s_i, b); s) - mixer'(Q_i'(s_i, a_i); s)`` from the agent target network (the online
+        one without it) and the target mixer: what advantage learning subtracts from the team's targets, times
+        ``alpha``. Agents that are not acting enter both as ``Q = 0``.
+
+        :return: ``(batch,)``, >= 0 (the mixer is monotonic)
+        """
+        network = self.policy.q_net_target if self.policy.q_net_target is not None else self.policy.q_net
+        observations = batch.observations.reshape(-1, batch.observations.shape[-1])
+        q_values = network(observations)
+        shape = batch.actions.shape[:2]
+        best = q_values.max(dim=1).values.reshape(shape) * batch.alive
+        taken = q_values.gather(1, batch.actions.reshape(-1, 1)).reshape(shape) * batch.alive
+        mixer = self.policy.mixer_target
+        return mixer(best, batch.states) - mixer(taken, batch.states)
 
     def _diagnostics(
         self, agent_qs: th.Tensor, next_q: th.Tensor, next_total: th.Tensor, batch: JointReplayBufferSamples
