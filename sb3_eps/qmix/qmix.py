@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import inspect
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 import numpy as np
@@ -22,6 +23,27 @@ DEFAULT_LEARNING_RATE = LinearSchedule(3e-4, 0.0, 1.0)
 
 #: the base's ``__init__`` with QMIX's own default learning rate; QMIX's ``__init__`` adds ``advantage_learning``.
 _base_init = init_with_defaults(MultiAgentOffPolicyAlgorithm.__init__, learning_rate=DEFAULT_LEARNING_RATE)
+
+
+def _init_with_advantage_learning(default: float) -> Callable[..., None]:
+    """:return: QMIX's (or VDN's) ``__init__``: the base's arguments, then ``advantage_learning`` with ``default``;
+    its signature, which ``inspect`` and the config schema read, says so."""
+
+    def __init__(self: QMIX, *args: Any, advantage_learning: float = default, **kwargs: Any) -> None:
+        if not 0.0 <= advantage_learning < 1.0:
+            raise ValueError(f"advantage_learning must be in [0, 1), got {advantage_learning}")
+        self.advantage_learning = float(advantage_learning)
+        _base_init(self, *args, **kwargs)
+
+    signature = inspect.signature(_base_init)
+    __init__.__signature__ = signature.replace(  # type: ignore[attr-defined]
+        parameters=[
+            *signature.parameters.values(),
+            inspect.Parameter("advantage_learning", inspect.Parameter.KEYWORD_ONLY, default=default, annotation=float),
+        ]
+    )
+    __init__.__doc__ = _base_init.__doc__
+    return __init__
 
 
 class QMIX(MultiAgentOffPolicyAlgorithm):
@@ -54,19 +76,9 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     uses_global_state: ClassVar[bool] = True
     handle_timeout_termination: ClassVar[bool] = True
 
-    # QMIX's and VDN's own default: the learning rate (lin_3e-4, as GDQ's; docs/results/baselines.md).
-    def __init__(self, *args: Any, advantage_learning: float = 0.0, **kwargs: Any) -> None:
-        if not 0.0 <= advantage_learning < 1.0:
-            raise ValueError(f"advantage_learning must be in [0, 1), got {advantage_learning}")
-        self.advantage_learning = float(advantage_learning)
-        _base_init(self, *args, **kwargs)
-
-    __init__.__signature__ = inspect.signature(_base_init).replace(  # type: ignore[attr-defined]
-        parameters=[
-            *inspect.signature(_base_init).parameters.values(),
-            inspect.Parameter("advantage_learning", inspect.Parameter.KEYWORD_ONLY, default=0.0, annotation=float),
-        ]
-    )
+    # QMIX's and VDN's own defaults: the learning rate (lin_3e-4, as GDQ's; docs/results/baselines.md) and, VDN's,
+    # advantage learning (rule T18).
+    __init__ = _init_with_advantage_learning(0.0)
 
     def _update_learning_rate(self, optimizers: list[th.optim.Optimizer] | th.optim.Optimizer) -> None:
         super()._update_learning_rate(optimizers)
