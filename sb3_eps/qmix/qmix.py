@@ -26,7 +26,7 @@ _base_init = init_with_defaults(MultiAgentOffPolicyAlgorithm.__init__, learning_
 
 
 def _init_with_advantage_learning(default: float) -> Callable[..., None]:
-    """:return: QMIX's (or VDN's) ``__init__``: the base's arguments, then ``advantage_learning`` with ``default``;
+    """:return: QMIX's ``__init__`` (VDN's too): the base's arguments, then ``advantage_learning`` with ``default``;
     its signature, which ``inspect`` and the config schema read, says so."""
 
     def __init__(self: QMIX, *args: Any, advantage_learning: float = default, **kwargs: Any) -> None:
@@ -76,8 +76,8 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     uses_global_state: ClassVar[bool] = True
     handle_timeout_termination: ClassVar[bool] = True
 
-    # QMIX's and VDN's own defaults: the learning rate (lin_3e-4, as GDQ's; docs/results/baselines.md) and, VDN's,
-    # advantage learning (rule T18).
+    # QMIX's and VDN's own default: the learning rate (lin_3e-4, as GDQ's; docs/results/baselines.md); their own
+    # argument advantage_learning is off by default (on VDN, rule T18 did not pass it).
     __init__ = _init_with_advantage_learning(0.0)
 
     def _update_learning_rate(self, optimizers: list[th.optim.Optimizer] | th.optim.Optimizer) -> None:
