@@ -222,10 +222,13 @@ def test_angle_features_in_a_config(tmp_path) -> None:
 
 
 def test_weight_average_tau_in_a_config(tmp_path) -> None:
-    """weight_average_tau is off by default but for GDQ (2e-4); a config may give a number in (0, 1] or null (no
-    average, GDQ's too), nothing else."""
-    assert "weight_average_tau" not in package_defaults(algorithm_spec("vdn"))["policy_kwargs"]
+    """weight_average_tau is off by default but for GDQ and VDN (2e-4); a config may give a number in (0, 1] or null
+    (no average, GDQ's too), nothing else."""
+    assert "weight_average_tau" not in package_defaults(algorithm_spec("qmix"))["policy_kwargs"]
     assert package_defaults(algorithm_spec("gdq"))["policy_kwargs"]["weight_average_tau"] == 2e-4
+    assert package_defaults(algorithm_spec("vdn"))["policy_kwargs"]["weight_average_tau"] == 2e-4
+    assert package_defaults(algorithm_spec("vdn"))["advantage_learning"] == 0.5
+    assert package_defaults(algorithm_spec("qmix"))["advantage_learning"] == 0.0
     gdq_path = tmp_path / "gdq.yml"
     gdq_path.write_text("default:\n  n_timesteps: 100\n  policy_kwargs: {weight_average_tau: null}\n")
     assert resolve_config("gdq", "MultiRobotNav-4-v0", conf_file=gdq_path).entry["policy_kwargs"]["weight_average_tau"] is None

@@ -10,6 +10,7 @@ from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 
 from sb3_eps.common.policies import MultiAgentQPolicy
+from sb3_eps.gdq.policies import DEFAULT_WEIGHT_AVERAGE_TAU
 
 
 class QMixer(nn.Module):
@@ -178,7 +179,16 @@ class QMIXPolicy(MultiAgentQPolicy):
 
 
 class VDNPolicy(QMIXPolicy):
-    """Agent network plus a parameter-free :class:`SumMixer`."""
+    """Agent network plus a parameter-free :class:`SumMixer`.
+
+    :param weight_average_tau: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`, but on by default for VDN
+        (``2e-4``, GDQ's: greedy actions from a moving average of the agent network's weights; training is
+        unchanged). Chosen with ``VDN(advantage_learning=0.5)`` by the rule T19 (``docs/results/baselines.md``,
+        "Seventeenth session"); ``None`` takes the greedy actions from the online network.
+    """
+
+    def __init__(self, *args: Any, weight_average_tau: float | None = DEFAULT_WEIGHT_AVERAGE_TAU, **kwargs: Any) -> None:
+        super().__init__(*args, weight_average_tau=weight_average_tau, **kwargs)
 
     def _make_mixer(self) -> nn.Module:
         return SumMixer()

@@ -21,6 +21,9 @@ from sb3_eps.qmix.policies import QMIXPolicy, VDNPolicy, apply_lr_scales
 #: GDQ's: the greedy policy stops churning as the budget ends (docs/results/baselines.md).
 DEFAULT_LEARNING_RATE = LinearSchedule(3e-4, 0.0, 1.0)
 
+#: VDN's default ``advantage_learning`` (rule T19, held-out seeds 200-205; QMIX's is 0).
+DEFAULT_VDN_ADVANTAGE_LEARNING = 0.5
+
 #: the base's ``__init__`` with QMIX's own default learning rate; QMIX's ``__init__`` adds ``advantage_learning``.
 _base_init = init_with_defaults(MultiAgentOffPolicyAlgorithm.__init__, learning_rate=DEFAULT_LEARNING_RATE)
 
@@ -67,7 +70,7 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
         2016) on the team's target: it is lowered by ``alpha (mixer'(max_b Q_i'(s_i, b); s) - mixer'(Q_i'(s_i, a_i);
         s))``, the gap between the joint greedy action and the joint action taken (the mixer is monotonic, so the
         joint greedy action is every agent's own; with VDN's sum it is the sum of the agents' gaps). The agent target
-        network reads both. 0 (the default): the plain target
+        network reads both. QMIX's default 0 is the plain target; VDN's default is 0.5 (rule T19)
     """
 
     policy: QMIXPolicy
@@ -77,7 +80,7 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     handle_timeout_termination: ClassVar[bool] = True
 
     # QMIX's and VDN's own default: the learning rate (lin_3e-4, as GDQ's; docs/results/baselines.md); their own
-    # argument advantage_learning is off by default (on VDN, rule T18 did not pass it).
+    # argument advantage_learning is off for QMIX (not screened; QMIX meets its target), 0.5 for VDN (below).
     __init__ = _init_with_advantage_learning(0.0)
 
     def _update_learning_rate(self, optimizers: list[th.optim.Optimizer] | th.optim.Optimizer) -> None:
@@ -147,7 +150,14 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
 
 
 class VDN(QMIX):
-    """VDN: as :class:`QMIX` with the additive mixer ``Q_tot = sum_i Q_i`` (no state needed)."""
+    """VDN: as :class:`QMIX` with the additive mixer ``Q_tot = sum_i Q_i`` (no state needed), and its own defaults:
+    ``advantage_learning=0.5`` and greedy actions from a 2e-4 weight average of the agent network's weights
+    (``policy_kwargs=dict(weight_average_tau=2e-4)``, :class:`~sb3_eps.qmix.policies.VDNPolicy`), chosen together by
+    the rule T19 (``docs/results/baselines.md``, "Seventeenth session")."""
 
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": VDNPolicy}
     uses_global_state: ClassVar[bool] = False
+
+    # VDN's own default: advantage learning 0.5, with greedy actions from a 2e-4 weight average (VDNPolicy's
+    # default); rule T19, docs/results/baselines.md ("Seventeenth session").
+    __init__ = _init_with_advantage_learning(DEFAULT_VDN_ADVANTAGE_LEARNING)
