@@ -46,9 +46,11 @@ class PeriodicTeamEval(BaseCallback):
         path: pathlib.Path,
         seed: int,
         eps: EvolutionCallback | None = None,
+        env_kwargs: dict[str, Any] | None = None,
     ) -> None:
         super().__init__()
         self.eps = eps
+        self.env_kwargs = env_kwargs
         self.env_id, self.eval_every, self.n_episodes, self.path, self.seed = (
             env_id,
             eval_every,
@@ -73,7 +75,9 @@ class PeriodicTeamEval(BaseCallback):
         return True
 
     def evaluate(self, ticks: int) -> dict[str, Any]:
-        summary = evaluate_team(self.model, self.env_id, self.n_episodes, n_envs=4, seed=10_000 + self.seed)
+        summary = evaluate_team(
+            self.model, self.env_id, self.n_episodes, n_envs=4, seed=10_000 + self.seed, env_kwargs=self.env_kwargs
+        )
         summary.pop("episodes")
         record = {"ticks": ticks, "wall_s": round(time.time() - self.start, 1), **summary}
         if self.eps is not None:
@@ -114,6 +118,12 @@ def main() -> None:
         help='JSON dict of algorithm arguments; "learning_rate": "lin_<x>" is a linear decay from x to 0',
     )
     parser.add_argument(
+        "--env-kwargs",
+        type=json.loads,
+        default=None,
+        help='JSON dict of world arguments for the training and evaluation worlds, e.g. \'{"heading_reward": 0.5}\'',
+    )
+    parser.add_argument(
         "--eps",
         type=json.loads,
         default=None,
@@ -145,7 +155,7 @@ def main() -> None:
             print(f"seed {seed}: done already ({path})")
             continue
         path.unlink(missing_ok=True)  # an unfinished seed restarts from scratch
-        venv = make_vec_env(args.env, n_envs=args.n_envs, seed=seed)
+        venv = make_vec_env(args.env, n_envs=args.n_envs, seed=seed, env_kwargs=args.env_kwargs)
         hyperparams = dict(args.hyperparams)
         learning_rate = hyperparams.get("learning_rate")
         if isinstance(learning_rate, str) and learning_rate.startswith("lin_"):
@@ -166,7 +176,9 @@ def main() -> None:
                 )
             eps_kwargs.setdefault("verbose", 1)
             eps = EvolutionCallback(**eps_kwargs)
-        callback = PeriodicTeamEval(args.env, args.eval_every, args.eval_episodes, path, seed, eps)
+        callback = PeriodicTeamEval(
+            args.env, args.eval_every, args.eval_episodes, path, seed, eps, env_kwargs=args.env_kwargs
+        )
         callbacks: BaseCallback = callback
         if eps is not None:  # training stops when its ticks plus the EPS ticks reach the budget
             budget = TickBudgetCallback(

@@ -93,7 +93,12 @@ def averaged_eval_class(taus: list[float], average_from: int, also: list[int]) -
                         for param, value in zip(net.parameters(), average, strict=True):
                             param.copy_(value)
                     summary = evaluate_team(
-                        self.model, self.env_id, self.n_episodes, n_envs=4, seed=10_000 + self.seed
+                        self.model,
+                        self.env_id,
+                        self.n_episodes,
+                        n_envs=4,
+                        seed=10_000 + self.seed,
+                        env_kwargs=self.env_kwargs,
                     )
                     summary.pop("episodes")
                     row = {
