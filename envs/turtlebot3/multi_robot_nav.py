@@ -240,8 +240,9 @@ class MultiRobotNavEnv(ParallelEnv):
         self._collision = False
         offset = self._targets - self.world.xy
         self._distance = np.hypot(offset[:, 0], offset[:, 1])
-        self._abs_bearing = np.abs(self._bearing(self._live_index, offset))
-        obs = self._observe(self._live_index, offset, self._distance)
+        bearing = self._bearing(self._live_index, offset)
+        self._abs_bearing = np.abs(bearing)
+        obs = self._observe(self._live_index, offset, self._distance, bearing)
         team = self._team_info()
         observations = dict(zip(self.agents, obs))
         infos = {agent: {"arrived": False, "collided": False, "team": team} for agent in self.agents}
@@ -324,10 +325,11 @@ class MultiRobotNavEnv(ParallelEnv):
         arrived = (distance <= TARGET_RADIUS) & ~collided
         # Paper Eq. 7, collision taking precedence over arrival.
         progress = (self._distance[rows] - distance) - STEP_PENALTY
+        bearing = self._bearing(live, offset)
         if self.heading_reward:
             # The bearing's progress in the same difference form as Eq. 7's distance term (it telescopes over
             # an episode): c (|b_prev| - |b_now|) / pi.
-            abs_bearing = np.abs(self._bearing(live, offset))
+            abs_bearing = np.abs(bearing)
             progress = progress + self.heading_reward * (self._abs_bearing[rows] - abs_bearing) * (1.0 / np.pi)
             self._abs_bearing[rows] = abs_bearing
         rewards = np.where(collided, REWARD_COLLISION, np.where(arrived, REWARD_ARRIVAL, progress))
@@ -339,7 +341,7 @@ class MultiRobotNavEnv(ParallelEnv):
             terminated = np.ones(len(live), dtype=bool)
         else:
             terminated = arrived
-        obs = self._observe(live, offset, distance)
+        obs = self._observe(live, offset, distance, bearing)
         ended = terminated
         if self._ticks >= self.max_episode_steps:
             truncated = ~terminated
@@ -396,18 +398,20 @@ class MultiRobotNavEnv(ParallelEnv):
 
     # --- observations, state, infos ----------------------------------------------------------------------
 
-    def _observe(self, indices: np.ndarray, offset: np.ndarray, distance: np.ndarray) -> np.ndarray:
+    def _observe(
+        self, indices: np.ndarray, offset: np.ndarray, distance: np.ndarray, bearing: np.ndarray
+    ) -> np.ndarray:
         """Scan and build the 30-float observations of the robots in ``indices`` (one ray batch).
 
         :param indices: robot indices
         :param offset: ``(k, 2)`` target minus robot position
         :param distance: ``(k,)`` norms of ``offset``
+        :param bearing: ``(k,)`` the target bearings, ``self._bearing(indices, offset)``
         """
         ranges = self.world.scan(indices, self.lidar_noise_std, self.np_random)
         rows = self.world.rows_of(indices)
         self._scan_ranges[rows] = ranges
         self._scanned = indices
-        bearing = self._bearing(indices, offset)
         obs = np.empty((len(indices), OBS_DIM), dtype=np.float32)
         obs[:, :N_BEAMS] = ranges * (1.0 / RANGE_MAX)
         obs[:, N_BEAMS] = np.minimum(distance * (1.0 / DISTANCE_SCALE), 1.0)
