@@ -104,6 +104,19 @@ def test_replay_buffer_class_and_kwargs_as_sb3() -> None:
     assert buffer.n_added > 0 and buffer.size() > 0 and buffer.n_agents == model.n_agents
 
 
+def test_gdq_replays_uniformly_by_default_and_the_others_prioritise() -> None:
+    """GDQ's default is uniform replay (rule T24, docs/results/baselines.md); IQL, QMIX and VDN keep PER."""
+    from sb3_eps import QMIX, VDN
+
+    gdq = tiny_model(GDQ)
+    assert type(gdq.replay_buffer) is JointReplayBuffer and not gdq.prioritized_replay
+    for algorithm in (IQL, QMIX, VDN):
+        model = tiny_model(algorithm)
+        assert isinstance(model.replay_buffer, PrioritizedJointReplayBuffer) and model.prioritized_replay
+    per = tiny_model(GDQ, prioritized_replay=True)
+    assert isinstance(per.replay_buffer, PrioritizedJointReplayBuffer) and per.replay_buffer.alpha == 0.6
+
+
 def test_the_config_names_a_replay_buffer_class() -> None:
     entry = resolve_config(
         "iql", "CooperativeNavigation-v0", hyperparams=["replay_buffer_class:JointReplayBuffer"]

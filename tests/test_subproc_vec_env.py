@@ -181,7 +181,7 @@ def test_gdq_trains_the_same_with_workers() -> None:
         )
         model = GDQ(
             "MlpPolicy", venv, seed=3, learning_starts=100, batch_size=16, buffer_size=2_000, train_freq=2,
-            policy_kwargs={"net_arch": [16], "stream_arch": [16], "global_net_arch": [16]},
+            prioritized_replay=True, policy_kwargs={"net_arch": [16], "stream_arch": [16], "global_net_arch": [16]},
         )  # fmt: skip
         model.learn(800)
         weights.append({k: v.clone() for k, v in model.policy.state_dict().items()})

@@ -26,7 +26,7 @@ ARGV = [
     "--algo", "eps_gdq", "--env", ENV_ID, "-n", str(N_TIMESTEPS), "--seed", "3", "--verbose", "0",
     "--eval-freq", "900", "--eval-episodes", "2", "--n-eval-envs", "1", "--save-freq", "600",
     "--hyperparams", "policy_kwargs:dict(net_arch=[16], stream_arch=[16], global_net_arch=[16])",
-    "learning_starts:300", "batch_size:16", "buffer_size:2000", "train_freq:3", "n_envs:2",
+    "learning_starts:300", "prioritized_replay:True", "batch_size:16", "buffer_size:2000", "train_freq:3", "n_envs:2",
     "callback.population_size:2", "callback.n_workers:0", "callback.period:6", "callback.n_eval_episodes:1",
     "callback.sensitivity_batch_size:16",
     # A round every 6 world episodes as before issue 10's defaults (a round every 10k ticks within a 10 % budget).

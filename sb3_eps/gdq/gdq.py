@@ -63,6 +63,10 @@ DEFAULT_GLOBAL_BOOTSTRAP = 0.1
 #: GDQ's default ``n_steps``; the paper's target (``global_bootstrap=1``) needs 30 (docs/results/baselines.md).
 DEFAULT_N_STEPS = 3
 
+#: GDQ's default ``prioritized_replay``: uniform replay (the base class's default is PER; docs/results/baselines.md,
+#: "Nineteenth session", rule T24).
+DEFAULT_PRIORITIZED_REPLAY = False
+
 #: GDQ's default learning rate: 3e-4 decaying linearly to 0 over the budget (RL Zoo's ``lin_3e-4``).
 DEFAULT_LEARNING_RATE = LinearSchedule(3e-4, 0.0, 1.0)
 
@@ -142,7 +146,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         replay_buffer_kwargs: dict[str, Any] | None = None,
         gradient_steps_per_target_update: int = 1,
         n_steps: int = DEFAULT_N_STEPS,
-        prioritized_replay: bool = True,
+        prioritized_replay: bool = DEFAULT_PRIORITIZED_REPLAY,
         prioritized_replay_alpha: float = 0.6,
         prioritized_replay_beta0: float = 0.4,
         double_q: bool = True,
