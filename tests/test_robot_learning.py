@@ -18,8 +18,8 @@ from sb3_eps.common.evaluation import evaluate_team
 TICKS = 30_000
 EPISODES = 40
 # Measured for this seed on the 2-core VM, about 65 s of CPU. 2026-12-02 (nineteenth session), uniform replay, GDQ's
-# default since then: 85 % at 30k ticks (prioritized replay, the same run otherwise: 75 %, where the next lines' 87.5 %
-# was measured before the weight average's warm-up changed). 2026-12-02, the package defaults (GDQ-lambda 0.1,
+# default since then: 85 % at 30k ticks (prioritized replay, the same run otherwise, re-run that day: 75 %). Earlier
+# that day, the package defaults of then (GDQ-lambda 0.1,
 # 3-step returns, greedy actions from a 2e-4 weight average): 87.5 % at 30k ticks (the online network: 87.5 %); at
 # 20k, this test's budget until then, the average had 20 % and the online network 32.5 %: an average lags a short
 # run. 2026-12-01 (20k ticks, online): 50 % with GDQ-lambda, 88 % with the paper's target and 30-step returns (the

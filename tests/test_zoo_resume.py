@@ -155,6 +155,16 @@ def test_resume_equals_the_uninterrupted_run(uninterrupted, tmp_path, stop, vec_
     assert train.main(["--resume", str(run), "--verbose", "0"]) == 0
 
 
+def test_resume_with_uniform_replay_equals_the_uninterrupted_run(tmp_path) -> None:
+    """GDQ's default buffer (uniform replay since 2026-12-02; the runs above name PER) resumes exactly too."""
+    uniform = [argument.replace("prioritized_replay:True", "prioritized_replay:False") for argument in ARGV]
+    assert uniform != ARGV
+    assert train.main([*uniform, "-f", str(tmp_path / "uninterrupted")]) == 0
+    expected = run_folder(tmp_path / "uninterrupted")
+    run = stop_and_resume(uniform, tmp_path / "interrupted", signal.SIGTERM, "dummy")
+    assert_equal_runs(run, expected)
+
+
 def test_overlap_training_with_workers_resumes_to_the_in_process_run(tmp_path) -> None:
     """``overlap_training`` (learning while the worlds step): every training world goes to a worker, a SIGTERM
     and ``--resume`` lose nothing, and the result equals the same config trained in process."""
