@@ -37,11 +37,25 @@ ALGORITHMS = {"iql": IQL, "gdq": GDQ, "qmix": QMIX, "vdn": VDN}
 class LadderEval(BaseCallback):
     """Greedy team evaluation every ``eval_every`` world ticks of the whole ladder; one JSON line each."""
 
-    def __init__(self, args: argparse.Namespace, path: pathlib.Path, seed: int, rung: int, ticks_before: int,
-                 steps_before: int, next_eval: int, start: float) -> None:
+    def __init__(
+        self,
+        args: argparse.Namespace,
+        path: pathlib.Path,
+        seed: int,
+        rung: int,
+        ticks_before: int,
+        steps_before: int,
+        next_eval: int,
+        start: float,
+    ) -> None:
         super().__init__()
         self.args, self.path, self.seed, self.rung = args, path, seed, rung
-        self.ticks_before, self.steps_before, self.next_eval, self.start = ticks_before, steps_before, next_eval, start
+        self.ticks_before, self.steps_before, self.next_eval, self.start = (
+            ticks_before,
+            steps_before,
+            next_eval,
+            start,
+        )
 
     def total_ticks(self) -> int:
         return self.ticks_before + int(self.model.ticks)  # type: ignore[attr-defined]
@@ -61,18 +75,24 @@ class LadderEval(BaseCallback):
             "wall_s": round(time.time() - self.start, 1),
         }
         for env_id in self.args.eval_env:
-            summary = evaluate_team(self.model, env_id, self.args.eval_episodes, n_envs=4, seed=10_000 + self.seed)
+            summary = evaluate_team(
+                self.model, env_id, self.args.eval_episodes, n_envs=4, seed=10_000 + self.seed
+            )
             summary.pop("episodes")
             key = "" if env_id == self.args.eval_env[0] else f"{env_id}/"
             record.update({f"{key}{name}": value for name, value in summary.items()})
         with self.path.open("a") as file:
             file.write(json.dumps(record) + "\n")
-        print(json.dumps({k: record[k] for k in ("ticks", "rung", "wall_s", "success_rate", "collision_rate")}),
-              flush=True)
+        print(
+            json.dumps({k: record[k] for k in ("ticks", "rung", "wall_s", "success_rate", "collision_rate")}),
+            flush=True,
+        )
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--algo", choices=sorted(ALGORITHMS), default="gdq")
     parser.add_argument("--rungs", nargs="+", required=True, help="ENV_ID:TICKS, trained in this order")
     parser.add_argument("--eval-env", nargs="+", required=True, help="the first is the target world")
@@ -80,8 +100,12 @@ def main() -> None:
     parser.add_argument("--n-envs", type=int, default=4)
     parser.add_argument("--eval-every", type=int, default=25_000)
     parser.add_argument("--eval-episodes", type=int, default=50)
-    parser.add_argument("--later-eps", type=float, default=None,
-                        help="exploration_initial_eps of the rungs after the first (default: the algorithm's)")
+    parser.add_argument(
+        "--later-eps",
+        type=float,
+        default=None,
+        help="exploration_initial_eps of the rungs after the first (default: the algorithm's)",
+    )
     parser.add_argument("--hyperparams", type=json.loads, default={}, help="JSON dict of algorithm arguments")
     parser.add_argument("--name", default=None)
     parser.add_argument("--out", required=True)
@@ -95,7 +119,9 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     for seed in args.seeds:
         path = out / f"{name}_seed{seed}.jsonl"
-        if path.exists() and any(json.loads(line)["ticks"] >= total for line in path.read_text().splitlines()):
+        if path.exists() and any(
+            json.loads(line)["ticks"] >= total for line in path.read_text().splitlines()
+        ):
             print(f"seed {seed}: done already ({path})")
             continue
         path.unlink(missing_ok=True)

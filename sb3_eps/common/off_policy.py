@@ -47,6 +47,7 @@ from sb3_eps.common.buffers import (
     joint_tick,
 )
 from sb3_eps.common.policies import MultiAgentQPolicy
+from sb3_eps.common.threads import set_torch_threads
 from sb3_eps.common.utils import describe_space, epsilon_greedy, polyak_update_tensors_
 
 SelfMultiAgentOffPolicyAlgorithm = TypeVar(
@@ -201,6 +202,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             exploration_initial_eps=exploration_initial_eps, exploration_final_eps=exploration_final_eps,
             learning_rate=learning_rate,
         )  # fmt: skip
+        set_torch_threads()  # small networks: one thread unless the user chose (sb3_eps/common/threads.py)
         self.n_agents = 0
         self.n_worlds = 0
         self.state_dim = 0
