@@ -43,6 +43,7 @@ STANDING_M = 0.1
 LOOPING_RATIO = 3.0
 CROWDED_M = 0.4
 TURNING_RAD = 0.5
+CORNER_M = 0.4  # a collision this close to two outer walls is a corner
 CONTACT_M = 2 * ROBOT_RADIUS + 0.02  # two footprints touching, with the physics' margin
 
 
@@ -85,11 +86,15 @@ def classify_timeout(
     }
 
 
-def classify_collision(xy: np.ndarray, robot: int, live: np.ndarray) -> str:
+def classify_collision(
+    xy: np.ndarray, robot: int, live: np.ndarray, half_extent: np.ndarray | None = None
+) -> str:
     """:param xy: ``(n, 2)`` every robot's position at the collision
     :param robot: the robot that collided
     :param live: ``(n,)`` which robots were still driving
-    :return: ``"robot"``, ``"parked robot"`` or ``"wall"``
+    :param half_extent: the room's half sizes ``(2,)``: a wall contact within ``CORNER_M`` of two outer walls is a
+        ``"corner"``
+    :return: ``"robot"``, ``"parked robot"``, ``"corner"`` or ``"wall"`` (an outer wall or an inner block)
     """
     distance = np.hypot(*(xy - xy[robot]).T)
     distance[robot] = np.inf
@@ -98,6 +103,8 @@ def classify_collision(xy: np.ndarray, robot: int, live: np.ndarray) -> str:
         return "robot"
     if (touching & ~live).any():
         return "parked robot"
+    if half_extent is not None and (np.abs(xy[robot]) > np.asarray(half_extent) - CORNER_M).all():
+        return "corner"
     return "wall"
 
 
@@ -113,9 +120,12 @@ def q_lead(model: Any, observation: np.ndarray) -> float | None:
     return float(top[0] - top[1])
 
 
-def run_episode(model: Any, env: Any, seed: int, window: int, epsilon: float = 0.0) -> dict[str, Any]:
+def run_episode(
+    model: Any, env: Any, seed: int, window: int, epsilon: float = 0.0, frames: list[np.ndarray] | None = None
+) -> dict[str, Any]:
     """One team episode, greedy unless ``epsilon`` > 0 (then each robot takes a uniformly random action with that
     probability each tick, drawn from a generator seeded by ``seed``, as in training's epsilon-greedy rollouts).
+    With ``frames`` (an env made with ``render_mode="rgb_array"``), every other tick's picture is appended to it.
 
     :return: its outcome and, for a failure, what each failing robot did
     """
@@ -138,13 +148,15 @@ def run_episode(model: Any, env: Any, seed: int, window: int, epsilon: float = 0
         for agent, action in zip(agents, actions.tolist()):
             taken[agent].append(int(action))
         observations, _, _, _, infos = env.step(dict(zip(agents, actions.tolist())))
+        if frames is not None and len(history) % 2 == 0:
+            frames.append(env.render())
         last_observation.update(observations)
         state = env.state().reshape(n, 9)
         history.append(np.column_stack([state[:, :2], np.arctan2(state[:, 3], state[:, 2])]))
         for agent in agents:
             index = env.possible_agents.index(agent)
             if infos[agent]["collided"]:
-                collisions.append(classify_collision(state[:, :2], index, live))
+                collisions.append(classify_collision(state[:, :2], index, live, env.layout.half_extent))
             elif infos[agent]["arrived"]:
                 arrived_at[index] = len(history)
     team = next(iter(infos.values()))["team"]
@@ -199,13 +211,17 @@ def summarize(records: list[dict[str, Any]]) -> str:
         lines.append("  collisions with: " + ", ".join(f"{k} {v}" for k, v in collisions.most_common()))
     stragglers = [s for record in records for s in record.get("stragglers", [])]
     if stragglers:
-        per_episode = collections.Counter(len(record["stragglers"]) for record in records if "stragglers" in record)
+        per_episode = collections.Counter(
+            len(record["stragglers"]) for record in records if "stragglers" in record
+        )
         lines.append(
             "  robots short of their target per time-out: "
             + ", ".join(f"{k}: {v} episodes" for k, v in sorted(per_episode.items()))
         )
         kinds = collections.Counter(s["kind"] for s in stragglers)
-        lines.append("  what they did in the last window: " + ", ".join(f"{k} {v}" for k, v in kinds.most_common()))
+        lines.append(
+            "  what they did in the last window: " + ", ".join(f"{k} {v}" for k, v in kinds.most_common())
+        )
         for kind in kinds:
             group = [s for s in stragglers if s["kind"] == kind]
             lines.append(
@@ -222,7 +238,9 @@ def summarize(records: list[dict[str, Any]]) -> str:
                 + ", ".join(f"{action_name(a)} x{c}" for a, c in sum_actions(group).most_common(3))
             )
         crowded = sum(s["target_crowded"] for s in stragglers)
-        blocked = sum(s["nearest_parked"] is not None and s["nearest_parked"] < CONTACT_M + 0.1 for s in stragglers)
+        blocked = sum(
+            s["nearest_parked"] is not None and s["nearest_parked"] < CONTACT_M + 0.1 for s in stragglers
+        )
         lines.append(f"  ending within 0.1 m of touching a parked robot: {blocked} of {len(stragglers)}")
         lines.append(
             f"  target crowded by a parked robot (< {CROWDED_M} m): {crowded} of {len(stragglers)}; "
@@ -231,8 +249,39 @@ def summarize(records: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def failure_kind(record: dict[str, Any]) -> str | None:
+    """:return: ``"collision: <with what>"`` or ``"time-out: <what the first straggler did>"``; None for a success"""
+    if record["outcome"] == "collision":
+        return f"collision: {record['collisions'][0] if record['collisions'] else 'unknown'}"
+    if record["outcome"] == "time-out":
+        return f"time-out: {record['stragglers'][0]['kind']}"
+    return None
+
+
+def animate(model: Any, args: argparse.Namespace, records: list[dict[str, Any]]) -> None:
+    """Replay the first episode of the most common failure kind with pictures and write them as a GIF."""
+    kinds = collections.Counter(kind for kind in map(failure_kind, records) if kind is not None)
+    if not kinds:
+        print("no failure to animate")
+        return
+    kind = kinds.most_common(1)[0][0]
+    record = next(r for r in records if failure_kind(r) == kind)
+    env = envs.make_parallel_env(args.env, render_mode="rgb_array")
+    frames: list[np.ndarray] = []
+    try:
+        run_episode(model, env, record["seed"], args.window, args.epsilon, frames)
+    finally:
+        env.close()
+    from envs.turtlebot3 import save_gif
+
+    path = save_gif(frames[::2], args.animate, fps=20)  # every 4th tick, played 5x faster than real time
+    print(f"animation of a '{kind}' failure (episode seed {record['seed']}, {record['ticks']} ticks): {path}")
+
+
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--algo", choices=sorted(ALGORITHMS), default="gdq")
     parser.add_argument("--model", help="a model saved by learning_check.py --save-models")
     parser.add_argument("--env", default="MultiRobotNav-4-v0")
@@ -240,10 +289,21 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=20_000, help="episode k is reset with seed + k")
     parser.add_argument("--window", type=int, default=200, help="ticks read before a time-out")
     parser.add_argument(
-        "--epsilon", type=float, default=0.0, help="random actions with this probability (0: greedy, the evaluation)"
+        "--epsilon",
+        type=float,
+        default=0.0,
+        help="random actions with this probability (0: greedy, the evaluation)",
     )
     parser.add_argument("--out", default=None, help="write one JSON line per episode here")
-    parser.add_argument("--from-records", default=None, help="print the table of a file written by --out; run nothing")
+    parser.add_argument(
+        "--animate",
+        default=None,
+        metavar="GIF",
+        help="replay the first episode that failed in the most common way and write it as an animation here",
+    )
+    parser.add_argument(
+        "--from-records", default=None, help="print the table of a file written by --out; run nothing"
+    )
     args = parser.parse_args()
     if args.from_records:
         lines = pathlib.Path(args.from_records).read_text().splitlines()
@@ -256,11 +316,15 @@ def main() -> None:
     model = algorithm_spec(args.algo).algorithm_class.load(args.model, env=None, device="cpu", buffer_size=1)
     env = envs.make_parallel_env(args.env)
     try:
-        records = [run_episode(model, env, args.seed + k, args.window, args.epsilon) for k in range(args.episodes)]
+        records = [
+            run_episode(model, env, args.seed + k, args.window, args.epsilon) for k in range(args.episodes)
+        ]
     finally:
         env.close()
     if args.out:
         pathlib.Path(args.out).write_text("".join(json.dumps(record) + "\n" for record in records))
+    if args.animate:
+        animate(model, args, records)
     print(f"{args.model} on {args.env}" + (f", epsilon {args.epsilon}" if args.epsilon else ", greedy"))
     print(summarize(records))
 
