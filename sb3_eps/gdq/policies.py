@@ -88,6 +88,54 @@ class GlobalValueNetwork(nn.Module):
         return self.net(agent_values).squeeze(-1)
 
 
+class PooledGlobalValueNetwork(nn.Module):
+    """Joint state-value ``V_G(v) = rho(mean_i phi(v_i))`` over any number of agents (a Deep Sets head, Zaheer et
+    al., NeurIPS 2017): ``phi`` maps each agent's state-value to features (Dense ReLU layers), their mean over the
+    agents goes through a linear ``rho``. The same weights read 2, 4 or 12 agents, so a model trained on one team
+    size continues on another (``docs/results/many_robots.md``, "Team-size transfer"); the paper's head
+    (:class:`GlobalValueNetwork`) reads a fixed ``n``. With the team reward a mean over the agents (GDQ's default
+    ``team_reward_mode``) a mean-pooled head keeps one scale for every team size.
+
+    :param n_agents: agents per world when built (only the ``"sum"`` initialisation reads it)
+    :param net_arch: hidden sizes of ``phi`` (default ``[64, 64]``)
+    :param activation_fn: activation function
+    :param init: ``"random"``, or ``"mean"`` / ``"sum"``: ``V_G`` computes exactly ``mean(v)`` (or ``n_agents``
+        times it) at step 0, through carrier units ``relu(v_i)`` and ``relu(-v_i)`` (needs ReLU and hidden layers of
+        at least 2 units); the other units start with output weight 0
+    """
+
+    def __init__(
+        self,
+        n_agents: int,
+        net_arch: list[int] | None = None,
+        activation_fn: type[nn.Module] = nn.ReLU,
+        init: GlobalInit = "random",
+    ):
+        super().__init__()
+        arch = list(DEFAULT_GLOBAL_NET_ARCH if net_arch is None else net_arch)
+        if init not in GLOBAL_INITS:
+            raise ValueError(f"global_init must be one of {GLOBAL_INITS}, got {init!r}")
+        if not arch:
+            raise ValueError("the pooled global head needs at least one hidden layer (global_net_arch)")
+        if init != "random" and (activation_fn is not nn.ReLU or min(arch) < 2):
+            raise ValueError(
+                f"global_init={init!r} needs activation_fn=nn.ReLU and hidden layers of >= 2 units"
+            )
+        self.n_agents = n_agents
+        self.phi = nn.Sequential(*create_mlp(1, arch[-1], arch[:-1], activation_fn), activation_fn())
+        self.rho = nn.Linear(arch[-1], 1)
+        if init != "random":
+            linears = [module for module in self.phi if isinstance(module, nn.Linear)]
+            _init_as_linear_sum([*linears, self.rho], 1, 1.0 if init == "mean" else float(n_agents))
+
+    def forward(self, agent_values: th.Tensor) -> th.Tensor:
+        """:param agent_values: ``(B, n)`` for any ``n >= 1``; :return: ``V_G`` as ``(B,)``."""
+        if agent_values.dim() != 2 or agent_values.shape[1] < 1:
+            raise ValueError(f"V_G expects (batch, agents) state-values, got {tuple(agent_values.shape)}")
+        features = self.phi(agent_values.unsqueeze(-1))  # (B, n, h)
+        return self.rho(features.mean(dim=1)).squeeze(-1)
+
+
 class GDQPolicy(MultiAgentQPolicy):
     """:class:`~sb3_eps.common.policies.MultiAgentQPolicy` with ``global_value_net`` and its target.
 
