@@ -121,16 +121,24 @@ def q_lead(model: Any, observation: np.ndarray) -> float | None:
 
 
 def run_episode(
-    model: Any, env: Any, seed: int, window: int, epsilon: float = 0.0, frames: list[np.ndarray] | None = None
+    model: Any,
+    env: Any,
+    seed: int,
+    window: int,
+    epsilon: float = 0.0,
+    frames: list[np.ndarray] | None = None,
+    target_set: int | None = None,
 ) -> dict[str, Any]:
     """One team episode, greedy unless ``epsilon`` > 0 (then each robot takes a uniformly random action with that
     probability each tick, drawn from a generator seeded by ``seed``, as in training's epsilon-greedy rollouts).
     With ``frames`` (an env made with ``render_mode="rgb_array"``), every other tick's picture is appended to it.
+    ``target_set`` picks one of the fixed target sets of a world that has them (the unseen room; a reset with a
+    seed would restart its sequence at set 0 every episode).
 
     :return: its outcome and, for a failure, what each failing robot did
     """
     rng = np.random.default_rng(seed)
-    observations, _ = env.reset(seed=seed)
+    observations, _ = env.reset(seed=seed, options=None if target_set is None else {"target_set": target_set})
     n = env.n_robots
     history: list[np.ndarray] = []  # (n, 3): x, y, heading after each tick
     last_observation: dict[str, np.ndarray] = {}
@@ -163,6 +171,7 @@ def run_episode(
     state = env.state().reshape(n, 9)
     record: dict[str, Any] = {
         "seed": seed,
+        "target_set": target_set,
         "ticks": team["ticks"],
         "n_arrived": team["n_arrived"],
         "arrived_at": arrived_at,
@@ -269,7 +278,7 @@ def animate(model: Any, args: argparse.Namespace, records: list[dict[str, Any]])
     env = envs.make_parallel_env(args.env, render_mode="rgb_array")
     frames: list[np.ndarray] = []
     try:
-        run_episode(model, env, record["seed"], args.window, args.epsilon, frames)
+        run_episode(model, env, record["seed"], args.window, args.epsilon, frames, record.get("target_set"))
     finally:
         env.close()
     from envs.turtlebot3 import save_gif
@@ -316,8 +325,17 @@ def main() -> None:
     model = algorithm_spec(args.algo).algorithm_class.load(args.model, env=None, device="cpu", buffer_size=1)
     env = envs.make_parallel_env(args.env)
     try:
+        sets = env.layout.target_sets
         records = [
-            run_episode(model, env, args.seed + k, args.window, args.epsilon) for k in range(args.episodes)
+            run_episode(
+                model,
+                env,
+                args.seed + k,
+                args.window,
+                args.epsilon,
+                target_set=None if sets is None else k % len(sets),
+            )
+            for k in range(args.episodes)
         ]
     finally:
         env.close()
