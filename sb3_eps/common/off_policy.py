@@ -410,6 +410,18 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             self._last_state = self._global_state()
         return total_timesteps, callback
 
+    def rollout_state(self) -> dict[str, Any]:
+        """:return: what training needs beyond ``save`` to go on exactly: the replay buffer, the n-step collector with
+        its unfinished windows and the worlds' last global states (a checkpoint pickles them together, so the
+        collector keeps pointing at the buffer)."""
+        return {"replay_buffer": self.replay_buffer, "collector": self._collector, "last_state": self._last_state}
+
+    def set_rollout_state(self, state: dict[str, Any]) -> None:
+        """Restore what :meth:`rollout_state` returned (after ``set_env``, which forgets the collector)."""
+        self.replay_buffer = state["replay_buffer"]
+        self._collector = state["collector"]
+        self._last_state = state["last_state"]
+
     def _stores_agent_values(self) -> bool:
         """Whether the replay rows carry the agents' state-values computed at collection time (GDQ's stored
         ``v`` / ``v'`` option); read before the policy exists, so from the raw ``policy_kwargs``."""

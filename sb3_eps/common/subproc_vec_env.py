@@ -746,8 +746,6 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
     def __setstate__(self, state: dict[str, Any]) -> None:
         snapshots = state.pop("_snapshots")
         main_snapshot = state.pop("_main_snapshot", None)
-        state.setdefault("_main_block", range(0))  # checkpoints written before the main process held worlds
-        state.setdefault("spin_s", 0.0)  # and before processes polled
         bookkeeping: dict[str, Any] = {
             key: state[key]
             for key in ("alive", "_seed", "_seeds", "_options", "_n_steps", "_want_state", "reset_infos")

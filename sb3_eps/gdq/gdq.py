@@ -79,21 +79,12 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     agents that are no longer acting contribute 0. Action selection uses only ``A``
     (Eq. 3), so execution stays decentralised.
 
-    **Package defaults depart from the paper's target** (``docs/results/gdq_target.md``):
-    ``global_bootstrap=0.1`` (GDQ-lambda: each agent bootstraps on
-    ``0.1 V_G'(v') + 0.9 V_i(s'_i)``) with ``n_steps=3``. On held-out seeds (4 robots, 150k ticks) the paper's
-    target (``global_bootstrap=1``, then with ``n_steps=30``) reached 58 % greedy team success, GDQ-lambda 0.1
-    86 %; ``GDQ("MlpPolicy", venv, global_bootstrap=1.0, n_steps=30)`` is the paper's GDQ as the former defaults
-    had it.
-
-    Options the papers leave open (package defaults in brackets, measured in ``docs/results/baselines.md``):
-    ``n_steps`` [3; the paper's target needed 30: there an agent's own rewards beyond the return reach its target
-    only through ``V_G'`` with weight ``g_i ~ 1/n``]; ``learning_rate`` [3e-4 decaying linearly to 0 over the budget]; ``team_reward_mode`` sum or mean [mean]; ``policy_kwargs=dict(agent_target=...)`` an agent
-    target network [True; the paper had none]; ``global_values`` where ``v'`` comes from: the agent target
-    network, recomputed online, or stored at collection time [target]; ``global_init`` of ``V_G`` [mean];
-    ``global_net_arch`` [64, 64]; and our GDQ-lambda variant ``global_bootstrap`` [0.1; 1 is the paper's target]
-    (``global_init`` and ``global_net_arch`` are ``policy_kwargs`` of :class:`~sb3_eps.gdq.policies.GDQPolicy`).
-    Diagnostics (``g_i``, the greedy action's margin) are logged under ``train/``. Other arguments are those of
+    Where the package departs from the paper (each default links the page that chose it): ``global_bootstrap=0.1``
+    (GDQ-lambda; ``GDQ("MlpPolicy", venv, global_bootstrap=1.0, n_steps=30)`` is the paper's target,
+    ``docs/results/gdq_target.md``), ``team_reward_mode="mean"``, ``learning_rate`` 3e-4 decaying linearly to 0,
+    uniform replay (``docs/results/gdq_uniform_replay.md``), an agent target network (the paper had none) and a
+    weight average for the greedy actions (:class:`~sb3_eps.gdq.policies.GDQPolicy`). Diagnostics (``g_i``, the
+    greedy action's margin) are logged under ``train/``. Other arguments are those of
     :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`.
 
     :param global_values: where ``v`` and ``v'`` come from: ``"target"``, ``v'`` from the agent target network
@@ -101,15 +92,15 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         ``"recomputed"`` at update time by the current agent network from the stored observations; ``"stored"`` in
         the replay rows at collection time, as the paper did
     :param global_bootstrap: ``lambda`` of the agents' bootstrap value ``lambda V_G'(v') + (1 - lambda) V_i(s'_i)``:
-        1 is the paper's GDQ, 0 independent learning with a global head trained beside it (``docs/modules/gdq.md``,
-        "GDQ-lambda"). Default 0.1: chosen on held-out seeds 138-140 (4 robots: 1 / 0.5 / 0.1 gave 58 / 78 / 85-86 %)
+        1 is the paper's GDQ, 0 independent learning with a global head trained beside it. Default 0.1
+        (``docs/results/gdq_target.md``)
     """
 
     policy: GDQPolicy
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": MlpPolicy}
     requires_fixed_n_agents: ClassVar[bool] = True
     # The paper's agents had no target network. With one, and v' read from it (global_values="target"), GDQ
-    # learned the robot worlds faster and without the collapses of the online v' (docs/results/baselines.md).
+    # learned the robot worlds faster and without the collapses of the online v' (docs/results/gdq_target.md).
     default_agent_target: ClassVar[bool] = True
 
     def __init__(
@@ -194,7 +185,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         )
 
     def _diagnostics(self, inputs: th.Tensor, terms: TDTerms, batch: JointReplayBufferSamples) -> dict[str, float]:
-        """What explains GDQ's learning (docs/results/baselines.md): the gain ``g_i = dV_G/dv_i`` of the
+        """What explains GDQ's learning (docs/results/gdq_target.md): the gain ``g_i = dV_G/dv_i`` of the
         global head, the greedy action's margin ``A(s, a*) - A(s, a_2nd)``, and the spread of the agents' values."""
         gain = input_gain(self.policy.global_value_net, inputs)
         alive = batch.alive.bool()

@@ -139,12 +139,7 @@ def save_checkpoint(
     """
     model_buffer = io.BytesIO()
     model.save(model_buffer)
-    training = {
-        "replay_buffer": model.replay_buffer,
-        "collector": model._collector,
-        "last_state": model._last_state,
-        "env": model.env,
-    }
+    training = {**model.rollout_state(), "env": model.env}
     members = {
         "model.zip": model_buffer.getvalue(),
         "training.pkl": snapshot_dumps(training),  # one pickle: the collector keeps pointing at the buffer
@@ -270,7 +265,5 @@ def restore_model(
     model = algorithm_class.load(io.BytesIO(checkpoint.model_bytes), env=None, device=device)
     # set_env without a reset keeps the saved _last_obs; it does not re-seed the env (load with env= would).
     model.set_env(training["env"], force_reset=False)
-    model.replay_buffer = training["replay_buffer"]
-    model._collector = training["collector"]
-    model._last_state = training["last_state"]
+    model.set_rollout_state(training)
     return model
