@@ -410,7 +410,7 @@ def test_env_ids_resolve_through_pettingzoo_and_gymnasium_registries() -> None:
         assert (venv.n_worlds, venv.n_agents, venv.env_id) == (2, 2, "Corridor-2-v0")
     finally:
         venv.close()
-    with pytest.raises(ValueError, match="unknown env id 'Nope-v0'; multi-agent ids: .*'MultiRobotNav-4-v0'"):
+    with pytest.raises(ValueError, match=r"unknown env id 'Nope-v0'; multi-agent ids: .*'MultiRobotNav-4-v0'"):
         world_constructor("Nope-v0")
 
 

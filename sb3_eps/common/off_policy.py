@@ -65,7 +65,7 @@ class TDTerms(NamedTuple):
 
 
 def find_multi_agent_env(env: VecEnv) -> Any:
-    """Return the :class:`~sb3_eps.common.vec_env.MultiAgentVecEnv` inside ``env`` (through SB3 wrappers).
+    """Return the :class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv` inside ``env`` (through SB3 wrappers).
 
     :raises ValueError: when ``env`` is not one of our multi-agent vector envs
     """
@@ -292,7 +292,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
 
     @property
     def multi_agent_env(self) -> Any:
-        """The bridge (:class:`~sb3_eps.common.vec_env.MultiAgentVecEnv`) under ``self.env``."""
+        """The bridge (:class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv`) under ``self.env``."""
         if self.env is None:
             raise ValueError("the model has no env: pass env= to load() or call set_env()")
         return find_multi_agent_env(self.env)

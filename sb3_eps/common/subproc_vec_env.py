@@ -5,8 +5,8 @@ into contiguous blocks. By default (:func:`default_layout`), on ``C`` cores the 
 itself while ``C - 1`` worker processes step the others, side by side: the main process would otherwise wait idle
 for its workers, and every worker is one more process to wake per step. With ``n_workers`` alone, every world
 lives in those workers (the layout before ``main_worlds`` existed). Each worker runs an ordinary in-process
-:class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv` over its block, with its own PyBullet clients, as does the
-main process over its own block, and the main process concatenates the blocks. So every promise of the bridge
+:class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv` over its block, with its own PyBullet clients, as
+does the main process over its own block, and the main process concatenates the blocks. So every promise of the bridge
 holds unchanged (each block's own bridge keeps them) and a seeded run gives the same numbers as in-process:
 world ``w`` is still reset with ``seed + w``, and no state is shared between worlds.
 

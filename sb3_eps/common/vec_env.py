@@ -1,10 +1,11 @@
 """``make_vec_env``: an env id (or a world constructor) -> the parameter-shared SB3 vector env.
 
 Env ids are resolved through PettingZoo's registry (``pettingzoo.register("parallel", env_id, ...)``: multi-agent
-worlds) and gymnasium's (``gymnasium.register``: one-agent worlds). The worlds of this project register theirs when
-the package ``envs`` is imported (``import sb3_eps`` does it); a plug-in registers its own the same way
-(``docs/bring_your_own_world.md``). The vector env itself is
-:class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv` (worlds in this process) or :class:`~sb3_eps.common.subproc_vec_env.SubprocMultiAgentVecEnv` (worlds in workers).
+worlds) and gymnasium's (``gymnasium.register``: one-agent worlds), as SB3's ``make_vec_env`` resolves through
+gymnasium's: the core knows no world. This project's worlds register their ids when the package ``envs`` is
+imported; a plug-in registers its own the same way (``docs/bring_your_own_world.md``). The vector env is
+:class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv` (worlds in this process) or
+:class:`~sb3_eps.common.subproc_vec_env.SubprocMultiAgentVecEnv` (worlds in worker processes).
 """
 
 from __future__ import annotations
