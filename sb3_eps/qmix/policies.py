@@ -186,8 +186,8 @@ class VDNPolicy(QMIXPolicy):
 
     :param weight_average_tau: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`, but on by default for VDN
         (``2e-4``, as GDQ's: greedy actions from a moving average of the agent network's weights; training is
-        unchanged). Chosen with ``VDN(advantage_learning=0.5)`` on held-out seeds (``docs/results/qmix_vdn.md``); ``None`` takes
-        the greedy actions from the online network.
+        unchanged). Chosen with ``VDN(advantage_learning=0.5)`` on held-out seeds (``docs/results/qmix_vdn.md``);
+        ``None`` takes the greedy actions from the online network.
     """
 
     def __init__(self, *args: Any, weight_average_tau: float | None = VDN_WEIGHT_AVERAGE_TAU, **kwargs: Any) -> None:
