@@ -577,6 +577,13 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self._last_state = new_state
         return int(step.world_ended.sum())
 
+    def collection_values(
+        self, observations: np.ndarray, next_observations: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The per-agent values that replay rows store with these ticks (None when the algorithm stores none), for
+        rows written from outside the rollout (EPS's experience sharing); see :meth:`_collection_values`."""
+        return self._collection_values(observations, next_observations)
+
     def _collection_values(
         self, observations: np.ndarray, next_observations: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray] | None:
