@@ -21,6 +21,7 @@ run: install
 	$(PY) -m sb3_eps.run_main
 
 test: install
+	$(VENV)/bin/lint-imports
 	$(PY) -m pytest -m "not slow and not ray" --durations=15 -p no:cacheprovider $(PYTEST_ARGS)
 
 # The grid's Ray backend on a local Ray instance (ray is an optional extra: about 80 MB, ~1 min of tests).

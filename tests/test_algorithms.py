@@ -7,7 +7,6 @@ import json
 import numpy as np
 import pytest
 import torch as th
-from stable_baselines3.common.torch_layers import NatureCNN
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 import envs
@@ -207,7 +206,7 @@ def test_runs_on_the_robot_world(algorithm) -> None:
     assert actions.shape == (5,) and ((actions >= 0) & (actions < 20)).all()
 
 
-GDQ_OPTIONS = ("global_values", "global_bootstrap", "global_timeout_bootstrap", "advantage_learning")  # GDQ's own arguments; the others are policy_kwargs
+GDQ_OPTIONS = ("global_values", "global_bootstrap")  # GDQ's own arguments; the others are policy_kwargs
 
 
 def _gdq_with(tmp_path=None, **options):
@@ -340,73 +339,6 @@ def test_gdq_target_values_feed_the_global_target_head_from_the_agent_target_net
     th.testing.assert_close(seen[0], expected)
 
 
-@pytest.mark.parametrize("timeout_bootstrap", [False, True])
-def test_gdq_global_timeout_bootstrap_reads_the_agents_cut_by_the_time_limit(timeout_bootstrap) -> None:
-    """Cooperative Navigation ends every episode by its time limit (25 ticks): with global_timeout_bootstrap,
-    V_G' reads the truncated agents' v' (alive, not terminated); without, they enter as 0."""
-    model = _gdq_with(global_timeout_bootstrap=timeout_bootstrap)
-    model.learn(600)
-    batch = model.replay_buffer.sample(64)
-    truncated = (batch.alive * (1.0 - batch.dones)) * (1.0 - batch.next_alive)
-    assert truncated.sum() > 0  # windows cut by the time limit are in the sample
-    seen = []
-    hook = model.policy.global_value_net_target.register_forward_hook(lambda module, args, out: seen.append(args[0]))
-    model._compute_loss(batch)
-    hook.remove()
-    cut = truncated.bool()
-    assert (seen[0][cut] != 0).all() if timeout_bootstrap else (seen[0][cut] == 0).all()
-
-
-def test_gdq_advantage_learning_lowers_each_target_by_alpha_times_the_action_gap(monkeypatch, tmp_path) -> None:
-    """Advantage learning: y_i = (the GDQ target) - alpha (max_b Q_target(s_i, b) - Q_target(s_i, a_i)); the gap is
-    0 for the target network's greedy actions and positive for the others."""
-    import sb3_eps.gdq.gdq as gdq_module
-
-    model = _gdq_with(advantage_learning=0.5)
-    model.learn(400)
-    batch = model.replay_buffer.sample(32)
-    seen = []
-    original = gdq_module.masked_huber
-
-    def spy(prediction, target, mask, weights):
-        seen.append(target.clone())
-        return original(prediction, target, mask, weights)
-
-    monkeypatch.setattr(gdq_module, "masked_huber", spy)
-    model._compute_loss(batch)
-    model.advantage_learning = 0.0
-    model._compute_loss(batch)
-    with th.no_grad():
-        gap = model._action_gap(batch)
-        greedy = model.policy.q_net_target.advantage(batch.observations.reshape(-1, 18)).argmax(dim=1)
-    assert gap.shape == batch.actions.shape[:2] and (gap >= 0).all()
-    is_greedy = (batch.actions.reshape(-1) == greedy).reshape(gap.shape)
-    assert (gap[is_greedy] == 0).all() and (gap[~is_greedy] > 0).all() and (~is_greedy).any()
-    th.testing.assert_close(seen[0], seen[1] - 0.5 * gap)
-    model.advantage_learning = 0.5
-    model.save(tmp_path / "al")
-    assert GDQ.load(tmp_path / "al").advantage_learning == 0.5
-    with pytest.raises(ValueError, match=r"advantage_learning must be in \[0, 1\)"):
-        _gdq_with(advantage_learning=1.0)
-
-
-def test_gdq_options_in_policy_kwargs_still_work_with_a_deprecation_warning(tmp_path) -> None:
-    """Before they were GDQ's arguments, global_values / global_bootstrap were policy_kwargs: code and saved models
-    of that time still work."""
-    venv = make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=0)
-    with pytest.warns(DeprecationWarning, match="arguments of GDQ now"):
-        model = GDQ("MlpPolicy", venv, policy_kwargs={**TINY, "global_values": "stored", "global_bootstrap": 0.5})
-    assert (model.global_values, model.global_bootstrap) == ("stored", 0.5) and model.replay_buffer.store_values
-    assert "global_values" not in model.policy_kwargs
-    # A model file of that time: the options inside its policy_kwargs.
-    model.policy_kwargs = {**model.policy_kwargs, "global_values": "recomputed", "global_bootstrap": 0.25}
-    del model.__dict__["global_values"], model.__dict__["global_bootstrap"]
-    model.save(tmp_path / "old")
-    loaded = GDQ.load(tmp_path / "old", env=venv)
-    assert (loaded.global_values, loaded.global_bootstrap) == ("recomputed", 0.25)
-    assert "global_values" not in loaded.policy_kwargs
-
-
 def test_gdq_target_values_need_an_agent_target_network() -> None:
     with pytest.raises(ValueError, match="reads v' from the agent target network: with agent_target=False"):
         _gdq_with(global_values="target", agent_target=False)
@@ -423,164 +355,6 @@ def test_gdq_diagnostics_measure_the_global_head_gain(init, gain) -> None:
     assert logs["global_gain_sum"] == pytest.approx(3 * gain, rel=1e-5)
     assert 0.0 <= logs["action_margin_small"] <= 1.0 and logs["action_margin"] >= 0.0
     assert logs["agent_value_std"] > 0.0
-
-
-def test_read_step_flags_the_agents_cut_by_another_agents_collision() -> None:
-    """others_end_bootstrap: in a world where one robot collided, the others that neither collided nor arrived are
-    cut; a world that ended by arrivals or by the time limit has none; envs without per-agent collisions none."""
-    from sb3_eps.common.off_policy import _read_step
-
-    def info(collided, arrived=False, truncated=False):
-        return {"collided": collided, "arrived": arrived, "TimeLimit.truncated": truncated, "terminal_observation": 0}
-
-    infos = [info(True), info(False), info(False, arrived=True)]  # world 0: a crash, a bystander, an arrival
-    infos += [info(False, truncated=True), info(False, truncated=True), info(False, arrived=True)]  # world 1: time limit
-    infos += [{"terminal_observation": 0}] * 3  # world 2: an env without per-agent collisions
-    obs, dones = np.zeros((9, 2), dtype=np.float32), np.ones(9, dtype=bool)
-    step = _read_step(obs, dones, infos, (3, 3), others_end=True)
-    assert step.cut.tolist() == [[False, True, False], [False, False, False], [False, False, False]]
-    assert not _read_step(obs, dones, infos, (3, 3)).cut.any()
-    from sb3_eps.common.buffers import joint_tick
-
-    flags = {key: np.ones(3, dtype=bool) for key in ("alive", "ended")}
-    tick = joint_tick(
-        observations=obs[:3], actions=np.zeros(3, dtype=np.int64), rewards=np.zeros(3, dtype=np.float32),
-        next_observations=obs[:3], truncated=step.truncated[0], cut=step.cut[0], world_ended=True,
-        state=np.zeros(0), next_state=np.zeros(0), **flags,
-    )  # fmt: skip
-    # The bystander's own target bootstraps; the team's episode still terminated.
-    assert tick.terminated.tolist() == [True, False, True] and tick.world_terminated
-
-
-@pytest.mark.parametrize("others_end", [False, True])
-def test_others_end_bootstrap_on_the_robot_world(others_end) -> None:
-    """Random driving on 2 robots ends episodes in collisions: with others_end_bootstrap the rows that end a
-    terminated team episode keep a bootstrapping agent (its own done 0) and GDQ's V_G' reads its v'; without,
-    every agent of those rows is done."""
-    model = tiny_model(
-        GDQ, env_id="MultiRobotNav-2-v0", n_envs=1, learning_starts=10_000, n_steps=1,
-        others_end_bootstrap=others_end, global_timeout_bootstrap=False,
-    )  # fmt: skip
-    model.learn(3_000)
-    buffer = model.replay_buffer
-    rows = buffer.size()
-    team_end = buffer.team_dones[:rows] == 1
-    bootstrapping = (buffer.alive[:rows] == 1) & (buffer.dones[:rows] == 0)
-    cut_rows = team_end & bootstrapping.any(axis=1)
-    assert team_end.sum() >= 3
-    assert cut_rows.any() if others_end else not cut_rows.any()
-    if others_end:
-        index = np.flatnonzero(cut_rows)
-        batch = buffer._to_samples(index, np.ones(len(index), dtype=np.float32))
-        seen = []
-        hook = model.policy.global_value_net_target.register_forward_hook(lambda m, args, out: seen.append(args[0]))
-        model._compute_loss(batch)
-        hook.remove()
-        cut = (batch.alive * (1.0 - batch.dones)).bool()
-        assert (seen[0][cut] != 0).all()
-
-
-def test_angle_features_feed_the_bearing_as_sine_and_cosine_and_close_the_seam() -> None:
-    """The robot worlds' bearing (entry 29, bearing / pi) jumps from +1 to -1 behind the robot; with
-    angle_features=[29] the network sees (sin, cos), so a target just left and just right of straight behind look
-    alike, while the other 29 entries pass through unchanged."""
-    from sb3_eps.common.policies import AngleFeaturesExtractor
-
-    model = tiny_model(GDQ, env_id="MultiRobotNav-2-v0", n_envs=1, learning_starts=100)
-    model.policy_kwargs = {**model.policy_kwargs, "angle_features": [29]}
-    model._setup_model()
-    extractor = model.policy.q_net.features_extractor
-    assert isinstance(extractor, AngleFeaturesExtractor) and extractor.features_dim == 31
-    assert isinstance(model.policy.q_net_target.features_extractor, AngleFeaturesExtractor)
-    rng = np.random.default_rng(0)
-    obs = th.as_tensor(rng.uniform(0, 1, (2, 30)).astype(np.float32))
-    obs[:, 29] = th.tensor([0.999, -0.999])  # the target 0.18 deg left and right of straight behind
-    features = extractor(obs)
-    np.testing.assert_array_equal(features[:, :29].numpy(), obs[:, :29].numpy())
-    np.testing.assert_allclose(features[:, 29].numpy(), np.sin(np.pi * obs[:, 29].numpy()), atol=1e-6)
-    np.testing.assert_allclose(features[:, 30].numpy(), np.cos(np.pi * obs[:, 29].numpy()), atol=1e-6)
-    assert th.dist(features[0, 29:], features[1, 29:]) < 0.01 < abs(float(obs[0, 29] - obs[1, 29]))
-    model.learn(300)  # trains through it
-
-
-def test_angle_features_survive_save_load_and_reject_bad_indices(tmp_path) -> None:
-    from sb3_eps.common.policies import AngleFeaturesExtractor
-
-    venv = make_vec_env("MultiRobotNav-2-v0", n_envs=1, seed=0)
-    model = VDN("MlpPolicy", venv, policy_kwargs={**TINY, "angle_features": [29]}, learning_starts=50, seed=0)
-    model.learn(200)
-    model.save(tmp_path / "model")
-    loaded = VDN.load(tmp_path / "model", env=venv)
-    assert loaded.policy.angle_features == [29]
-    obs = th.as_tensor(np.random.default_rng(2).uniform(-1, 1, (8, 30)).astype(np.float32))
-    with th.no_grad():
-        np.testing.assert_allclose(loaded.policy.q_net(obs).numpy(), model.policy.q_net(obs).numpy(), rtol=1e-6)
-    for bad, match in (([30], "outside the observation"), ([29, 29], "twice"), ([], "at least one")):
-        with pytest.raises(ValueError, match=match):
-            VDN("MlpPolicy", venv, policy_kwargs={"angle_features": bad})
-    with pytest.raises(ValueError, match="not both"):
-        VDN("MlpPolicy", venv, policy_kwargs={"angle_features": [29], "features_extractor_class": NatureCNN})
-    with pytest.raises(ValueError, match="scale"):
-        AngleFeaturesExtractor(venv.observation_space, [29], scale=float("nan"))
-
-
-@pytest.mark.parametrize("vec_env_cls", ["dummy", "subproc"])
-def test_angle_features_auto_reads_the_worlds_metadata(vec_env_cls, tmp_path) -> None:
-    """"auto": the robot worlds name their bearing (entry 29) in metadata["angle_observations"], so it is fed as
-    (sin, cos); the MPE world names none and is fed as it is. The saved model names what it was built with; the
-    default (None) feeds every world as it is."""
-    from sb3_eps.common.policies import AngleFeaturesExtractor
-
-    robots = make_vec_env("MultiRobotNav-2-v0", n_envs=2, seed=0, vec_env_cls=vec_env_cls)
-    particles = make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=0, vec_env_cls=vec_env_cls)
-    auto = {"angle_features": "auto"}
-    try:
-        assert robots.angle_observations == [29] and particles.angle_observations == []
-        model = GDQ("MlpPolicy", robots, policy_kwargs=auto, seed=0)
-        assert model.policy_kwargs["angle_features"] == [29] and auto == {"angle_features": "auto"}  # not mutated
-        assert isinstance(model.policy.q_net.features_extractor, AngleFeaturesExtractor)
-        model.save(tmp_path / "model")
-        assert GDQ.load(tmp_path / "model").policy.angle_features == [29]  # no env needed
-        assert GDQ("MlpPolicy", particles, policy_kwargs=auto, seed=0).policy.angle_features is None
-        assert GDQ("MlpPolicy", robots).policy.angle_features is None  # the default
-    finally:
-        robots.close()
-        particles.close()
-
-
-def test_a_policy_default_of_auto_is_read_by_the_algorithm() -> None:
-    """A policy class whose angle_features default is "auto" gets the env's angles without any argument: how an
-    algorithm makes them its default."""
-    from sb3_eps.gdq.policies import GDQPolicy
-
-    class AutoAnglePolicy(GDQPolicy):
-        def __init__(self, *args, angle_features="auto", **kwargs) -> None:
-            super().__init__(*args, angle_features=angle_features, **kwargs)
-
-    venv = make_vec_env("MultiRobotNav-2-v0", n_envs=1, seed=0)
-    assert GDQ(AutoAnglePolicy, venv, seed=0).policy.angle_features == [29]
-
-
-def test_a_model_saved_before_angle_features_loads_without_them(tmp_path) -> None:
-    """A model saved before the option existed has no angle_features in its policy_kwargs: it loads as it was
-    built, with the plain observation, even on a world that names angles."""
-    venv = make_vec_env("MultiRobotNav-2-v0", n_envs=1, seed=0)
-    model = IQL("MlpPolicy", venv, policy_kwargs={"angle_features": None}, seed=0)
-    model.save(tmp_path / "old")
-    loaded = IQL.load(tmp_path / "old", env=venv, custom_objects={"policy_kwargs": {}})
-    assert loaded.policy.angle_features is None
-    obs = th.as_tensor(np.random.default_rng(3).uniform(-1, 1, (4, 30)).astype(np.float32))
-    with th.no_grad():
-        np.testing.assert_allclose(loaded.policy.q_net(obs).numpy(), model.policy.q_net(obs).numpy(), rtol=1e-6)
-
-
-def test_bad_angle_metadata_is_a_clear_error() -> None:
-    from sb3_eps.common.vec_env import angle_observations
-
-    assert angle_observations({"angle_observations": (3, 5)}) == [3, 5] and angle_observations({}) == []
-    for bad in ("29", [-1], [1.5], [True]):
-        with pytest.raises(ValueError, match="list of observation indices"):
-            angle_observations({"angle_observations": bad})
 
 
 def _q_argmax(net, obs) -> np.ndarray:
@@ -676,9 +450,9 @@ def test_a_warm_start_sets_the_weight_average_to_the_loaded_network(tmp_path) ->
         assert th.equal(a, p)
 
 
-def test_weight_average_tau_is_written_into_the_saved_model_and_old_models_load_without_it(tmp_path) -> None:
-    """A policy class whose default keeps an average: the algorithm writes the tau into policy_kwargs, so the saved
-    model names it; a model saved before the option existed (no such key) loads without an average."""
+def test_weight_average_defaults_and_a_policy_default_survive_save_load(tmp_path) -> None:
+    """The package defaults: GDQ and VDN keep a 2e-4 average, IQL and QMIX none; a policy class whose default keeps
+    an average builds it, and the saved model loads with it."""
     from sb3_eps.gdq.policies import GDQPolicy
 
     class AveragingPolicy(GDQPolicy):
@@ -687,14 +461,11 @@ def test_weight_average_tau_is_written_into_the_saved_model_and_old_models_load_
 
     venv = make_vec_env("CooperativeNavigation-v0", n_envs=1, seed=0)
     model = GDQ(AveragingPolicy, venv, seed=0)
-    assert model.policy_kwargs["weight_average_tau"] == 0.01 and model.policy.q_net_average is not None
-    # The package defaults: GDQ (rule T17) and VDN (rule T19) keep a 2e-4 average, IQL and QMIX none.
+    assert model.policy.weight_average_tau == 0.01 and model.policy.q_net_average is not None
+    model.save(tmp_path / "averaging")
+    assert GDQ.load(tmp_path / "averaging").policy.weight_average_tau == 0.01
     for averaging in (GDQ, VDN):
-        assert averaging("MlpPolicy", venv, seed=0).policy_kwargs["weight_average_tau"] == 2e-4
+        assert averaging("MlpPolicy", venv, seed=0).policy.weight_average_tau == 2e-4
         assert averaging("MlpPolicy", venv, seed=0).policy.q_net_average is not None
     for other in (IQL, QMIX):
-        assert other("MlpPolicy", venv, seed=0).policy_kwargs["weight_average_tau"] is None
-    old = GDQ("MlpPolicy", venv, policy_kwargs={"weight_average_tau": None}, seed=0)
-    old.save(tmp_path / "old")
-    loaded = GDQ.load(tmp_path / "old", custom_objects={"policy_kwargs": {}, "policy_class": AveragingPolicy})
-    assert loaded.policy.q_net_average is None
+        assert other("MlpPolicy", venv, seed=0).policy.q_net_average is None

@@ -423,7 +423,6 @@ def test_the_pillars_world_has_robot_sized_obstacles_and_the_training_spaces() -
     layout = make_layout("eps_pillars", 1)
     assert layout.width == make_layout("arena", 4).width and len(layout.obstacles) == 3
     np.testing.assert_allclose(layout.obstacles[:, 2:], 0.1)
-    assert len(make_layout("eps_open", 1).obstacles) == 0
     env = envs.make_single_env("SingleRobotNav-v0", scenario="eps_pillars")
     multi = envs.make_parallel_env("MultiRobotNav-4-v0")
     try:

@@ -70,35 +70,30 @@ def _truncated_rows(model):
 
 
 @pytest.mark.parametrize("algorithm", [QMIX, VDN], ids=lambda a: a.__name__)
-def test_time_limit_windows_bootstrap_from_the_truncated_agents(algorithm) -> None:
+def test_time_limit_windows_bootstrap_from_the_truncated_agents(algorithm, monkeypatch) -> None:
+    """At the time limit every agent enters the target mixer with its Q_i'(s'_i, a*_i) (a time limit is not a
+    terminal state): the target is mixer'(Q'; s'), not mixer'(0; s')."""
+    import sb3_eps.qmix.qmix as qmix_module
+
     model = tiny_model(algorithm)
-    assert model.handle_timeout_termination  # the default
     batch = _truncated_rows(model)
-    assert th.equal(model._bootstrap_mask(batch), th.ones_like(batch.alive))
     assert (batch.team_dones == 0).all()  # a time limit is not a terminal state
-    # Rows where agents are still driving, or were terminated, keep the mask they always had.
-    everything = model.replay_buffer._to_samples(
-        np.arange(model.replay_buffer.size()), np.ones(model.replay_buffer.size(), dtype=np.float32)
-    )
-    driving_or_terminated = everything.next_alive + everything.dones * everything.alive
-    timed_out = (everything.alive == 1) & (everything.dones == 0) & (everything.next_alive == 0)
-    mask = model._bootstrap_mask(everything)
-    assert th.equal(mask[~timed_out], everything.next_alive[~timed_out])
-    assert (mask[timed_out] == 1).all() and (driving_or_terminated[timed_out] == 0).all()
-    # The former behaviour, kept as an option: truncated agents enter the target mixer as Q = 0.
-    model.handle_timeout_termination = False
-    assert th.equal(model._bootstrap_mask(batch), th.zeros_like(batch.alive))
+    seen = []
+    original = qmix_module.weighted_huber
 
+    def spy(prediction, target, weights):
+        seen.append(target.clone())
+        return original(prediction, target, weights)
 
-def test_the_two_timeout_bootstraps_differ() -> None:
-    model = tiny_model(QMIX)
-    batch = _truncated_rows(model)
+    monkeypatch.setattr(qmix_module, "weighted_huber", spy)
+    model._compute_loss(batch)
     with th.no_grad():
         terms = model._td_terms(batch)
-        next_q = terms.next_values + terms.next_advantage_term
-        with_agents = model.policy.mixer_target(next_q, batch.next_states)
-        zeros = model.policy.mixer_target(th.zeros_like(next_q), batch.next_states)
-    assert not th.allclose(with_agents, zeros)  # the two bootstraps differ: the choice matters
+        next_total = model.policy.mixer_target(terms.next_values + terms.next_advantage_term, batch.next_states)
+    expected = batch.team_rewards + batch.team_discounts * next_total
+    if model.advantage_learning:
+        expected = expected - model.advantage_learning * model._team_action_gap(batch)
+    th.testing.assert_close(seen[0], expected)
 
 
 def test_q_range_and_mixer_diagnostics_are_logged(tmp_path) -> None:
@@ -178,6 +173,6 @@ def test_advantage_learning_lowers_the_team_target_by_alpha_times_the_joint_acti
     model.advantage_learning = 0.5
     model.save(tmp_path / "al")
     assert algorithm.load(tmp_path / "al").advantage_learning == 0.5
-    assert tiny_model(algorithm).advantage_learning == (0.5 if algorithm is VDN else 0.0)  # VDN's default (T19)
+    assert tiny_model(algorithm).advantage_learning == (0.5 if algorithm is VDN else 0.0)  # VDN's default
     with pytest.raises(ValueError, match=r"advantage_learning must be in \[0, 1\)"):
         tiny_model(algorithm, advantage_learning=1.0)

@@ -1,5 +1,5 @@
-"""SB3's constructor conventions: replay_buffer_class / replay_buffer_kwargs, and the target-update count renamed
-gradient_steps_per_target_update (target_update_interval kept as a deprecated alias giving the same training)."""
+"""SB3's constructor conventions: replay_buffer_class / replay_buffer_kwargs, and the target-update count
+gradient_steps_per_target_update (gradient steps, not SB3 DQN's env steps of target_update_interval)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,6 @@ import warnings
 
 import numpy as np
 import pytest
-import torch as th
 from stable_baselines3.common.buffers import ReplayBuffer
 
 from sb3_eps import GDQ, IQL
@@ -39,21 +38,13 @@ def test_every_zoo_config_keeps_one_target_update_per_gradient_step(algo) -> Non
     assert algorithm_kwargs(entry)["gradient_steps_per_target_update"] == 1
 
 
-def test_the_old_name_gives_the_same_target_update_schedule_and_weights() -> None:
-    with pytest.warns(DeprecationWarning, match="gradient_steps_per_target_update"):
-        old = tiny_model(GDQ, target_update_interval=3, gradient_steps=2)
-    old_schedule = _update_schedule(old)  # each model seeds the global RNGs: train one before building the next
-    new = tiny_model(GDQ, gradient_steps_per_target_update=3, gradient_steps=2)
-    new_schedule = _update_schedule(new)
-    assert old_schedule == new_schedule and old_schedule[:3] == [3, 6, 9]
-    assert len(old_schedule) == new._n_updates // 3
-    for name, tensor in new.policy.state_dict().items():
-        assert th.equal(tensor, old.policy.state_dict()[name]), name
+def test_gradient_steps_per_target_update_counts_gradient_steps() -> None:
+    model = tiny_model(GDQ, gradient_steps_per_target_update=3, gradient_steps=2)
+    schedule = _update_schedule(model)
+    assert schedule[:3] == [3, 6, 9] and len(schedule) == model._n_updates // 3
     # The default: one Polyak step after every gradient step, none during the random warm-up.
     default = tiny_model(IQL)
     assert _update_schedule(default) == list(range(1, default._n_updates + 1))
-    with pytest.warns(DeprecationWarning):
-        assert old.target_update_interval == 3
 
 
 def test_a_config_with_the_old_key_loads_with_a_warning(tmp_path) -> None:
@@ -66,15 +57,6 @@ def test_a_config_with_the_old_key_loads_with_a_warning(tmp_path) -> None:
     with pytest.raises(Exception, match="same setting"), warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         resolve_config("iql", "CooperativeNavigation-v0", conf_file=path)
-
-
-def test_a_model_saved_under_the_old_name_loads_with_its_value(tmp_path) -> None:
-    model = tiny_model(IQL, gradient_steps_per_target_update=5)
-    del model.__dict__["gradient_steps_per_target_update"]
-    model.__dict__["target_update_interval"] = 5  # what the file of an older version holds
-    model.save(tmp_path / "old.zip")
-    loaded = IQL.load(tmp_path / "old.zip", env=model.get_env())
-    assert loaded.gradient_steps_per_target_update == 5 and "target_update_interval" not in loaded.__dict__
 
 
 # ---------------------------------------------------------------------------------------------- replay buffers
@@ -156,8 +138,6 @@ MOVED = [
       for name in ("MONITOR_NAME", "EVALUATIONS_NAME", "BEST_MODEL_NAME", "PROGRESS_NAME", "read_monitor")],
     ("sb3_eps.zoo.callbacks", "CheckpointCallback", "sb3_eps.zoo.callbacks", "TrainingStateCallback"),
     ("sb3_eps.zoo.evaluation", "find_run", "sb3_eps.zoo.run_folder", "find_run"),
-    ("sb3_eps.gdq.policies", "GLOBAL_VALUES", "sb3_eps.gdq.gdq", "GLOBAL_VALUES"),
-    ("sb3_eps.gdq.policies", "DEFAULT_GLOBAL_VALUES", "sb3_eps.gdq.gdq", "DEFAULT_GLOBAL_VALUES"),
 ]  # fmt: skip
 
 

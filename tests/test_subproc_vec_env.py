@@ -21,6 +21,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
 from sb3_eps import EvolutionCallback, make_vec_env
 from sb3_eps.common import subproc_vec_env
+from sb3_eps.common.snapshots import snapshot_dumps
 from sb3_eps.common.subproc_vec_env import (
     DEFAULT_SPIN_S,
     VecEnvWorkerError,
@@ -32,7 +33,6 @@ from sb3_eps.common.subproc_vec_env import (
     split_worlds,
 )
 from sb3_eps.gdq import GDQ
-from sb3_eps.zoo.checkpoint import snapshot_dumps
 
 ROBOTS = "MultiRobotNav-4-v0"
 # Short episodes, so worlds end (time limits, arrivals, collisions) and reset inside the compared stretch.

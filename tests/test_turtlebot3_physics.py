@@ -187,55 +187,6 @@ TURN_LEFT_ON_THE_SPOT = 4  # 0 m/s, +90 deg/s
 TURN_RIGHT_ON_THE_SPOT = 0  # 0 m/s, -90 deg/s
 
 
-@pytest.mark.parametrize("heading_reward", [0.0, 0.5])
-def test_heading_reward_pays_turning_toward_a_target_behind(heading_reward: float) -> None:
-    # Robot 0 faces +x with its target straight behind it (bearing pi); turning on the spot leaves the distance
-    # unchanged, so only the heading term tells the two turns and standing still apart.
-    env = placed_env([[0.0, 0.0, 0.0], [0.0, 1.0, 0.0]], [[-1.0, 0.0], [1.0, 1.0]], heading_reward=heading_reward)
-    per_tick = heading_reward * np.deg2rad(90.0) * 0.05 / np.pi  # 0.025 c at 90 deg/s
-    _, rewards, _, _, _ = env.step({"robot_0": STAND_STILL, "robot_1": STAND_STILL})
-    assert rewards["robot_0"] == pytest.approx(-STEP_PENALTY)
-    # From bearing pi either turn brings the target closer to straight ahead.
-    _, rewards, _, _, _ = env.step({"robot_0": TURN_LEFT_ON_THE_SPOT, "robot_1": STAND_STILL})
-    assert rewards["robot_0"] == pytest.approx(per_tick - STEP_PENALTY, abs=1e-6)
-    for _ in range(9):
-        _, rewards, _, _, _ = env.step({"robot_0": TURN_LEFT_ON_THE_SPOT, "robot_1": STAND_STILL})
-        assert rewards["robot_0"] == pytest.approx(per_tick - STEP_PENALTY, abs=1e-6)
-    # Turning back away from the target pays the same amount back.
-    _, rewards, _, _, _ = env.step({"robot_0": TURN_RIGHT_ON_THE_SPOT, "robot_1": STAND_STILL})
-    assert rewards["robot_0"] == pytest.approx(-per_tick - STEP_PENALTY, abs=1e-6)
-    # Arrival and collision keep their +1 and -1.
-    env.close()
-
-
-def test_heading_reward_telescopes_and_leaves_arrival_alone() -> None:
-    # Turning toward a target on the right, then driving onto it: the heading terms sum to c (|b_0| - |b_last|) / pi
-    # and the arrival stays +1.
-    env = placed_env([[-1.0, 0.0, np.pi / 2]], [[0.0, 0.0]], heading_reward=0.5)
-    plain = placed_env([[-1.0, 0.0, np.pi / 2]], [[0.0, 0.0]])
-    shaped_sum, plain_sum = 0.0, 0.0
-    for tick in range(200):
-        action = TURN_RIGHT_ON_THE_SPOT if tick < 20 else STRAIGHT_FULL  # 20 ticks at 90 deg/s: a quarter turn
-        obs, rewards, terminations, _, _ = env.step({"robot_0": action})
-        _, plain_rewards, _, _, _ = plain.step({"robot_0": action})
-        if terminations["robot_0"]:
-            assert rewards["robot_0"] == plain_rewards["robot_0"]
-            break
-        shaped_sum += rewards["robot_0"]
-        plain_sum += plain_rewards["robot_0"]
-        last_bearing = abs(float(obs["robot_0"][-1])) * np.pi
-    assert terminations["robot_0"]
-    assert shaped_sum - plain_sum == pytest.approx(0.5 * (np.pi / 2 - last_bearing) / np.pi, abs=1e-4)
-    env.close()
-    plain.close()
-
-
-@pytest.mark.parametrize("value", [-0.1, float("nan"), "0.5", True])
-def test_heading_reward_rejects_bad_values(value: object) -> None:
-    with pytest.raises(ValueError, match="heading_reward must be a finite number >= 0"):
-        MultiRobotNavEnv(n_robots=1, heading_reward=value)  # type: ignore[arg-type]
-
-
 def test_all_arrived_is_success() -> None:
     env = placed_env([[-1.0, 0.0, 0.0]], [[-0.5, 0.0]])
     for _ in range(60):

@@ -386,3 +386,42 @@ def test_worlds_without_state_get_the_concatenated_observations(bridge) -> None:
     venv.step(np.zeros(3, dtype=np.int64))
     obs, _, _, _ = venv.step(np.zeros(3, dtype=np.int64))  # agent 0 arrived: its last observation stays
     np.testing.assert_array_equal(venv.get_state(), obs.reshape(1, 6))
+
+
+# --- env ids through the registries -------------------------------------------------------------------------------
+
+
+def test_env_ids_resolve_through_pettingzoo_and_gymnasium_registries() -> None:
+    """The core knows no world: an id registered with PettingZoo builds a multi-agent world, one registered with
+    gymnasium one-agent worlds; the worlds of this project register theirs when `envs` is imported."""
+    import gymnasium
+    import pettingzoo
+
+    import envs
+    from sb3_eps.common.vec_env import world_constructor
+
+    make, kwargs, multi_agent = world_constructor("MultiRobotNav-2-v0")
+    assert multi_agent and kwargs == {} and make.func is envs.make_parallel_env  # type: ignore[attr-defined]
+    make, kwargs, multi_agent = world_constructor("SingleRobotNav-v0")
+    assert not multi_agent and make is envs.turtlebot3.SingleRobotNavEnv
+    assert "Corridor-2-v0" in pettingzoo.parallel_registry and "SingleRobotNav-v0" in gymnasium.registry
+    venv = make_vec_env("Corridor-2-v0", n_envs=2, seed=0)
+    try:
+        assert (venv.n_worlds, venv.n_agents, venv.env_id) == (2, 2, "Corridor-2-v0")
+    finally:
+        venv.close()
+    with pytest.raises(ValueError, match=r"unknown env id 'Nope-v0'; multi-agent ids: .*'MultiRobotNav-4-v0'"):
+        world_constructor("Nope-v0")
+
+
+def test_a_world_registered_with_pettingzoo_under_a_string_entry_point_builds() -> None:
+    import pettingzoo
+
+    env_id = "StringEntryCorridor-v0"
+    if env_id not in pettingzoo.parallel_registry:
+        pettingzoo.register("parallel", env_id, entry_point="envs.debug:CorridorEnv", kwargs={"n_agents": 3})
+    venv = make_vec_env(env_id, n_envs=1, seed=0)
+    try:
+        assert venv.n_agents == 3 and venv.env_id == env_id
+    finally:
+        venv.close()

@@ -208,19 +208,6 @@ def test_run_keys_and_algorithm_keys_do_not_overlap() -> None:
     assert not set(RUN_PARAMS) & set(ALGORITHM_PARAMS)
 
 
-def test_angle_features_in_a_config(tmp_path) -> None:
-    """angle_features is off by default, and a config may give a list of indices, auto or null."""
-    assert "angle_features" not in package_defaults(algorithm_spec("gdq"))["policy_kwargs"]  # None: left out
-    path = tmp_path / "gdq.yml"
-    for value, expected in (("[29]", [29]), ("auto", "auto"), ("null", None)):
-        path.write_text(f"default:\n  n_timesteps: 100\n  policy_kwargs: {{angle_features: {value}}}\n")
-        entry = resolve_config("gdq", "MultiRobotNav-4-v0", conf_file=path).entry
-        assert entry["policy_kwargs"]["angle_features"] == expected
-    path.write_text("default:\n  n_timesteps: 100\n  policy_kwargs: {angle_features: sometimes}\n")
-    with pytest.raises(ConfigError, match="angle_features must be a list of ints >= 0 or one of"):
-        resolve_config("gdq", "MultiRobotNav-4-v0", conf_file=path)
-
-
 def test_weight_average_tau_in_a_config(tmp_path) -> None:
     """weight_average_tau is off by default but for GDQ and VDN (2e-4); a config may give a number in (0, 1] or null
     (no average, GDQ's too), nothing else."""

@@ -10,7 +10,6 @@ Scenarios (see ``docs/envs.md`` for the pictures):
 - ``"eps"``: the single-robot EPS world (paper Fig. 3 left): the 4-robot arena's walls plus static bars.
 - ``"eps_pillars"``: an EPS world closer to the 4-robot training arena: its walls plus three robot-sized static
   pillars standing for the other three robots (no thin bars, which the training worlds never show).
-- ``"eps_open"``: the 4-robot arena's walls only, for one robot.
 - ``"unseen"``: the 4-robot evaluation room (paper Fig. 5 analogue): a 6 m room whose four inner blocks
   leave a central cross and a ring corridor; fixed start poses and a fixed sequence of target sets.
 """
@@ -29,8 +28,8 @@ TARGET_CLEARANCE = 0.3  # [m] target to any wall/obstacle surface: a robot parke
 TARGET_SPACING = 0.5  # [m] between targets (paper Sec. IV-B)
 TARGET_START_SPACING = 0.5  # [m] target to every robot's start: "not on the initial positions"
 TICKS_PER_METRE = 150  # default time limit per metre of the room's longer side (see default_time_limit)
-SCENARIOS = ("arena", "eps", "eps_pillars", "eps_open", "unseen")
-MAX_ROBOTS = {"arena": 16, "eps": 4, "eps_pillars": 4, "eps_open": 4, "unseen": 4}
+SCENARIOS = ("arena", "eps", "eps_pillars", "unseen")
+MAX_ROBOTS = {"arena": 16, "eps": 4, "eps_pillars": 4, "unseen": 4}
 
 
 @dataclass(frozen=True)
@@ -151,14 +150,6 @@ def eps_pillars_layout() -> Layout:
     return Layout("eps_pillars", EPS_SIDE, EPS_SIDE, walls_around(EPS_SIDE, EPS_SIDE), EPS_PILLARS.copy())
 
 
-def eps_open_layout() -> Layout:
-    """The 4 m arena's walls only (the 4-robot training arena, for one robot).
-
-    :return: the layout
-    """
-    return Layout("eps_open", EPS_SIDE, EPS_SIDE, walls_around(EPS_SIDE, EPS_SIDE))
-
-
 # The unseen room: 6 m x 6 m; four 1.4 m square blocks centred at (+-1.5, +-1.5) leave a central cross
 # corridor 1.6 m wide and a ring corridor 0.8 m wide along the outer walls.
 UNSEEN_SIDE = 6.0
@@ -227,8 +218,6 @@ def make_layout(scenario: str, n_robots: int) -> Layout:
         return eps_layout()
     if scenario == "eps_pillars":
         return eps_pillars_layout()
-    if scenario == "eps_open":
-        return eps_open_layout()
     return unseen_layout()
 
 

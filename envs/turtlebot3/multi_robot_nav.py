@@ -44,7 +44,6 @@ from envs.turtlebot3.world import NavWorld
 
 OBS_DIM = N_BEAMS + 2  # 28 ranges, target distance, target heading
 STAND_STILL = 2  # the action (v, w) = (0, 0)
-STATE_FIELDS = ("x", "y", "cos_theta", "sin_theta", "v", "w", "target_x", "target_y", "arrived")
 
 
 def observation_space() -> gymnasium.spaces.Box:
@@ -63,8 +62,7 @@ class MultiRobotNavEnv(ParallelEnv):
     - Action: Discrete(20), index ``5 * i_linear + i_angular`` over linear {0, 0.07, 0.14, 0.21} m/s and
       angular {-90, -45, 0, 45, 90} deg/s, held for one 0.05 s tick (20 Hz).
     - Reward (Eq. 7): -1 on collision; +1 on arriving within 0.1 m of the target; otherwise
-      ``(d_prev - d_now) - 0.005``, plus ``heading_reward * (|b_prev| - |b_now|) / pi`` with the target bearing
-      ``b`` when ``heading_reward > 0`` (not in the paper; default 0).
+      ``(d_prev - d_now) - 0.005``.
     - Episode: a collision (robot-robot, wall, obstacle, parked robot) terminates every live robot; a robot that
       arrives is terminated, parked in place (an obstacle for the others) and leaves ``agents``; every robot
       arrived = success; ``max_episode_steps`` ticks truncate the robots still driving.
@@ -78,19 +76,13 @@ class MultiRobotNavEnv(ParallelEnv):
 
     :param n_robots: number of robots (1-16 in ``"arena"``, 1-4 in the ``"eps*"`` worlds and ``"unseen"``)
     :param scenario: ``"arena"`` (walls only, side 3 m + 0.25 m per robot), ``"eps"`` (the single-robot EPS
-        world with bars), ``"eps_pillars"`` (the 4 m arena with three robot-sized pillars), ``"eps_open"`` (the
-        4 m arena, walls only) or ``"unseen"`` (the evaluation room: fixed starts, fixed cycling target sequence)
+        world with bars), ``"eps_pillars"`` (the 4 m arena with three robot-sized pillars) or
+        ``"unseen"`` (the evaluation room: fixed starts, fixed cycling target sequence)
     :param max_episode_steps: time limit in ticks; None = 150 ticks per metre of the room's side
         (600 = 30 s for the 4 m arena)
     :param render_mode: None, ``"rgb_array"`` (top-down picture) or ``"human"`` (PyBullet GUI; needs a display)
     :param lidar_noise_std: standard deviation of Gaussian noise added to every range [m] (0 = exact)
     :param render_lidar: draw the lidar beams in ``rgb_array`` pictures
-    :param heading_reward: weight ``c >= 0`` of a heading term added to the progress reward,
-        ``c (|b_prev| - |b_now|) / pi``: turning toward the target earns up to ``0.025 c`` per tick (90 deg/s), so
-        at 20 Hz turning in place is worth clearly more than standing still with the target behind. It is a
-        difference of potentials like Eq. 7's distance term, so it sums to ``c (|b_0| - |b_end|) / pi`` over an
-        episode. 0 (the default) is the paper's reward. Screened for GDQ on 4 robots with ``c = 0.5``: it learned
-        much earlier and ended lower, with more time-outs (``docs/results/baselines.md``, rule T20)
     """
 
     metadata: dict[str, Any] = {
@@ -98,9 +90,6 @@ class MultiRobotNavEnv(ParallelEnv):
         "render_modes": ["rgb_array", "human"],
         "render_fps": 20,
         "is_parallelizable": True,
-        # Entries of a robot's observation that hold an angle as angle / pi (the target bearing): sb3_eps's
-        # policies feed them to the network as sine and cosine (policy_kwargs angle_features="auto").
-        "angle_observations": [N_BEAMS + 1],
     }
 
     def __init__(
@@ -111,7 +100,6 @@ class MultiRobotNavEnv(ParallelEnv):
         render_mode: str | None = None,
         lidar_noise_std: float = 0.0,
         render_lidar: bool = False,
-        heading_reward: float = 0.0,
     ) -> None:
         self.layout: Layout = make_layout(scenario, n_robots)
         self.scenario = scenario
@@ -134,16 +122,6 @@ class MultiRobotNavEnv(ParallelEnv):
             raise ValueError(
                 f"lidar_noise_std must be a finite number >= 0 (metres), got {lidar_noise_std!r}."
             )
-        if (
-            isinstance(heading_reward, bool)
-            or not isinstance(heading_reward, (int, float, np.integer, np.floating))
-            or not np.isfinite(heading_reward)
-            or heading_reward < 0
-        ):
-            raise ValueError(
-                f"heading_reward must be a finite number >= 0 (0 = the paper's Eq. 7), got {heading_reward!r}."
-            )
-        self.heading_reward = float(heading_reward)
         self.max_episode_steps = int(max_episode_steps)
         self.render_mode = render_mode
         self.lidar_noise_std = float(lidar_noise_std)
@@ -166,7 +144,6 @@ class MultiRobotNavEnv(ParallelEnv):
         n = self.n_robots
         self._targets = np.zeros((n, 2))
         self._distance = np.zeros(n)
-        self._abs_bearing = np.zeros(n)  # |target bearing| [rad], for heading_reward
         self._live = np.zeros(n, dtype=bool)
         self._arrived = np.zeros(n, dtype=bool)
         self._live_index = np.zeros(0, dtype=int)
@@ -241,7 +218,6 @@ class MultiRobotNavEnv(ParallelEnv):
         offset = self._targets - self.world.xy
         self._distance = np.hypot(offset[:, 0], offset[:, 1])
         bearing = self._bearing(self._live_index, offset)
-        self._abs_bearing = np.abs(bearing)
         obs = self._observe(self._live_index, offset, self._distance, bearing)
         team = self._team_info()
         observations = dict(zip(self.agents, obs))
@@ -326,12 +302,6 @@ class MultiRobotNavEnv(ParallelEnv):
         # Paper Eq. 7, collision taking precedence over arrival.
         progress = (self._distance[rows] - distance) - STEP_PENALTY
         bearing = self._bearing(live, offset)
-        if self.heading_reward:
-            # The bearing's progress in the same difference form as Eq. 7's distance term (it telescopes over
-            # an episode): c (|b_prev| - |b_now|) / pi.
-            abs_bearing = np.abs(bearing)
-            progress = progress + self.heading_reward * (self._abs_bearing[rows] - abs_bearing) * (1.0 / np.pi)
-            self._abs_bearing[rows] = abs_bearing
         rewards = np.where(collided, REWARD_COLLISION, np.where(arrived, REWARD_ARRIVAL, progress))
         self._distance[rows] = distance
         self._team_return += float(rewards.sum())

@@ -1,6 +1,6 @@
 """The TurtleBot3 Burger, its LDS-01 lidar and its action set, as numbers and closed-form kinematics.
 
-Sources: ROBOTIS TurtleBot3 Burger / LDS-01 specifications (see ``reference/ALGORITHMS.md`` section 5) and
+Sources: ROBOTIS TurtleBot3 Burger / LDS-01 specifications (e-Manual, "Specifications") and
 Marchesini & Farinelli, ICRA 2022, Section IV-B (20 Hz decisions, 28 beams over [-120, 120] deg, the
 Discrete(20) action set and the reward of Eq. 7).
 """
@@ -46,15 +46,6 @@ REWARD_COLLISION = -1.0
 REWARD_ARRIVAL = 1.0
 STEP_PENALTY = 0.005  # subtracted from the progress reward every tick
 DISTANCE_SCALE = 10.0  # [m] observation scale of the target distance (covers every shipped world)
-
-
-def action_to_velocity(actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Map Discrete(20) action indices to (linear, angular) velocities.
-
-    :param actions: integer array of action indices in [0, 19]
-    :return: linear velocities [m/s] and angular velocities [rad/s], same shape as ``actions``
-    """
-    return ACTION_LINEAR[actions], ACTION_ANGULAR[actions]
 
 
 def integrate_unicycle(

@@ -6,8 +6,8 @@ a thin one-robot view, so a policy moves between the two worlds unchanged.
 
 Version history (``metadata["name"]``; bump the suffix on any change of behaviour):
 
-- ``single_robot_nav_v0``: first version. The ``eps_pillars`` and ``eps_open`` scenarios were added later as new
-  options; the default world is unchanged, so the suffix stays.
+- ``single_robot_nav_v0``: first version. The ``eps_pillars`` scenario was added later as a new option; the
+  default world is unchanged, so the suffix stays.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ class SingleRobotNavEnv(gymnasium.Env):
 
     :param scenario: ``"eps"`` (default: the EPS world with bars, paper Fig. 3 left), ``"eps_pillars"`` (the
         4-robot arena's 4 m walls with three robot-sized static pillars in place of the other robots: what
-        ``EvolutionCallback`` evaluates in by default), ``"eps_open"`` (the 4 m walls only), ``"arena"`` (the
+        ``EvolutionCallback`` evaluates in by default), ``"arena"`` (the
         1-robot arena, 3.25 m, walls only) or ``"unseen"`` (robot 0 of the unseen room)
     :param max_episode_steps: time limit in ticks; None = 150 ticks per metre of the room's side (600 here)
     :param render_mode: None, ``"rgb_array"`` or ``"human"`` (PyBullet GUI; needs a display)
@@ -43,7 +43,6 @@ class SingleRobotNavEnv(gymnasium.Env):
         "name": "single_robot_nav_v0",
         "render_modes": ["rgb_array", "human"],
         "render_fps": 20,
-        "angle_observations": MultiRobotNavEnv.metadata["angle_observations"],  # the target bearing
     }
 
     def __init__(

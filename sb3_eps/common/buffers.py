@@ -55,13 +55,6 @@ class JointReplayBufferSamples(NamedTuple):
     values: th.Tensor | None = None
     next_values: th.Tensor | None = None
 
-    def bootstrap_alive(self, through_time_limit: bool) -> th.Tensor:
-        """``(B, n)``: 1 for the agents whose next value enters a joint bootstrap (a mixer, ``V_G'``), 0 for those
-        entering as 0. ``next_alive``: the agents still acting after the window. ``through_time_limit``: also those
-        cut by the time limit (alive at the window's start, not terminated in it), whose next observation is their
-        last: a time limit is not a terminal state (SB3's ``handle_timeout_termination``)."""
-        return self.alive * (1.0 - self.dones) if through_time_limit else self.next_alive
-
 
 class JointReplayBuffer:
     """Uniform replay buffer of joint rows.
@@ -360,7 +353,6 @@ def joint_tick(
     state: np.ndarray,
     next_state: np.ndarray,
     values: tuple[np.ndarray, np.ndarray] | None = None,
-    cut: np.ndarray | None = None,
 ) -> _Tick:
     """One world's tick for the n-step collector, from what the bridge says of each agent (``(n_agents, ...)``
     arrays), with the termination flags derived from ``ended`` and ``truncated``: the training rollout
@@ -372,15 +364,13 @@ def joint_tick(
     :param truncated: the agents whose end was the time limit
     :param world_ended: every agent of the world is done
     :param values: ``(v, v')`` to store with the tick (GDQ's ``global_values="stored"``), or None
-    :param cut: the agents whose end is not a terminal for their own targets though the world's episode
-        terminated (another agent's collision, ``others_end_bootstrap``); None: none
     """
     return _Tick(
         observations=observations,
         actions=actions,
         rewards=rewards,
         next_observations=next_observations,
-        terminated=ended & ~truncated if cut is None else ended & ~truncated & ~cut,
+        terminated=ended & ~truncated,
         ended=ended,
         alive=alive,
         state=state,

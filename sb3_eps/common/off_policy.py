@@ -12,7 +12,6 @@ SuperSuit makes every agent a sub-env; ``ticks`` counts simulator steps of one w
 
 from __future__ import annotations
 
-import inspect
 import io
 import pathlib
 import warnings
@@ -46,6 +45,7 @@ from sb3_eps.common.buffers import (
     TeamRewardMode,
     joint_tick,
 )
+from sb3_eps.common.multi_agent_vec_env import MultiAgentVecEnv
 from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.common.threads import set_torch_threads
 from sb3_eps.common.utils import describe_space, epsilon_greedy, polyak_update_tensors_
@@ -66,11 +66,10 @@ class TDTerms(NamedTuple):
 
 
 def find_multi_agent_env(env: VecEnv) -> Any:
-    """Return the :class:`~sb3_eps.common.vec_env.MultiAgentVecEnv` inside ``env`` (through SB3 wrappers).
+    """Return the :class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv` inside ``env`` (through SB3 wrappers).
 
     :raises ValueError: when ``env`` is not one of our multi-agent vector envs
     """
-    from sb3_eps.common.vec_env import MultiAgentVecEnv
 
     current: Any = env
     while True:
@@ -90,7 +89,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
 
     :param policy: policy class or alias (``"MlpPolicy"``)
     :param env: a vector env from :func:`sb3_eps.make_vec_env` (or None when loading)
-    :param learning_rate: Adam learning rate, constant or schedule (default 3e-4, ALGORITHMS.md section 1)
+    :param learning_rate: Adam learning rate, constant or schedule
     :param buffer_size: replay capacity in joint rows (one row = one world's tick, all its agents)
     :param learning_starts: agent-steps of uniformly random actions before learning starts
     :param batch_size: joint rows per gradient step
@@ -113,7 +112,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         online network both chooses and values)
     :param exploration_fraction: fraction of training over which epsilon decays linearly
     :param exploration_initial_eps: initial epsilon
-    :param exploration_final_eps: final epsilon (0.02, ALGORITHMS.md section 1)
+    :param exploration_final_eps: final epsilon
     :param max_grad_norm: gradient clipping norm
     :param team_reward_mode: team reward of a tick: ``"sum"`` or ``"mean"`` of the alive agents' rewards
     :param overlap_training: run the gradient steps due after a collection while its last tick's worlds step
@@ -122,14 +121,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         side by side. The only change to training: a tick's own transition joins the replay buffer after the
         gradient steps of that tick instead of before them. Same seed, same results with worlds in process or in
         workers. Needs ``train_freq`` in steps
-    :param others_end_bootstrap: an agent whose episode ends only because another agent's collision ended its
-        world's episode (its own infos say it neither ``collided`` nor ``arrived``) is cut, not terminated: its own
-        target keeps bootstrapping from its last observation, as at a time limit (SB3's
-        ``handle_timeout_termination``). The team's episode still terminates (team targets, mixers and ``V_G``
-        are unchanged), and so does the colliding agent's. Off by default (the episode is a terminal for every
-        agent, as the env says). Not in the papers: with n-step returns, another agent's collision otherwise
-        ends the targets of every agent's last ``n_steps`` rows at 0, however they drove
-        (docs/results/baselines.md). Envs without per-agent ``collided`` infos are not affected
     :param stats_window_size: episodes (worlds, not agents) averaged in the rollout logs
     :param tensorboard_log: TensorBoard log folder (None: no TensorBoard)
     :param policy_kwargs: keyword arguments of the policy (``net_arch``, ``stream_arch``, ``agent_target``...)
@@ -137,7 +128,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     :param seed: random seed
     :param device: torch device
     :param _init_setup_model: build the networks now (False when loading)
-    :param target_update_interval: deprecated alias of ``gradient_steps_per_target_update`` (same count)
     """
 
     policy: MultiAgentQPolicy
@@ -178,7 +168,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         max_grad_norm: float = 10.0,
         team_reward_mode: TeamRewardMode = "sum",
         overlap_training: bool = False,
-        others_end_bootstrap: bool = False,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -186,11 +175,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         seed: int | None = None,
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
-        target_update_interval: int | None = None,
     ) -> None:
-        if target_update_interval is not None:
-            _warn_target_update_interval()
-            gradient_steps_per_target_update = target_update_interval
         if isinstance(env, str):
             raise ValueError(
                 f"pass a vector env, not the id {env!r}: use sb3_eps.make_vec_env({env!r}, n_envs=...)"
@@ -245,20 +230,10 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self.max_grad_norm = max_grad_norm
         self.team_reward_mode = team_reward_mode
         self.overlap_training = bool(overlap_training)
-        self.others_end_bootstrap = bool(others_end_bootstrap)
         self._trained_ahead = False  # overlap_training ran this collection's gradient steps already
         self._collector: NStepJointCollector | None = None
         self._last_state: np.ndarray | None = None
         self.n_refused_updates = 0  # gradient steps refused for a non-finite loss or gradient
-        # "auto" (given, or the policy's default) becomes the env's angle entries now, so that a saved model names
-        # the ones it was built with (a model saved before the option existed has none, and loads without them).
-        angles = self.policy_kwargs.get("angle_features", _policy_default(self.policy_class, "angle_features"))
-        self.policy_kwargs = {**self.policy_kwargs, "angle_features": self._resolve_angle_features(angles)}
-        # The weight average's tau is written into policy_kwargs too (given, or the policy's default), so a saved
-        # model names it; a model saved before the option existed names none and loads without an average.
-        if "weight_average_tau" not in self.policy_kwargs:
-            tau = _policy_default(self.policy_class, "weight_average_tau")
-            self.policy_kwargs = {**self.policy_kwargs, "weight_average_tau": tau}
         if _init_setup_model:
             self._setup_model()
 
@@ -319,7 +294,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
 
     @property
     def multi_agent_env(self) -> Any:
-        """The bridge (:class:`~sb3_eps.common.vec_env.MultiAgentVecEnv`) under ``self.env``."""
+        """The bridge (:class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv`) under ``self.env``."""
         if self.env is None:
             raise ValueError("the model has no env: pass env= to load() or call set_env()")
         return find_multi_agent_env(self.env)
@@ -335,19 +310,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self._collector = None
         self._last_state = None
 
-    def _resolve_angle_features(self, value: Any) -> list[int] | None:
-        """:return: ``value``, with ``"auto"`` read from the env (the entries its worlds' metadata names as angles;
-        None when it names none or there is no env)."""
-        if not (isinstance(value, str) and value == "auto"):
-            return value
-        angles = list(getattr(find_multi_agent_env(self.env), "angle_observations", [])) if self.env else []
-        return angles or None
-
     def _policy_constructor_kwargs(self) -> dict[str, Any]:
-        # angle_features was resolved in __init__; a model saved before it existed has no such key and gets the
-        # policy's default, which builds no angle features without an env to read (as it was built). The same for
-        # weight_average_tau: a model saved without the key was built without an average, whatever the default.
-        kwargs = {"agent_target": self.default_agent_target, "weight_average_tau": None, **self.policy_kwargs}
+        kwargs = {"agent_target": self.default_agent_target, **self.policy_kwargs}
         kwargs.update(n_agents=self.n_agents, state_dim=self.state_dim)
         return kwargs
 
@@ -406,12 +370,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         except TypeError as error:
             raise ValueError(f"replay_buffer_kwargs do not fit {buffer_class.__name__}: {error}") from None
 
-    @property
-    def target_update_interval(self) -> int:
-        """Deprecated alias of ``gradient_steps_per_target_update`` (SB3's DQN counts this name in env steps)."""
-        _warn_target_update_interval()
-        return self.gradient_steps_per_target_update
-
     def learn(
         self: SelfMultiAgentOffPolicyAlgorithm,
         total_timesteps: int,
@@ -453,6 +411,18 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             )
             self._last_state = self._global_state()
         return total_timesteps, callback
+
+    def rollout_state(self) -> dict[str, Any]:
+        """:return: what training needs beyond ``save`` to go on exactly: the replay buffer, the n-step collector with
+        its unfinished windows and the worlds' last global states (a checkpoint pickles them together, so the
+        collector keeps pointing at the buffer)."""
+        return {"replay_buffer": self.replay_buffer, "collector": self._collector, "last_state": self._last_state}
+
+    def set_rollout_state(self, state: dict[str, Any]) -> None:
+        """Restore what :meth:`rollout_state` returned (after ``set_env``, which forgets the collector)."""
+        self.replay_buffer = state["replay_buffer"]
+        self._collector = state["collector"]
+        self._last_state = state["last_state"]
 
     def _stores_agent_values(self) -> bool:
         """Whether the replay rows carry the agents' state-values computed at collection time (GDQ's stored
@@ -573,7 +543,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         """
         assert self._collector is not None and self._last_state is not None and self._last_obs is not None
         shape = (self.n_worlds, self.n_agents)
-        step = _read_step(new_obs, dones, infos, shape, self.others_end_bootstrap)
+        step = _read_step(new_obs, dones, infos, shape)
         new_state = self._global_state()
         last_obs = np.asarray(self._last_obs, dtype=np.float32).reshape((*shape, -1))
         next_obs = step.next_observations.reshape((*shape, -1))
@@ -599,7 +569,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                     alive=step.alive[world],
                     ended=step.ended[world],
                     truncated=step.truncated[world],
-                    cut=step.cut[world],
                     world_ended=bool(step.world_ended[world]),
                     state=self._last_state[world],
                     next_state=np.asarray(next_state, dtype=np.float32),
@@ -609,6 +578,13 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self._last_obs = new_obs  # type: ignore[assignment]
         self._last_state = new_state
         return int(step.world_ended.sum())
+
+    def collection_values(
+        self, observations: np.ndarray, next_observations: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The per-agent values that replay rows store with these ticks (None when the algorithm stores none), for
+        rows written from outside the rollout (EPS's experience sharing); see :meth:`_collection_values`."""
+        return self._collection_values(observations, next_observations)
 
     def _collection_values(
         self, observations: np.ndarray, next_observations: np.ndarray
@@ -806,9 +782,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             if reason is None:
                 raise
             raise ValueError(reason) from error
-        legacy = model.__dict__.pop("target_update_interval", None)  # a model saved before the rename
-        if legacy is not None:
-            model.gradient_steps_per_target_update = legacy
         return model
 
     def _get_policy_from_name(self, policy_name: str) -> type[MultiAgentQPolicy]:  # type: ignore[override]
@@ -825,7 +798,6 @@ class _Step(NamedTuple):
     truncated: np.ndarray  # its episode was cut by the time limit
     ended: np.ndarray  # its episode (its life) ended at this tick
     world_ended: np.ndarray  # (n_worlds,): every agent of the world is done
-    cut: np.ndarray  # its episode ended only because another agent's collision ended the world's (when asked for)
 
 
 def _read_step(
@@ -833,12 +805,8 @@ def _read_step(
     dones: np.ndarray,
     infos: list[dict[str, Any]],
     shape: tuple[int, int],
-    others_end: bool = False,
 ) -> _Step:
-    """Read the bridge's flags from a step's infos; patch in the terminal observations SB3 moved to the infos.
-
-    :param others_end: also flag the agents cut by another agent's collision (``others_end_bootstrap``)
-    """
+    """Read the bridge's flags from a step's infos; patch in the terminal observations SB3 moved to the infos."""
     next_obs = np.array(new_obs, dtype=np.float32, copy=True)
     for index in np.flatnonzero(dones):
         next_obs[index] = infos[index]["terminal_observation"]
@@ -848,35 +816,12 @@ def _read_step(
     )
     dones = np.asarray(dones, dtype=bool)
     ended = dones & alive
-    cut = np.zeros(len(infos), dtype=bool)
-    if others_end and ended.any():
-        for index in np.flatnonzero(ended & ~truncated):
-            info = infos[index]
-            # Only envs that say who collided (the robot worlds) can tell a cut agent from a crashed one.
-            cut[index] = (
-                "collided" in info and not info["collided"] and not info.get("arrived", False)
-            )
-        # An agent is cut only where some agent of its world did collide.
-        world_collided = np.fromiter(
-            (bool(info.get("collided", False)) for info in infos), dtype=bool, count=len(infos)
-        ).reshape(shape).any(axis=1)
-        cut = cut.reshape(shape) & world_collided[:, None]
     return _Step(
         next_observations=next_obs,
         alive=alive.reshape(shape),
         truncated=truncated.reshape(shape),
         ended=ended.reshape(shape),
         world_ended=dones.reshape(shape).all(axis=1),
-        cut=cut.reshape(shape),
-    )
-
-
-def _warn_target_update_interval() -> None:
-    warnings.warn(
-        "target_update_interval is deprecated and goes in the next release: use gradient_steps_per_target_update (the "
-        "same count of gradient steps; SB3's DQN counts target_update_interval in env steps)",
-        DeprecationWarning,
-        stacklevel=3,
     )
 
 
@@ -919,17 +864,4 @@ def _load_mismatch(cls: type[MultiAgentOffPolicyAlgorithm], path: Any, env: GymE
                 f"{name} was trained with {kind} {describe_space(data.get(kind))}, the env has "
                 f"{describe_space(ours)}: use an env of the same kind (robots with robots, MPE with MPE)"
             )
-    return None
-
-
-def _policy_default(policy_class: Any, name: str) -> Any:
-    """:return: the default of ``name`` in the nearest ``__init__`` along ``policy_class``'s MRO that declares it
-    (None when none does, or for a policy given as an alias that SB3 has not resolved)."""
-    for owner in getattr(policy_class, "__mro__", ()):
-        init = vars(owner).get("__init__")
-        if init is None:
-            continue
-        parameter = inspect.signature(init).parameters.get(name)
-        if parameter is not None and parameter.default is not inspect.Parameter.empty:
-            return parameter.default
     return None

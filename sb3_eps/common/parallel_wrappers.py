@@ -1,4 +1,5 @@
-"""PettingZoo ParallelEnv adapters that the SB3 bridge (:mod:`sb3_eps.common.vec_env`) puts in front of SuperSuit.
+"""PettingZoo ParallelEnv adapters that the SB3 bridge (:mod:`sb3_eps.common.multi_agent_vec_env`) puts in front
+of SuperSuit.
 
 SuperSuit's ``pettingzoo_env_to_vec_env_v1`` needs every agent in every step, drops ``state()``, and its
 ``black_death_v3`` is broken in 3.11 (a phantom zero step, dead agents never flagged). :class:`FixedAgentSet` owns

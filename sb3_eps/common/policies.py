@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import copy
-import math
-from collections.abc import Sequence
-from typing import Any, Literal
+from typing import Any
 
 import torch as th
 from gymnasium import spaces
@@ -28,54 +26,11 @@ def weight_average_rate(tau: float, n_updates: int, eta: int = WEIGHT_AVERAGE_WA
     """:return: how far the ``n_updates``-th gradient step (counting from 1) moves the weight average toward the
     online weights: ``max(tau, (eta + 1) / (n + eta))``, eta = :data:`WEIGHT_AVERAGE_WARMUP_ETA`. Early on, the
     polynomial-decay average (weights growing as ``n^eta``, none left on the initial network after the first step)
-    keeps up with a short run; once its rate falls to ``tau`` it is the exponential moving average. Chosen in the
-    sixteenth session (rule T17, ``docs/results/sixteenth_session/rules.md``): the mean of all weights so far
+    keeps up with a short run; once its rate falls to ``tau`` it is the exponential moving average. Chosen on
+    held-out seeds (``docs/results/gdq_weight_average.md``): the mean of all weights so far
     (``eta`` 0) lagged a 20k-tick robot run by about 17 points of greedy success on three held-out seeds, ``eta`` 3
     and 7 kept up with it (``benchmarks/average_warmup_check.py``, which compares ``eta`` values)."""
     return max(float(tau), (eta + 1.0) / (max(int(n_updates), 1) + eta))
-
-
-class AngleFeaturesExtractor(BaseFeaturesExtractor):
-    """Flattens the observation and feeds each angle entry to the network as its sine and cosine.
-
-    An angle stored as ``angle / scale`` in ``[-1, 1)`` (the robot worlds' target bearing, entry 29, is
-    ``bearing / pi``) jumps from +1 to -1 where +pi and -pi meet: a target straight behind a robot, a little to its
-    left or a little to its right, gives two inputs as far apart as they can be, and the network must learn
-    opposite turns on both sides of that seam. ``(sin, cos)`` of the angle is continuous there. The other entries
-    pass through unchanged, in their order; the ``2 k`` new features follow them (sines, then cosines).
-
-    :param observation_space: one agent's observation space (flattened here)
-    :param angle_features: indices, in the flattened observation, of the entries that hold an angle
-    :param scale: what an entry is multiplied by to give radians (``pi`` for ``angle / pi``)
-    """
-
-    def __init__(self, observation_space: spaces.Space, angle_features: Sequence[int], scale: float = math.pi) -> None:
-        n_inputs = spaces.utils.flatdim(observation_space)
-        indices = [int(index) for index in angle_features]
-        if not indices:
-            raise ValueError("angle_features must name at least one observation entry")
-        bad = [index for index in indices if not 0 <= index < n_inputs]
-        if bad:
-            raise ValueError(
-                f"angle_features {bad} are outside the observation's {n_inputs} entries (0 to {n_inputs - 1})"
-            )
-        if len(set(indices)) != len(indices):
-            raise ValueError(f"angle_features names an entry twice: {indices}")
-        if not (math.isfinite(scale) and scale > 0):
-            raise ValueError(f"scale must be a finite number > 0, got {scale!r}")
-        super().__init__(observation_space, n_inputs + len(indices))
-        self.angle_features = indices
-        self.scale = float(scale)
-        angles = set(indices)
-        others = [index for index in range(n_inputs) if index not in angles]
-        # Not saved with the weights: they follow from the constructor's arguments.
-        self.register_buffer("_angles", th.tensor(indices, dtype=th.long), persistent=False)
-        self.register_buffer("_others", th.tensor(others, dtype=th.long), persistent=False)
-
-    def forward(self, observations: th.Tensor) -> th.Tensor:
-        flat = th.flatten(observations, start_dim=1)
-        radians = flat.index_select(1, self._angles) * self.scale
-        return th.cat([flat.index_select(1, self._others), th.sin(radians), th.cos(radians)], dim=1)
 
 
 class DuelingQNetwork(BasePolicy):
@@ -86,7 +41,7 @@ class DuelingQNetwork(BasePolicy):
     :param action_space: one agent's discrete action space
     :param features_extractor: the features extractor (a flatten layer for vector observations)
     :param features_dim: output size of the features extractor
-    :param net_arch: hidden sizes of the shared trunk (default ``[128, 64]``, ALGORITHMS.md section 1)
+    :param net_arch: hidden sizes of the shared trunk (default ``[128, 64]``)
     :param stream_arch: hidden sizes of each of the two streams (default ``[64]``)
     :param activation_fn: activation between layers
     :param normalize_images: whether image observations are divided by 255
@@ -177,12 +132,6 @@ class MultiAgentQPolicy(BasePolicy):
     :param optimizer_class: optimizer class (Adam)
     :param optimizer_kwargs: optimizer keyword arguments other than the learning rate
     :param agent_target: whether the agent network has a target network
-    :param angle_features: indices of observation entries that hold an angle as ``angle / pi``; each is fed to the
-        network as its sine and cosine (:class:`AngleFeaturesExtractor`). ``"auto"``: the entries the env's worlds
-        name in their ``metadata["angle_observations"]`` (the robot worlds: ``[29]``, the target bearing; none for
-        the others), read by the algorithm (a policy built without an algorithm has no env and takes none). None
-        (the default) feeds the observation as it is. Replaces ``features_extractor_class``, so the two cannot be
-        given together.
     :param weight_average_tau: keep ``q_net_average``, a moving average of the agent network's weights
         (``avg <- (1 - r) avg + r theta`` after every gradient step, ``r = max(tau, 4 / (n + 3))`` at the n-th,
         :func:`weight_average_rate`: an average over about the last fifth of the run so far, then, from
@@ -210,7 +159,6 @@ class MultiAgentQPolicy(BasePolicy):
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
         agent_target: bool = True,
-        angle_features: list[int] | Literal["auto"] | None = None,
         weight_average_tau: float | None = None,
         n_agents: int = 1,
         state_dim: int = 0,
@@ -218,19 +166,6 @@ class MultiAgentQPolicy(BasePolicy):
         if weight_average_tau is not None and not 0.0 < float(weight_average_tau) <= 1.0:
             raise ValueError(f"weight_average_tau must be in (0, 1] or None, got {weight_average_tau!r}")
         self.weight_average_tau = None if weight_average_tau is None else float(weight_average_tau)
-        if isinstance(angle_features, str):
-            if angle_features != "auto":
-                raise ValueError(f"angle_features must be a list of indices, 'auto' or None, got {angle_features!r}")
-            angle_features = None  # no env here: the algorithm resolves "auto" before it builds the policy
-        self.angle_features = None if angle_features is None else [int(index) for index in angle_features]
-        if self.angle_features is not None:
-            # (A saved model comes back with AngleFeaturesExtractor and the angles in its kwargs: the same thing.)
-            if features_extractor_class not in (FlattenExtractor, AngleFeaturesExtractor):
-                raise ValueError(
-                    "angle_features builds its own features extractor; give it or features_extractor_class, not both"
-                )
-            features_extractor_class = AngleFeaturesExtractor
-            features_extractor_kwargs = {**(features_extractor_kwargs or {}), "angle_features": self.angle_features}
         super().__init__(
             observation_space,
             action_space,
@@ -360,7 +295,6 @@ class MultiAgentQPolicy(BasePolicy):
             features_extractor_class=self.features_extractor_class,
             features_extractor_kwargs=self.features_extractor_kwargs,
             agent_target=self.agent_target,
-            angle_features=self.angle_features,
             weight_average_tau=self.weight_average_tau,
             n_agents=self.n_agents,
             state_dim=self.state_dim,

@@ -5,8 +5,8 @@ into contiguous blocks. By default (:func:`default_layout`), on ``C`` cores the 
 itself while ``C - 1`` worker processes step the others, side by side: the main process would otherwise wait idle
 for its workers, and every worker is one more process to wake per step. With ``n_workers`` alone, every world
 lives in those workers (the layout before ``main_worlds`` existed). Each worker runs an ordinary in-process
-:class:`~sb3_eps.common.vec_env.MultiAgentVecEnv` over its block, with its own PyBullet clients, as does the
-main process over its own block, and the main process concatenates the blocks. So every promise of the bridge
+:class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv` over its block, with its own PyBullet clients, as
+does the main process over its own block, and the main process concatenates the blocks. So every promise of the bridge
 holds unchanged (each block's own bridge keeps them) and a seeded run gives the same numbers as in-process:
 world ``w`` is still reset with ``seed + w``, and no state is shared between worlds.
 
@@ -51,7 +51,8 @@ import numpy as np
 from pettingzoo import ParallelEnv
 from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper, VecEnv, VecEnvStepReturn
 
-from sb3_eps.common.vec_env import MultiAgentVecEnv
+from sb3_eps.common.multi_agent_vec_env import MultiAgentVecEnv
+from sb3_eps.common.snapshots import snapshot_dumps
 
 #: Seconds a worker gets to start (import, build its worlds) or to close before it is terminated.
 START_TIMEOUT = 120.0
@@ -242,9 +243,7 @@ def _build_worker_env(payload: tuple[str, Any], t_start: float) -> MultiAgentVec
 
 
 def _snapshot(venv: MultiAgentVecEnv) -> bytes:
-    from sb3_eps.zoo.checkpoint import snapshot_dumps  # the checkpoint's pickler: envs continue mid-episode
-
-    return snapshot_dumps(venv)
+    return snapshot_dumps(venv)  # the checkpoint's pickler: envs continue mid-episode
 
 
 def _handle(venv: MultiAgentVecEnv, command: str, data: Any) -> Any:
@@ -291,7 +290,6 @@ def _worker_main(
                     venv.observation_space,
                     venv.action_space,
                     venv.state_space,
-                    venv.angle_observations,
                 ),
             )
         )
@@ -337,7 +335,7 @@ def _worker_main(
 
 # ---------------------------------------------------------------------------------------------- main side
 class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
-    """A :class:`~sb3_eps.common.vec_env.MultiAgentVecEnv` whose worlds run in worker processes.
+    """A :class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv` whose worlds run in worker processes.
 
     Same attributes, step semantics and sub-env order as in-process (``docs/architecture.md``); world ``w`` lives
     in the worker whose block holds it, or in the main process's own block (the first ``main_worlds`` worlds),
@@ -473,10 +471,9 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
                     local.observation_space,
                     local.action_space,
                     local.state_space,
-                    local.angle_observations,
                 ),
             )
-        possible_agents, observation_space, action_space, state_space, angles = infos[0]
+        possible_agents, observation_space, action_space, state_space = infos[0]
         for info in infos[1:]:
             if info[0] != possible_agents:
                 self._terminate()
@@ -484,7 +481,6 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         self.possible_agents = list(possible_agents)
         self.n_agents = len(self.possible_agents)
         self.state_space = state_space
-        self.angle_observations = list(angles)
         self._main_slice = slice(0, len(self._main_block) * self.n_agents)
         self._slices = [
             slice(block.start * self.n_agents, block.stop * self.n_agents) for block in self._blocks
@@ -750,8 +746,6 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
     def __setstate__(self, state: dict[str, Any]) -> None:
         snapshots = state.pop("_snapshots")
         main_snapshot = state.pop("_main_snapshot", None)
-        state.setdefault("_main_block", range(0))  # checkpoints written before the main process held worlds
-        state.setdefault("spin_s", 0.0)  # and before processes polled
         bookkeeping: dict[str, Any] = {
             key: state[key]
             for key in ("alive", "_seed", "_seeds", "_options", "_n_steps", "_want_state", "reset_infos")

@@ -2,13 +2,26 @@
 
 from __future__ import annotations
 
-import functools
-import inspect
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 import torch as th
+
+
+def check_seed(seed: Any) -> int | None:
+    """:return: ``seed`` as a Python int (or None). NumPy integers are accepted (SB3 and ``np.random`` hand them
+    out); bools are refused (``True`` as a seed is always a mistake).
+
+    :raises ValueError: for anything but None or a non-negative int
+    """
+    if seed is None:
+        return None
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
+        raise ValueError(f"seed must be None or a non-negative int, got {seed!r} of type {type(seed).__name__}")
+    if seed < 0:
+        raise ValueError(f"seed must be None or a non-negative int, got {seed}")
+    return int(seed)
 
 
 def describe_space(space: Any) -> str:
@@ -147,30 +160,3 @@ def moved_names(module_name: str, moved: dict[str, str]) -> Callable[[str], Any]
         return getattr(importlib.import_module(new_module), new_name)
 
     return __getattr__
-
-
-def init_with_defaults(init: Callable[..., None], **defaults: Any) -> Callable[..., None]:
-    """An ``__init__`` for a subclass that differs from its base only in some defaults (QMIX's learning rate): it
-    passes every argument on to ``init``, and its signature, which ``inspect``, the config schema and IDEs read, is
-    ``init``'s with those defaults. The base's signature is written once.
-
-    :param init: the base class's ``__init__``
-    :param defaults: argument name -> the subclass's default
-    """
-    signature = inspect.signature(init)
-    unknown = sorted(set(defaults) - set(signature.parameters))
-    if unknown:
-        raise TypeError(f"{init.__qualname__} has no arguments {unknown}")
-
-    @functools.wraps(init)
-    def __init__(self: Any, *args: Any, **kwargs: Any) -> None:
-        given = signature.bind_partial(self, *args, **kwargs).arguments
-        init(self, *args, **kwargs, **{name: value for name, value in defaults.items() if name not in given})
-
-    __init__.__signature__ = signature.replace(  # type: ignore[attr-defined]
-        parameters=[
-            parameter.replace(default=defaults[name]) if name in defaults else parameter
-            for name, parameter in signature.parameters.items()
-        ]
-    )
-    return __init__

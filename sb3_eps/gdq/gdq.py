@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import typing
-import warnings
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -22,8 +21,6 @@ from sb3_eps.gdq.policies import GDQPolicy, MlpPolicy
 GlobalValues = Literal["recomputed", "stored", "target"]
 GLOBAL_VALUES: tuple[str, ...] = typing.get_args(GlobalValues)
 DEFAULT_GLOBAL_VALUES: GlobalValues = "target"
-#: GDQ's own options, given in ``policy_kwargs`` before they were arguments of ``GDQ`` (deprecated there).
-_FORMER_POLICY_OPTIONS = ("global_values", "global_bootstrap")
 
 
 def gdq_agent_targets(
@@ -36,7 +33,7 @@ def gdq_agent_targets(
     global_bootstrap: float = 1.0,
 ) -> th.Tensor:
     """Agent TD targets of GDQ: the joint value replaces each agent's own state-value in its bootstrap,
-    ``y_i = r_i + gamma^k (1 - done_i) [V_G'(v') + A_i(s'_i, a*) - mean_a A_i(s'_i, a)]`` (ALGORITHMS.md s.1).
+    ``y_i = r_i + gamma^k (1 - done_i) [V_G'(v') + A_i(s'_i, a*) - mean_a A_i(s'_i, a)]``.
     With ``global_bootstrap = lambda < 1`` (GDQ-lambda, not in the paper) the bootstrap value is
     ``lambda V_G'(v') + (1 - lambda) V_i(s'_i)``.
 
@@ -58,13 +55,13 @@ def gdq_agent_targets(
     return td_target(rewards, discounts, dones, value + next_advantage_term)
 
 
-#: GDQ's default ``global_bootstrap`` (GDQ-lambda 0.1, not the paper's 1: docs/results/baselines.md, "Tenth session").
+#: GDQ's default ``global_bootstrap`` (GDQ-lambda 0.1, not the paper's 1: docs/results/gdq_target.md).
 DEFAULT_GLOBAL_BOOTSTRAP = 0.1
-#: GDQ's default ``n_steps``; the paper's target (``global_bootstrap=1``) needs 30 (docs/results/baselines.md).
+#: GDQ's default ``n_steps``; the paper's target (``global_bootstrap=1``) needs 30 (docs/results/gdq_target.md).
 DEFAULT_N_STEPS = 3
 
-#: GDQ's default ``prioritized_replay``: uniform replay (the base class's default is PER; docs/results/baselines.md,
-#: "Nineteenth session", rule T24).
+#: GDQ's default ``prioritized_replay``: uniform replay (the base class's default is PER;
+#: docs/results/gdq_uniform_replay.md).
 DEFAULT_PRIORITIZED_REPLAY = False
 
 #: GDQ's default learning rate: 3e-4 decaying linearly to 0 over the budget (RL Zoo's ``lin_3e-4``).
@@ -82,21 +79,12 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     agents that are no longer acting contribute 0. Action selection uses only ``A``
     (Eq. 3), so execution stays decentralised.
 
-    **Package defaults depart from the paper's target** (``docs/results/baselines.md``, "Tenth session" and
-    "Eleventh session"): ``global_bootstrap=0.1`` (GDQ-lambda: each agent bootstraps on
-    ``0.1 V_G'(v') + 0.9 V_i(s'_i)``) with ``n_steps=3``. On held-out seeds (4 robots, 150k ticks) the paper's
-    target (``global_bootstrap=1``, then with ``n_steps=30``) reached 58 % greedy team success, GDQ-lambda 0.1
-    86 %; ``GDQ("MlpPolicy", venv, global_bootstrap=1.0, n_steps=30)`` is the paper's GDQ as the former defaults
-    had it.
-
-    Options the papers leave open (package defaults in brackets, measured in ``docs/results/baselines.md``):
-    ``n_steps`` [3; the paper's target needed 30: there an agent's own rewards beyond the return reach its target
-    only through ``V_G'`` with weight ``g_i ~ 1/n``]; ``learning_rate`` [3e-4 decaying linearly to 0 over the budget]; ``team_reward_mode`` sum or mean [mean]; ``policy_kwargs=dict(agent_target=...)`` an agent
-    target network [True; the paper had none]; ``global_values`` where ``v'`` comes from: the agent target
-    network, recomputed online, or stored at collection time [target]; ``global_init`` of ``V_G`` [mean];
-    ``global_net_arch`` [64, 64]; and our GDQ-lambda variant ``global_bootstrap`` [0.1; 1 is the paper's target]
-    (``global_init`` and ``global_net_arch`` are ``policy_kwargs`` of :class:`~sb3_eps.gdq.policies.GDQPolicy`).
-    Diagnostics (``g_i``, the greedy action's margin) are logged under ``train/``. Other arguments are those of
+    Where the package departs from the paper (each default links the page that chose it): ``global_bootstrap=0.1``
+    (GDQ-lambda; ``GDQ("MlpPolicy", venv, global_bootstrap=1.0, n_steps=30)`` is the paper's target,
+    ``docs/results/gdq_target.md``), ``team_reward_mode="mean"``, ``learning_rate`` 3e-4 decaying linearly to 0,
+    uniform replay (``docs/results/gdq_uniform_replay.md``), an agent target network (the paper had none) and a
+    weight average for the greedy actions (:class:`~sb3_eps.gdq.policies.GDQPolicy`). Diagnostics (``g_i``, the
+    greedy action's margin) are logged under ``train/``. Other arguments are those of
     :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`.
 
     :param global_values: where ``v`` and ``v'`` come from: ``"target"``, ``v'`` from the agent target network
@@ -104,30 +92,15 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         ``"recomputed"`` at update time by the current agent network from the stored observations; ``"stored"`` in
         the replay rows at collection time, as the paper did
     :param global_bootstrap: ``lambda`` of the agents' bootstrap value ``lambda V_G'(v') + (1 - lambda) V_i(s'_i)``:
-        1 is the paper's GDQ, 0 independent learning with a global head trained beside it (``docs/modules/gdq.md``,
-        "GDQ-lambda"). Default 0.1: chosen on held-out seeds 138-140 (4 robots: 1 / 0.5 / 0.1 gave 58 / 78 / 85-86 %)
-    :param global_timeout_bootstrap: ``V_G'`` also reads the agents cut by the time limit (with ``v'`` of their last
-        observation), not only those still driving after the window: a time limit is not a terminal state (SB3's
-        ``handle_timeout_termination``; QMIX does the same). False (the default): they enter as 0, as agents that
-        arrived; measured on 2 and 4 robots, the option made no difference that the seeds' spread lets one see
-        (``docs/results/baselines.md``)
-    :param advantage_learning: ``alpha`` of advantage learning (Bellemare et al., "Increasing the Action Gap", AAAI
-        2016): every agent's target is lowered by ``alpha (max_b Q(s, b) - Q(s, a))`` (target network), which keeps
-        the fixed point's greedy actions and widens the gap between the best action and the others. At 20 Hz one
-        tick changes little, so in a state where a robot makes no progress (its target behind it) standing still
-        is worth only ``(1 - gamma) V + 0.005`` less than the best turn, less than the network's error: the greedy
-        robot then stands or swings in place until the time limit (``docs/results/baselines.md``, thirteenth
-        session). 0 (the default): the plain target
-    :param others_end_bootstrap: see :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`; in GDQ the
-        cut agents' targets bootstrap from ``V_G'`` reading every agent whose own target bootstraps (as with
-        ``global_timeout_bootstrap``; the colliding agent enters as 0)
+        1 is the paper's GDQ, 0 independent learning with a global head trained beside it. Default 0.1
+        (``docs/results/gdq_target.md``)
     """
 
     policy: GDQPolicy
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": MlpPolicy}
     requires_fixed_n_agents: ClassVar[bool] = True
     # The paper's agents had no target network. With one, and v' read from it (global_values="target"), GDQ
-    # learned the robot worlds faster and without the collapses of the online v' (docs/results/baselines.md).
+    # learned the robot worlds faster and without the collapses of the online v' (docs/results/gdq_target.md).
     default_agent_target: ClassVar[bool] = True
 
     def __init__(
@@ -156,7 +129,6 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         max_grad_norm: float = 10.0,
         team_reward_mode: TeamRewardMode = "mean",
         overlap_training: bool = False,
-        others_end_bootstrap: bool = False,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -164,49 +136,56 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         seed: int | None = None,
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
-        target_update_interval: int | None = None,
         global_values: GlobalValues = DEFAULT_GLOBAL_VALUES,
         global_bootstrap: float = DEFAULT_GLOBAL_BOOTSTRAP,
-        global_timeout_bootstrap: bool = False,
-        advantage_learning: float = 0.0,
     ) -> None:
         # GDQ's own defaults differ from the base's in global_bootstrap (0.1, GDQ-lambda: the paper's full V_G'
-        # bootstrap cost 28 points on 4 robots, held-out seeds), team_reward_mode ("mean":
-        # V_G on the scale of one agent's value, a common-mode gain of about gamma^n) and learning_rate (3e-4
-        # decaying linearly to 0 over the call's budget, RL Zoo's lin_3e-4: the greedy policy stops churning
-        # as the budget ends); docs/results/baselines.md.
-        arguments = dict(locals())
-        for name in (
-            "self", "__class__", "policy", "env", "global_timeout_bootstrap", "advantage_learning",
-            *_FORMER_POLICY_OPTIONS,
-        ):
-            arguments.pop(name, None)
-        options: dict[str, Any] = {"global_values": global_values, "global_bootstrap": global_bootstrap}
-        if any(name in (policy_kwargs or {}) for name in _FORMER_POLICY_OPTIONS):
-            warnings.warn(
-                "global_values and global_bootstrap are arguments of GDQ now: GDQ(..., global_values=...), not "
-                "policy_kwargs (they are read from policy_kwargs for one more release)",
-                DeprecationWarning,
-                stacklevel=2,
-            )
-            options.update((name, value) for name, value in policy_kwargs.items() if name in _FORMER_POLICY_OPTIONS)  # type: ignore[union-attr]
-            arguments["policy_kwargs"] = {
-                key: value for key, value in policy_kwargs.items() if key not in _FORMER_POLICY_OPTIONS  # type: ignore[union-attr]
-            }
-        if options["global_values"] not in GLOBAL_VALUES:
-            raise ValueError(f"global_values must be one of {GLOBAL_VALUES}, got {options['global_values']!r}")
-        if not 0.0 <= options["global_bootstrap"] <= 1.0:
-            raise ValueError(f"global_bootstrap must be in [0, 1], got {options['global_bootstrap']}")
-        self.global_values: GlobalValues = options["global_values"]
-        self.global_bootstrap = float(options["global_bootstrap"])
-        self.global_timeout_bootstrap = bool(global_timeout_bootstrap)
-        if not 0.0 <= advantage_learning < 1.0:
-            raise ValueError(f"advantage_learning must be in [0, 1), got {advantage_learning}")
-        self.advantage_learning = float(advantage_learning)
-        super().__init__(policy, env, **arguments)
+        # bootstrap cost 28 points on 4 robots, held-out seeds), team_reward_mode ("mean": V_G on the scale of one
+        # agent's value, a common-mode gain of about gamma^n), learning_rate (3e-4 decaying linearly to 0 over the
+        # call's budget, RL Zoo's lin_3e-4: the greedy policy stops churning as the budget ends) and
+        # prioritized_replay (uniform); docs/results/gdq_target.md, docs/results/gdq_uniform_replay.md.
+        if global_values not in GLOBAL_VALUES:
+            raise ValueError(f"global_values must be one of {GLOBAL_VALUES}, got {global_values!r}")
+        if not 0.0 <= global_bootstrap <= 1.0:
+            raise ValueError(f"global_bootstrap must be in [0, 1], got {global_bootstrap}")
+        self.global_values: GlobalValues = global_values
+        self.global_bootstrap = float(global_bootstrap)
+        super().__init__(
+            policy,
+            env,
+            learning_rate=learning_rate,
+            buffer_size=buffer_size,
+            learning_starts=learning_starts,
+            batch_size=batch_size,
+            tau=tau,
+            gamma=gamma,
+            train_freq=train_freq,
+            gradient_steps=gradient_steps,
+            replay_buffer_class=replay_buffer_class,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            gradient_steps_per_target_update=gradient_steps_per_target_update,
+            n_steps=n_steps,
+            prioritized_replay=prioritized_replay,
+            prioritized_replay_alpha=prioritized_replay_alpha,
+            prioritized_replay_beta0=prioritized_replay_beta0,
+            double_q=double_q,
+            exploration_fraction=exploration_fraction,
+            exploration_initial_eps=exploration_initial_eps,
+            exploration_final_eps=exploration_final_eps,
+            max_grad_norm=max_grad_norm,
+            team_reward_mode=team_reward_mode,
+            overlap_training=overlap_training,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=_init_setup_model,
+        )
 
     def _diagnostics(self, inputs: th.Tensor, terms: TDTerms, batch: JointReplayBufferSamples) -> dict[str, float]:
-        """What explains GDQ's learning (docs/results/baselines.md): the gain ``g_i = dV_G/dv_i`` of the
+        """What explains GDQ's learning (docs/results/gdq_target.md): the gain ``g_i = dV_G/dv_i`` of the
         global head, the greedy action's margin ``A(s, a*) - A(s, a_2nd)``, and the spread of the agents' values."""
         gain = input_gain(self.policy.global_value_net, inputs)
         alive = batch.alive.bool()
@@ -224,24 +203,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             "agent_value_std": float(values.std()),
         }
 
-    def _action_gap(self, batch: JointReplayBufferSamples) -> th.Tensor:
-        """``max_b Q(s, b) - Q(s, a)`` of the taken actions, from the agent target network (the online one without
-        it): what advantage learning (Bellemare et al., AAAI 2016) subtracts from the targets, times ``alpha``.
-        With the dueling head it is ``max_b A(s, b) - A(s, a)``.
-
-        :return: ``(batch, n_agents)``
-        """
-        network = self.policy.q_net_target if self.policy.q_net_target is not None else self.policy.q_net
-        observations = batch.observations.reshape(-1, batch.observations.shape[-1])
-        advantages = network.advantage(observations)
-        taken = advantages.gather(1, batch.actions.reshape(-1, 1)).squeeze(1)
-        return (advantages.max(dim=1).values - taken).reshape(batch.actions.shape[:2])
-
     def _setup_model(self) -> None:
-        # A model saved before these options were GDQ's kept them in its policy_kwargs: move them over.
-        for name in _FORMER_POLICY_OPTIONS:
-            if name in self.policy_kwargs:
-                setattr(self, name, self.policy_kwargs.pop(name))
         super()._setup_model()
         if self.global_values == "target" and self.policy.q_net_target is None:
             raise ValueError(
@@ -292,12 +254,8 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             else:
                 next_values = terms.next_values if from_target else terms.online_next_values
             assert next_values is not None
-            # V_G' reads the agents still driving after the window, and with global_timeout_bootstrap also those
-            # cut by the time limit (v' of their last observation), as QMIX's mixer does.
-            # With others_end_bootstrap it reads every agent whose own target bootstraps (those cut by another's
-            # collision too): the agents' targets need V_G' there, the team's target ignores it (the team ended).
-            mask = batch.bootstrap_alive(self.global_timeout_bootstrap or self.others_end_bootstrap)
-            global_next = self.policy.global_value_net_target(next_values * mask)
+            # V_G' reads the agents still driving after the window; those that ended in it enter as 0.
+            global_next = self.policy.global_value_net_target(next_values * batch.next_alive)
             agent_targets = gdq_agent_targets(
                 batch.rewards,
                 batch.discounts,
@@ -307,8 +265,6 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
                 own_next,
                 self.global_bootstrap,
             )
-            if self.advantage_learning:
-                agent_targets = agent_targets - self.advantage_learning * self._action_gap(batch)
             global_targets = td_target(
                 batch.team_rewards, batch.team_discounts, batch.team_dones, global_next
             )

@@ -10,10 +10,9 @@ from stable_baselines3.common.torch_layers import create_mlp
 from torch import nn
 
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import moved_names
 
 DEFAULT_GLOBAL_NET_ARCH = [64, 64]
-# GDQ greedy-acts from a weight average of its agent network by default (rule T17, sixteenth session).
+#: GDQ greedy-acts from a weight average of its agent network by default (docs/results/gdq_weight_average.md).
 DEFAULT_WEIGHT_AVERAGE_TAU = 2e-4
 GlobalInit = Literal["random", "sum", "mean"]
 GLOBAL_INITS: tuple[str, ...] = typing.get_args(GlobalInit)
@@ -143,8 +142,8 @@ class GDQPolicy(MultiAgentQPolicy):
     :param global_init: initialisation of the global value head, see :class:`GlobalValueNetwork`
     :param weight_average_tau: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`, but on by default for GDQ
         (``2e-4``: greedy actions from an exponential moving average of the agent network's weights over about
-        5,000 gradient steps; training is unchanged). Chosen by the rule T17 (``docs/results/baselines.md``,
-        "Sixteenth session"); ``None`` takes the greedy actions from the online network.
+        5,000 gradient steps; training is unchanged). Chosen on held-out seeds
+        (``docs/results/gdq_weight_average.md``); ``None`` takes the greedy actions from the online network.
     :param kwargs: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`
 
     GDQ's learning options (``global_values``, ``global_bootstrap``) are arguments of :class:`~sb3_eps.gdq.GDQ`.
@@ -189,8 +188,3 @@ class GDQPolicy(MultiAgentQPolicy):
 
 
 MlpPolicy = GDQPolicy
-
-# GDQ's learning options moved to the algorithm (its constructor's arguments) with their choices.
-__getattr__ = moved_names(
-    __name__, {name: f"sb3_eps.gdq.gdq:{name}" for name in ("GLOBAL_VALUES", "DEFAULT_GLOBAL_VALUES")}
-)

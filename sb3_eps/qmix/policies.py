@@ -10,7 +10,10 @@ from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.gdq.policies import DEFAULT_WEIGHT_AVERAGE_TAU
+
+#: VDN greedy-acts from a weight average of its agent network by default (docs/results/qmix_vdn.md; the
+#: same rate as GDQ's).
+VDN_WEIGHT_AVERAGE_TAU = 2e-4
 
 
 class QMixer(nn.Module):
@@ -182,12 +185,12 @@ class VDNPolicy(QMIXPolicy):
     """Agent network plus a parameter-free :class:`SumMixer`.
 
     :param weight_average_tau: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`, but on by default for VDN
-        (``2e-4``, GDQ's: greedy actions from a moving average of the agent network's weights; training is
-        unchanged). Chosen with ``VDN(advantage_learning=0.5)`` by the rule T19 (``docs/results/baselines.md``,
-        "Seventeenth session"); ``None`` takes the greedy actions from the online network.
+        (``2e-4``, as GDQ's: greedy actions from a moving average of the agent network's weights; training is
+        unchanged). Chosen with ``VDN(advantage_learning=0.5)`` on held-out seeds (``docs/results/qmix_vdn.md``);
+        ``None`` takes the greedy actions from the online network.
     """
 
-    def __init__(self, *args: Any, weight_average_tau: float | None = DEFAULT_WEIGHT_AVERAGE_TAU, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, weight_average_tau: float | None = VDN_WEIGHT_AVERAGE_TAU, **kwargs: Any) -> None:
         super().__init__(*args, weight_average_tau=weight_average_tau, **kwargs)
 
     def _make_mixer(self) -> nn.Module:

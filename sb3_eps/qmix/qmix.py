@@ -2,52 +2,26 @@
 
 from __future__ import annotations
 
-import inspect
-from collections.abc import Callable
 from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
+from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import LinearSchedule
 
-from sb3_eps.common.buffers import JointReplayBufferSamples
+from sb3_eps.common.buffers import JointReplayBuffer, JointReplayBufferSamples, TeamRewardMode
 from sb3_eps.common.losses import weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import init_with_defaults, input_gain, td_target
+from sb3_eps.common.utils import input_gain, td_target
 from sb3_eps.qmix.policies import QMIXPolicy, VDNPolicy, apply_lr_scales
 
 #: QMIX's and VDN's default learning rate: 3e-4 decaying linearly to 0 over the budget (RL Zoo's ``lin_3e-4``), as
-#: GDQ's: the greedy policy stops churning as the budget ends (docs/results/baselines.md).
+#: GDQ's: the greedy policy stops churning as the budget ends (docs/results/qmix_vdn.md).
 DEFAULT_LEARNING_RATE = LinearSchedule(3e-4, 0.0, 1.0)
 
-#: VDN's default ``advantage_learning`` (rule T19, held-out seeds 200-205; QMIX's is 0).
+#: VDN's default ``advantage_learning`` (held-out seeds 200-205, docs/results/qmix_vdn.md; QMIX's is 0).
 DEFAULT_VDN_ADVANTAGE_LEARNING = 0.5
-
-#: the base's ``__init__`` with QMIX's own default learning rate; QMIX's ``__init__`` adds ``advantage_learning``.
-_base_init = init_with_defaults(MultiAgentOffPolicyAlgorithm.__init__, learning_rate=DEFAULT_LEARNING_RATE)
-
-
-def _init_with_advantage_learning(default: float) -> Callable[..., None]:
-    """:return: QMIX's ``__init__`` (VDN's too): the base's arguments, then ``advantage_learning`` with ``default``;
-    its signature, which ``inspect`` and the config schema read, says so."""
-
-    def __init__(self: QMIX, *args: Any, advantage_learning: float = default, **kwargs: Any) -> None:
-        if not 0.0 <= advantage_learning < 1.0:
-            raise ValueError(f"advantage_learning must be in [0, 1), got {advantage_learning}")
-        self.advantage_learning = float(advantage_learning)
-        _base_init(self, *args, **kwargs)
-
-    signature = inspect.signature(_base_init)
-    __init__.__signature__ = signature.replace(  # type: ignore[attr-defined]
-        parameters=[
-            *signature.parameters.values(),
-            inspect.Parameter("advantage_learning", inspect.Parameter.KEYWORD_ONLY, default=default, annotation=float),
-        ]
-    )
-    __init__.__doc__ = _base_init.__doc__
-    return __init__
-
 
 class QMIX(MultiAgentOffPolicyAlgorithm):
     """QMIX: the team's ``Q_tot = mixer(Q_1(s_1, a_1), ..., Q_n(s_n, a_n); s)`` is trained by TD on the team
@@ -60,44 +34,108 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
 
     At a time-limit truncation the agents still driving enter the target mixer with their ``Q_i'(s'_i, a*_i)``: a time
     limit is not a terminal state (SB3's ``handle_timeout_termination``; IQL's per-agent targets do the same).
-    Before, they entered as ``Q = 0``, as agents that arrived, and a truncated window's target was the mixer's
-    state path alone, ``mixer'(0, ..., 0; s')``, a value no agent is trained towards (the class attribute
-    ``handle_timeout_termination = False`` restores that for comparison; ``docs/results/baselines.md``).
-    Arguments are those of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`, with the learning rate
-    decaying linearly from 3e-4 to 0 over the budget by default, and one of QMIX's own:
+    (Entering as ``Q = 0``, a truncated window's target would be the mixer's state path alone,
+    ``mixer'(0, ..., 0; s')``, a value no agent is trained towards; ``docs/results/qmix_vdn.md``.) Arguments are those
+    of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`, with the learning rate decaying linearly from
+    3e-4 to 0 over the budget by default, and one of QMIX's own:
 
     :param advantage_learning: ``alpha`` of advantage learning (Bellemare et al., "Increasing the Action Gap", AAAI
         2016) on the team's target: it is lowered by ``alpha (mixer'(max_b Q_i'(s_i, b); s) - mixer'(Q_i'(s_i, a_i);
         s))``, the gap between the joint greedy action and the joint action taken (the mixer is monotonic, so the
         joint greedy action is every agent's own; with VDN's sum it is the sum of the agents' gaps). The agent target
-        network reads both. QMIX's default 0 is the plain target; VDN's default is 0.5 (rule T19)
+        network reads both. QMIX's default 0 is the plain target; VDN's default is 0.5 (``docs/results/qmix_vdn.md``)
     """
 
     policy: QMIXPolicy
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": QMIXPolicy}
     requires_fixed_n_agents: ClassVar[bool] = True
     uses_global_state: ClassVar[bool] = True
-    handle_timeout_termination: ClassVar[bool] = True
 
-    # QMIX's and VDN's own default: the learning rate (lin_3e-4, as GDQ's; docs/results/baselines.md); their own
-    # argument advantage_learning is off for QMIX (not screened; QMIX meets its target), 0.5 for VDN (below).
-    __init__ = _init_with_advantage_learning(0.0)
+    # QMIX's own default: the learning rate (lin_3e-4, as GDQ's; docs/results/qmix_vdn.md); its own argument
+    # advantage_learning is off (not screened; QMIX meets its target).
+    def __init__(
+        self,
+        policy: str | type[MultiAgentQPolicy],
+        env: GymEnv | None,
+        learning_rate: float | Schedule = DEFAULT_LEARNING_RATE,
+        buffer_size: int = 50_000,
+        learning_starts: int = 2_000,
+        batch_size: int = 64,
+        tau: float = 0.01,
+        gamma: float = 0.99,
+        train_freq: int | tuple[int, str] = 1,
+        gradient_steps: int = 1,
+        replay_buffer_class: type[JointReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        gradient_steps_per_target_update: int = 1,
+        n_steps: int = 3,
+        prioritized_replay: bool = True,
+        prioritized_replay_alpha: float = 0.6,
+        prioritized_replay_beta0: float = 0.4,
+        double_q: bool = True,
+        exploration_fraction: float = 0.05,
+        exploration_initial_eps: float = 1.0,
+        exploration_final_eps: float = 0.02,
+        max_grad_norm: float = 10.0,
+        team_reward_mode: TeamRewardMode = "sum",
+        overlap_training: bool = False,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+        advantage_learning: float = 0.0,
+    ) -> None:
+        if not 0.0 <= advantage_learning < 1.0:
+            raise ValueError(f"advantage_learning must be in [0, 1), got {advantage_learning}")
+        self.advantage_learning = float(advantage_learning)
+        super().__init__(
+            policy,
+            env,
+            learning_rate=learning_rate,
+            buffer_size=buffer_size,
+            learning_starts=learning_starts,
+            batch_size=batch_size,
+            tau=tau,
+            gamma=gamma,
+            train_freq=train_freq,
+            gradient_steps=gradient_steps,
+            replay_buffer_class=replay_buffer_class,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            gradient_steps_per_target_update=gradient_steps_per_target_update,
+            n_steps=n_steps,
+            prioritized_replay=prioritized_replay,
+            prioritized_replay_alpha=prioritized_replay_alpha,
+            prioritized_replay_beta0=prioritized_replay_beta0,
+            double_q=double_q,
+            exploration_fraction=exploration_fraction,
+            exploration_initial_eps=exploration_initial_eps,
+            exploration_final_eps=exploration_final_eps,
+            max_grad_norm=max_grad_norm,
+            team_reward_mode=team_reward_mode,
+            overlap_training=overlap_training,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=_init_setup_model,
+        )
 
     def _update_learning_rate(self, optimizers: list[th.optim.Optimizer] | th.optim.Optimizer) -> None:
         super()._update_learning_rate(optimizers)
         apply_lr_scales(self.policy.optimizer)  # the mixer's own rate (policy_kwargs mixer_lr_scale)
 
-    def _bootstrap_mask(self, batch: JointReplayBufferSamples) -> th.Tensor:
-        """``(B, n)``: 1 for the agents whose ``Q_i'`` enters the target mixer, 0 for those entering as ``Q = 0``
-        (:meth:`~sb3_eps.common.buffers.JointReplayBufferSamples.bootstrap_alive`, through the time limit with
-        ``handle_timeout_termination``)."""
-        return batch.bootstrap_alive(self.handle_timeout_termination)
-
     def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         terms = self._td_terms(batch)
         q_total = self.policy.mixer(terms.q_taken * batch.alive, batch.states)
         with th.no_grad():
-            next_q = (terms.next_values + terms.next_advantage_term) * self._bootstrap_mask(batch)
+            # The agents whose window did not terminate enter with Q_i'(s'_i, a*_i), those cut by the time limit
+            # too (a time limit is not a terminal state); the others enter as Q = 0.
+            next_q = (terms.next_values + terms.next_advantage_term) * batch.alive * (1.0 - batch.dones)
             next_total = self.policy.mixer_target(next_q, batch.next_states)
             targets = td_target(batch.team_rewards, batch.team_discounts, batch.team_dones, next_total)
             if self.advantage_learning:
@@ -135,8 +173,9 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
         self, agent_qs: th.Tensor, next_q: th.Tensor, next_total: th.Tensor, batch: JointReplayBufferSamples
     ) -> dict[str, float]:
         """The mixer's gain ``dQ_tot/dQ_i`` (sum over agents, spread across agents and rows), the agents' Q, and
-        ``zero_input_gap``: how far the target mixer moves when every agent enters it as ``Q = 0`` (the bootstrap
-        of a time-limit truncation without ``handle_timeout_termination``), ``mixer'(0; s') - mixer'(Q'; s')``."""
+        ``zero_input_gap``: how far the target mixer moves when every agent enters it as ``Q = 0`` (what a truncated
+        window's target would read if the agents still driving entered as ``Q = 0``),
+        ``mixer'(0; s') - mixer'(Q'; s')``."""
         gain = input_gain(self.policy.mixer, agent_qs, batch.states)
         with th.no_grad():
             zero_total = self.policy.mixer_target(th.zeros_like(next_q), batch.next_states)
@@ -152,12 +191,78 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
 class VDN(QMIX):
     """VDN: as :class:`QMIX` with the additive mixer ``Q_tot = sum_i Q_i`` (no state needed), and its own defaults:
     ``advantage_learning=0.5`` and greedy actions from a 2e-4 weight average of the agent network's weights
-    (``policy_kwargs=dict(weight_average_tau=2e-4)``, :class:`~sb3_eps.qmix.policies.VDNPolicy`), chosen together by
-    the rule T19 (``docs/results/baselines.md``, "Seventeenth session")."""
+    (``policy_kwargs=dict(weight_average_tau=2e-4)``, :class:`~sb3_eps.qmix.policies.VDNPolicy`), chosen together on
+    held-out seeds (``docs/results/qmix_vdn.md``)."""
 
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": VDNPolicy}
     uses_global_state: ClassVar[bool] = False
 
-    # VDN's own default: advantage learning 0.5, with greedy actions from a 2e-4 weight average (VDNPolicy's
-    # default); rule T19, docs/results/baselines.md ("Seventeenth session").
-    __init__ = _init_with_advantage_learning(DEFAULT_VDN_ADVANTAGE_LEARNING)
+    def __init__(
+        self,
+        policy: str | type[MultiAgentQPolicy],
+        env: GymEnv | None,
+        learning_rate: float | Schedule = DEFAULT_LEARNING_RATE,
+        buffer_size: int = 50_000,
+        learning_starts: int = 2_000,
+        batch_size: int = 64,
+        tau: float = 0.01,
+        gamma: float = 0.99,
+        train_freq: int | tuple[int, str] = 1,
+        gradient_steps: int = 1,
+        replay_buffer_class: type[JointReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        gradient_steps_per_target_update: int = 1,
+        n_steps: int = 3,
+        prioritized_replay: bool = True,
+        prioritized_replay_alpha: float = 0.6,
+        prioritized_replay_beta0: float = 0.4,
+        double_q: bool = True,
+        exploration_fraction: float = 0.05,
+        exploration_initial_eps: float = 1.0,
+        exploration_final_eps: float = 0.02,
+        max_grad_norm: float = 10.0,
+        team_reward_mode: TeamRewardMode = "sum",
+        overlap_training: bool = False,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+        advantage_learning: float = DEFAULT_VDN_ADVANTAGE_LEARNING,
+    ) -> None:
+        super().__init__(
+            policy,
+            env,
+            learning_rate=learning_rate,
+            buffer_size=buffer_size,
+            learning_starts=learning_starts,
+            batch_size=batch_size,
+            tau=tau,
+            gamma=gamma,
+            train_freq=train_freq,
+            gradient_steps=gradient_steps,
+            replay_buffer_class=replay_buffer_class,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            gradient_steps_per_target_update=gradient_steps_per_target_update,
+            n_steps=n_steps,
+            prioritized_replay=prioritized_replay,
+            prioritized_replay_alpha=prioritized_replay_alpha,
+            prioritized_replay_beta0=prioritized_replay_beta0,
+            double_q=double_q,
+            exploration_fraction=exploration_fraction,
+            exploration_initial_eps=exploration_initial_eps,
+            exploration_final_eps=exploration_final_eps,
+            max_grad_norm=max_grad_norm,
+            team_reward_mode=team_reward_mode,
+            overlap_training=overlap_training,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=_init_setup_model,
+            advantage_learning=advantage_learning,
+        )

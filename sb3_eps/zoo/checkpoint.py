@@ -9,7 +9,7 @@ point. It holds:
   episode statistics, exploration rate);
 - ``training.pkl``: the replay buffer (with its PER sum tree), the n-step collector with its unfinished
   windows, the last global states, and the training vector env itself, worlds mid-episode included (see
-  :class:`SnapshotPickler`);
+  :class:`~sb3_eps.common.snapshots.SnapshotPickler`);
 - ``rng.pkl``: the states of Python's, NumPy's and torch's global generators;
 - ``callbacks.pkl``: the state of the callbacks (team evaluation, EPS: counters, generators, history);
 - ``meta.json``: timesteps, ticks, total, whether training had finished, algorithm and env id.
@@ -28,7 +28,6 @@ import io
 import json
 import os
 import pickle
-import random
 import tempfile
 import zipfile
 import zlib
@@ -38,11 +37,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-import torch as th
-from gymnasium.utils import EzPickle
-
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
+from sb3_eps.common.snapshots import rng_states, snapshot_dumps
+from sb3_eps.common.snapshots import (
+    set_rng_states as set_rng_states,  # restored by the command line's callbacks
+)
 
 CHECKPOINT_NAME = "checkpoint.zip"
 #: The checkpoint before the newest one, kept until a newer one is written and verified.
@@ -106,74 +105,6 @@ def save_model_atomic(model: Any, path: str | Path) -> None:
     write_bytes_atomic(path, buffer.getvalue())
 
 
-# ---------------------------------------------------------------------------------------------- env snapshots
-def _rebuild(cls: type, args: tuple[Any, ...], kwargs: dict[str, Any]) -> Any:
-    return cls(*args, **kwargs)
-
-
-def _update_dict(obj: Any, state: dict[str, Any]) -> None:
-    obj.__dict__.update(state)
-
-
-def _picklable(value: Any) -> bool:
-    try:
-        pickle.dumps(value)
-    except Exception:  # any failure means: leave it to the constructor
-        return False
-    return True
-
-
-class SnapshotPickler(pickle.Pickler):
-    """A pickler that captures envs mid-episode.
-
-    Gymnasium's ``EzPickle`` (used by mpe2) pickles an env as its constructor arguments, which restarts it; here
-    such an object is rebuilt by its constructor and then given back every attribute that pickles (its world,
-    agents, step counters, random generator...), so it continues exactly. Attributes that cannot be pickled
-    (mpe2's pygame drawing surface) keep what the constructor made. The TurtleBot3 worlds pickle exactly on
-    their own (a fresh PyBullet client with the same poses).
-    """
-
-    def reducer_override(self, obj: Any) -> Any:
-        if isinstance(obj, EzPickle) and not isinstance(obj, type):
-            state = {
-                key: value
-                for key, value in obj.__dict__.items()
-                if key not in ("_ezpickle_args", "_ezpickle_kwargs") and _picklable(value)
-            }
-            arguments = (type(obj), tuple(obj._ezpickle_args), dict(obj._ezpickle_kwargs))
-            return _rebuild, arguments, state, None, None, _update_dict
-        return NotImplemented
-
-
-def snapshot_dumps(obj: Any) -> bytes:
-    """:return: ``obj`` pickled with :class:`SnapshotPickler`."""
-    buffer = io.BytesIO()
-    SnapshotPickler(buffer, protocol=pickle.HIGHEST_PROTOCOL).dump(obj)
-    return buffer.getvalue()
-
-
-# ---------------------------------------------------------------------------------------------- random states
-def rng_states() -> dict[str, Any]:
-    """:return: the states of Python's, NumPy's and torch's global random generators."""
-    states: dict[str, Any] = {
-        "python": random.getstate(),
-        "numpy": np.random.get_state(),
-        "torch": th.get_rng_state(),
-    }
-    if th.cuda.is_available():
-        states["cuda"] = th.cuda.get_rng_state_all()
-    return states
-
-
-def set_rng_states(states: dict[str, Any]) -> None:
-    """Restore what :func:`rng_states` returned."""
-    random.setstate(states["python"])
-    np.random.set_state(states["numpy"])
-    th.set_rng_state(states["torch"])
-    if "cuda" in states and th.cuda.is_available():
-        th.cuda.set_rng_state_all(states["cuda"])
-
-
 # ---------------------------------------------------------------------------------------------- checkpoints
 @dataclass
 class Checkpoint:
@@ -208,12 +139,7 @@ def save_checkpoint(
     """
     model_buffer = io.BytesIO()
     model.save(model_buffer)
-    training = {
-        "replay_buffer": model.replay_buffer,
-        "collector": model._collector,
-        "last_state": model._last_state,
-        "env": model.env,
-    }
+    training = {**model.rollout_state(), "env": model.env}
     members = {
         "model.zip": model_buffer.getvalue(),
         "training.pkl": snapshot_dumps(training),  # one pickle: the collector keeps pointing at the buffer
@@ -339,7 +265,5 @@ def restore_model(
     model = algorithm_class.load(io.BytesIO(checkpoint.model_bytes), env=None, device=device)
     # set_env without a reset keeps the saved _last_obs; it does not re-seed the env (load with env= would).
     model.set_env(training["env"], force_reset=False)
-    model.replay_buffer = training["replay_buffer"]
-    model._collector = training["collector"]
-    model._last_state = training["last_state"]
+    model.set_rollout_state(training)
     return model

@@ -1,0 +1,357 @@
+"""The bridge: env id -> PettingZoo worlds -> SuperSuit -> an SB3 ``VecEnv`` with one sub-env per agent.
+
+``sb3_eps.make_vec_env`` returns a :class:`MultiAgentVecEnv` (contract in ``docs/architecture.md``). Every agent of
+every world is a sub-env (parameter sharing), ordered world-major: sub-env ``w * n_agents + i`` is agent ``i`` of
+world ``w``. SuperSuit's ``pettingzoo_env_to_vec_env_v1`` turns each world into a vector env of its agents and
+resets it automatically; this is the only module that imports SuperSuit. Around it:
+
+- before it, :class:`~sb3_eps.common.parallel_wrappers.FixedAgentSet` keeps the agent set fixed (dead agents:
+  last observation, reward 0, ``alive=False``) and keeps what SuperSuit drops (``state()``, reset infos);
+- on top, :class:`MultiAgentVecEnv` concatenates the worlds and repairs what SuperSuit 3.11 + SB3 2.9 get
+  wrong: SB3's ``seed=`` (raw SuperSuit has no ``seed``), ``TimeLimit.truncated`` (SuperSuit reports
+  ``done = terminated | truncated``), ``get_attr`` / ``env_method`` / ``render`` on gymnasium 1.x, team-level
+  episode statistics counted once per world, the global state (``get_state()``, ``terminal_state``), per-agent
+  ``alive`` flags and ``terminal_observation`` for agents that end before their world.
+
+The worlds are concatenated here with NumPy rather than by SuperSuit's ``concat_vec_envs_v1``, for two reasons:
+it builds its worlds as cloudpickled copies of one env, and a copied PyBullet world keeps the physics client id
+of the original, so all "worlds" would drive one simulation; and its generic concatenation through gymnasium's
+space utilities cost about 45 us per tick of a 4-agent world (measured against a no-op env), more than the
+whole bridge costs now (about 30 us, ``benchmarks/bridge_overhead.py``).
+
+Do not wrap the result in SB3's ``VecMonitor``: it would count every agent as an episode.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
+from supersuit import pettingzoo_env_to_vec_env_v1
+
+from sb3_eps.common.parallel_wrappers import FixedAgentSet, SingleAgentParallelEnv
+from sb3_eps.common.utils import check_seed
+
+# Keys of the env's ``info["team"]`` that the episode dict already carries as SB3's "r" and "l".
+_EPISODE_RENAMED_KEYS = ("team_return", "ticks")
+
+
+class MultiAgentVecEnv(VecEnv):
+    """SB3 ``VecEnv`` over ``n_worlds`` PettingZoo worlds of ``n_agents`` agents each, one sub-env per agent.
+
+    Step semantics (see ``docs/architecture.md``):
+
+    - ``infos[k]["alive"]`` (also ``self.alive[k]``) is True iff agent ``k`` acted in this step; nothing from a
+      non-alive step may enter a replay buffer;
+    - ``dones[k]`` is True when agent ``k``'s episode ends: its own end (a robot that arrived), or the end of
+      its world's episode, which sets ``dones`` for every agent of that world, dead ones included (with
+      ``alive=False``). Then ``infos[k]["terminal_observation"]`` holds its last observation and
+      ``infos[k]["TimeLimit.truncated"]`` is True iff that agent's end was a time limit (never for a dead agent);
+    - when world ``w`` ends, ``infos[w * n_agents]`` alone carries ``"episode"`` (``"r"`` team return, ``"l"``
+      ticks, ``"t"`` seconds since creation, plus the env's ``info["team"]`` metrics), ``"is_success"`` (when
+      the env reports ``success``) and ``"terminal_state"``.
+
+    :param env_fns: one constructor per world, returning a PettingZoo ParallelEnv or a gymnasium env (a
+        one-agent world)
+    :param env_id: the registered id the worlds were built from, for the record
+    """
+
+    def __init__(
+        self, env_fns: Sequence[Callable[[], ParallelEnv | gymnasium.Env]], env_id: str | None = None
+    ):
+        if len(env_fns) < 1:
+            raise ValueError("MultiAgentVecEnv needs at least one env constructor")
+        self._worlds = [FixedAgentSet(_as_parallel_env(env_fn())) for env_fn in env_fns]
+        first = self._worlds[0]
+        self.possible_agents: list[str] = list(first.possible_agents)
+        self.n_agents = len(self.possible_agents)
+        self.n_worlds = len(self._worlds)
+        self.env_id = env_id
+        for world in self._worlds[1:]:
+            if world.possible_agents != self.possible_agents:
+                raise ValueError("all worlds must have the same possible_agents")
+        self.state_space: spaces.Box = first.state_space
+        # SuperSuit: each world becomes a vector env of its agents (it checks that they share their spaces).
+        self._agent_venvs = [pettingzoo_env_to_vec_env_v1(world) for world in self._worlds]
+        self._slices = [slice(w * self.n_agents, (w + 1) * self.n_agents) for w in range(self.n_worlds)]
+        agent_venv = self._agent_venvs[0]
+        super().__init__(self.n_worlds * self.n_agents, agent_venv.observation_space, agent_venv.action_space)
+        self.alive = np.ones(self.num_envs, dtype=bool)
+        self._discrete_actions = isinstance(self.action_space, spaces.Discrete)
+        self._actions = np.zeros(self.num_envs, dtype=np.int64)
+        self._seed: int | None = None
+        # Per-step bookkeeping in Python numbers: NumPy's call overhead dominates at a few worlds.
+        self._n_steps = 0
+        self._episode_returns = [0.0] * self.n_worlds
+        self._episode_start = [0] * self.n_worlds
+        self._state: np.ndarray | None = None
+        self._t_start = time.time()
+
+    def reset(self) -> np.ndarray:
+        """Reset every world (world ``w`` with ``seed + w`` after :meth:`seed`) and return all observations."""
+        observations = []
+        for w, venv in enumerate(self._agent_venvs):
+            seed = None if self._seed is None else self._seed + w
+            # SB3 keeps options per sub-env; a world takes those of its first agent.
+            observations.append(venv.reset(seed=seed, options=self._options[w * self.n_agents] or None)[0])
+        obs = self._concatenate(observations)
+        self._seed = None
+        self._reset_seeds()
+        self._reset_options()
+        self.reset_infos = [
+            world.reset_infos.get(agent, {}) for world in self._worlds for agent in self.possible_agents
+        ]
+        self.alive = np.ones(self.num_envs, dtype=bool)
+        self._episode_returns = [0.0] * self.n_worlds
+        self._episode_start = [self._n_steps] * self.n_worlds
+        self._state = None
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        """Store the actions of all agents (one per sub-env) for :meth:`step_wait`."""
+        actions = np.asarray(actions)
+        if actions.shape[:1] != (self.num_envs,):
+            raise ValueError(
+                f"expected one action per sub-env ({self.n_worlds} worlds x {self.n_agents} agents = "
+                f"{self.num_envs}), got an array of shape {actions.shape}"
+            )
+        self._actions = actions
+
+    def step_wait(self) -> VecEnvStepReturn:
+        """Step every world once (a tick) and return ``obs, rewards, dones, infos`` of all agents."""
+        actions = self._actions
+        if self.n_worlds == 1:
+            obs, rewards, terminations, truncations, infos = self._agent_venvs[0].step(
+                self._per_world(actions)
+            )
+            self.alive = self._worlds[0].step_alive
+        else:
+            results = [
+                venv.step(self._per_world(actions[part]))
+                for venv, part in zip(self._agent_venvs, self._slices)
+            ]
+            obs, rewards, terminations, truncations = (
+                np.concatenate([r[i] for r in results]) for i in range(4)
+            )
+            infos = [info for result in results for info in result[4]]
+            self.alive = np.concatenate([world.step_alive for world in self._worlds])
+        dones = np.logical_or(terminations, truncations)
+        # SuperSuit hands out fresh info dicts every step, so they can take the flag without copying.
+        for info, is_alive in zip(infos, self.alive.tolist()):
+            info["alive"] = is_alive
+        self._n_steps += 1
+        self._state = None
+        world_rewards = rewards.tolist()
+        n = self.n_agents
+        for w in range(self.n_worlds):
+            self._episode_returns[w] += sum(world_rewards[w * n : (w + 1) * n])
+        if any(world.any_end for world in self._worlds):
+            for k in np.flatnonzero(dones):
+                info = infos[k]
+                info["TimeLimit.truncated"] = bool(truncations[k]) and not bool(terminations[k])
+                # SuperSuit only adds it when the whole world ends; an agent that ends alone is not reset,
+                # so its returned observation is its terminal one.
+                if "terminal_observation" not in info:
+                    info["terminal_observation"] = obs[k].copy()
+            for w, world in enumerate(self._worlds):
+                if world.world_done:
+                    self._end_episode(w, infos)
+        return obs, rewards, dones, infos
+
+    @property
+    def total_ticks(self) -> int:
+        """Ticks stepped through this vec env, all worlds together (SB3's ``num_timesteps // n_agents``)."""
+        return self._n_steps * self.n_worlds
+
+    def get_state(self) -> np.ndarray:
+        """The current global state of each world, ``(n_worlds, state_dim)`` float32.
+
+        After an automatic reset it is the state of the new episode; the state at the end of the finished one
+        is in ``infos[w * n_agents]["terminal_state"]``. Do not modify the returned array.
+        """
+        if self._state is None:
+            self._state = np.stack([world.state() for world in self._worlds]).astype(np.float32, copy=False)
+        return self._state
+
+    def seed(self, seed: int | None = None) -> list[int | None]:
+        """Seed the next reset: world ``w`` is reset with ``seed + w`` (SB3 calls this for ``seed=``).
+
+        :param seed: non-negative int; None draws one at random
+        :return: the seed of each sub-env (the seed of its world)
+        """
+        seed = check_seed(seed)
+        if seed is None:
+            seed = int(np.random.randint(0, np.iinfo(np.uint32).max, dtype=np.uint32))
+        self._seed = seed
+        self._seeds = [seed + k // self.n_agents for k in range(self.num_envs)]
+        return list(self._seeds)
+
+    def close(self) -> None:
+        """Close every world."""
+        for venv in self._agent_venvs:
+            venv.close()
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        """An attribute of the env that each selected sub-env's world was built from.
+
+        :param attr_name: the attribute
+        :param indices: sub-env indices (agents); None for all
+        :return: one value per selected sub-env
+        """
+        return self._per_sub_env(indices, "getattr", attr_name)
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        """Set an attribute of the env of each world that a selected sub-env belongs to (once per world).
+
+        :param attr_name: the attribute
+        :param value: its new value
+        :param indices: sub-env indices (agents); None for all
+        """
+        self._world_call(self._world_indices(indices), "setattr", attr_name, (value,))
+
+    def env_method(
+        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
+    ) -> list[Any]:
+        """Call a method of the env of each world that a selected sub-env belongs to, once per world.
+
+        :param method_name: the method
+        :param method_args: its positional arguments
+        :param indices: sub-env indices (agents); None for all
+        :param method_kwargs: its keyword arguments
+        :return: one result per selected sub-env (agents of one world share their world's result)
+        """
+        return self._per_sub_env(indices, "method", method_name, method_args, method_kwargs)
+
+    def env_is_wrapped(
+        self, wrapper_class: type[gymnasium.Wrapper], indices: VecEnvIndices = None
+    ) -> list[bool]:
+        """Whether the env of each selected sub-env is a gymnasium env wrapped in ``wrapper_class``.
+
+        :param wrapper_class: the wrapper to look for
+        :param indices: sub-env indices (agents); None for all
+        :return: one answer per selected sub-env (always False for PettingZoo worlds)
+        """
+        return self._per_sub_env(indices, "is_wrapped", None, (wrapper_class,))
+
+    def get_images(self) -> Sequence[np.ndarray | None]:
+        """One picture per world (not per agent), for SB3's ``render``."""
+        pictures = self._world_call(range(self.n_worlds), "render")
+        return [pictures[w] for w in range(self.n_worlds)]
+
+    def _per_sub_env(
+        self,
+        indices: VecEnvIndices,
+        kind: str,
+        name: str | None,
+        args: tuple[Any, ...] = (),
+        kwargs: dict[str, Any] | None = None,
+    ) -> list[Any]:
+        """Apply ``kind`` once per world of the selected sub-envs; :return: the result of each sub-env's world."""
+        selected = list(self._get_indices(indices))
+        worlds = sorted({k // self.n_agents for k in selected})
+        results = self._world_call(worlds, kind, name, args, kwargs)
+        return [results[k // self.n_agents] for k in selected]
+
+    def _world_call(
+        self,
+        worlds: Iterable[int],
+        kind: str,
+        name: str | None = None,
+        args: tuple[Any, ...] = (),
+        kwargs: dict[str, Any] | None = None,
+    ) -> dict[int, Any]:
+        """:return: world -> the result of :func:`_apply_to_world` on it (the worker vec env overrides this)."""
+        return {
+            w: _apply_to_world(self._worlds[w], self._user_env(w), kind, name, args, kwargs or {})
+            for w in worlds
+        }
+
+    def _user_env(self, w: int) -> Any:
+        """The env world ``w`` was built from (a ParallelEnv, or the gymnasium env of a one-agent world)."""
+        env = self._worlds[w].env
+        return env.env if isinstance(env, SingleAgentParallelEnv) else env
+
+    def _per_world(self, actions: np.ndarray) -> Any:
+        # Discrete actions go on as Python ints: envs turn lists of NumPy scalars into arrays far more slowly.
+        return actions.tolist() if self._discrete_actions else actions
+
+    def _concatenate(self, arrays: list[np.ndarray]) -> np.ndarray:
+        return arrays[0] if self.n_worlds == 1 else np.concatenate(arrays)
+
+    def _world_indices(self, indices: VecEnvIndices) -> list[int]:
+        return sorted({k // self.n_agents for k in self._get_indices(indices)})
+
+    def _get_indices(self, indices: VecEnvIndices) -> Iterable[int]:
+        selected = list(super()._get_indices(indices))
+        for k in selected:
+            if not 0 <= k < self.num_envs:
+                raise IndexError(f"sub-env index {k} out of range [0, {self.num_envs})")
+        return selected
+
+    def _end_episode(self, w: int, infos: list[dict[str, Any]]) -> None:
+        """Put world ``w``'s episode statistics into its first agent's info and restart its counters."""
+        world = self._worlds[w]
+        team = world.terminal_team or {}
+        episode = {
+            "r": float(team.get("team_return", self._episode_returns[w])),
+            "l": self._n_steps - self._episode_start[w],
+            "t": round(time.time() - self._t_start, 6),
+        }
+        episode.update((key, value) for key, value in team.items() if key not in _EPISODE_RENAMED_KEYS)
+        first = infos[w * self.n_agents]
+        first["episode"] = episode
+        if "success" in team:
+            first["is_success"] = bool(team["success"])
+        first["terminal_state"] = world.terminal_state
+        start = w * self.n_agents
+        self.reset_infos[start : start + self.n_agents] = [
+            world.reset_infos.get(a, {}) for a in self.possible_agents
+        ]
+        self._episode_returns[w] = 0.0
+        self._episode_start[w] = self._n_steps
+
+
+def _as_parallel_env(env: ParallelEnv | gymnasium.Env) -> ParallelEnv:
+    if isinstance(env, gymnasium.Env):
+        return SingleAgentParallelEnv(env)
+    if isinstance(env, ParallelEnv):
+        return env
+    raise ValueError(
+        f"an env constructor returned {type(env).__name__}; expected a PettingZoo ParallelEnv or a gymnasium Env"
+    )
+
+
+def _apply_to_world(
+    world: FixedAgentSet,
+    env: Any,
+    kind: str,
+    name: str | None,
+    args: tuple[Any, ...],
+    kwargs: dict[str, Any],
+) -> Any:
+    """One world-level request of ``get_attr`` / ``set_attr`` / ``env_method`` / ``env_is_wrapped`` / ``render``."""
+    if kind == "getattr":
+        return getattr(env, name)  # type: ignore[arg-type]
+    if kind == "setattr":
+        return setattr(env, name, args[0])  # type: ignore[arg-type]
+    if kind == "method":
+        return getattr(env, name)(*args, **kwargs)  # type: ignore[arg-type]
+    if kind == "is_wrapped":
+        return _is_wrapped(env, args[0])
+    if kind == "render":
+        return world.render()
+    raise ValueError(f"unknown world request {kind!r}")
+
+
+def _is_wrapped(env: Any, wrapper_class: type[gymnasium.Wrapper]) -> bool:
+    while isinstance(env, gymnasium.Wrapper):
+        if isinstance(env, wrapper_class):
+            return True
+        env = env.env
+    return False
