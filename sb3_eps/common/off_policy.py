@@ -135,6 +135,10 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": MultiAgentQPolicy}
     # Algorithms whose joint modules are sized by the number of agents cannot change it after training.
     requires_fixed_n_agents: ClassVar[bool] = False
+    # Ticks and agent-steps before the last change of team size (set_env / load on another team size).
+    _tick_offset: int = 0
+    _step_offset: int = 0
+    _team_size_changed: bool = False
     default_agent_target: ClassVar[bool] = True
     # Only state-conditioned mixers (QMIX) read the global state; the others neither query nor store it.
     uses_global_state: ClassVar[bool] = False
@@ -276,17 +280,20 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         """Read the agents-per-world layout from the bridge; check it against a loaded model's."""
         multi_agent_env = find_multi_agent_env(env)
         n_agents = int(multi_agent_env.n_agents)
-        if self.requires_fixed_n_agents and self.n_agents and n_agents != self.n_agents:
-            raise ValueError(
-                f"this {type(self).__name__} model was trained with {self.n_agents} agents per world and its "
-                f"joint networks are sized for them; the env has {n_agents}. Use an env with {self.n_agents} "
-                "agents (decentralised prediction alone works on any env: model.predict(obs))"
-            )
+        if self.n_agents and n_agents != self.n_agents:
+            if self._fixed_team_size():
+                raise ValueError(
+                    f"this {type(self).__name__} model was trained with {self.n_agents} agents per world and its "
+                    f"joint networks are sized for them; the env has {n_agents}. {self._team_size_advice()}"
+                )
+            # Another team size: the ticks so far stay counted (agent-steps per tick change with the team).
+            self._tick_offset, self._step_offset = self.ticks, self.num_timesteps
+            self._team_size_changed = True
         self.n_agents = n_agents
         self.n_worlds = int(multi_agent_env.n_worlds)
         state_space = getattr(multi_agent_env, "state_space", None)
         state_dim = int(np.prod(state_space.shape)) if state_space is not None else 0
-        if self.state_dim and state_dim != self.state_dim and self.requires_fixed_n_agents:
+        if self.state_dim and state_dim != self.state_dim and self.uses_global_state:
             raise ValueError(
                 f"the model's global state has {self.state_dim} entries; the env's has {state_dim}"
             )
@@ -301,11 +308,32 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
 
     @property
     def ticks(self) -> int:
-        """Simulator steps of one world so far (agent-steps / agents per world)."""
-        return self.num_timesteps // max(self.n_agents, 1)
+        """Simulator steps of one world so far (agent-steps / agents per world), those of earlier team sizes
+        included."""
+        return self._tick_offset + (self.num_timesteps - self._step_offset) // max(self.n_agents, 1)
+
+    def _fixed_team_size(self) -> bool:
+        """Whether the joint modules read exactly ``n_agents`` agents, so the model cannot move to another team
+        size (QMIX's mixer; GDQ's paper head)."""
+        return self.requires_fixed_n_agents
+
+    def _team_size_advice(self) -> str:
+        """:return: what to do instead, for the error of a model that cannot change its team size"""
+        return (
+            "Use an env with as many agents, or warm-start a new model's agent network from this one "
+            "(python -m sb3_eps.train --init-from; decentralised prediction alone works on any env)"
+        )
 
     def set_env(self, env: GymEnv, force_reset: bool = True) -> None:
+        """SB3's ``set_env``; an env with another number of agents per world is accepted when the joint modules
+        read any team size (IQL, VDN, GDQ with ``global_head="pooled"``): the networks and the optimizer carry
+        over, the replay buffer starts empty (its rows hold one team), the ticks so far stay counted."""
         self._read_env_layout(env)  # type: ignore[arg-type]
+        if self._team_size_changed and getattr(self, "policy", None) is not None:
+            self.policy.n_agents = self.n_agents
+            self.replay_buffer = self._make_replay_buffer()
+            self.n_envs = env.num_envs  # one SB3 sub-env per agent: SB3's check would refuse the new count
+        self._team_size_changed = False
         super().set_env(env, force_reset=force_reset)
         self._collector = None
         self._last_state = None
@@ -329,6 +357,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                 f"{type(self).__name__} needs a policy derived from {expected.__name__}, got {self.policy_class!r}"
             )
         self.replay_buffer = self._make_replay_buffer()
+        self._team_size_changed = False  # the buffer and the policy below are built for the env's team
         self.policy = self.policy_class(  # type: ignore[assignment]
             self.observation_space, self.action_space, self.lr_schedule, **self._policy_constructor_kwargs()
         ).to(self.device)
@@ -400,6 +429,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     ) -> tuple[int, BaseCallback]:
         if not isinstance(total_timesteps, int | np.integer) or total_timesteps < 0:
             raise ValueError(f"total_timesteps must be an int >= 0 (agent-steps), got {total_timesteps!r}")
+        if reset_num_timesteps:
+            self._tick_offset = self._step_offset = 0
         env_is_reset = reset_num_timesteps or self._last_obs is None
         total_timesteps, callback = super()._setup_learn(
             total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar

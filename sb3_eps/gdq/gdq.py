@@ -203,6 +203,16 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             "agent_value_std": float(values.std()),
         }
 
+    def _fixed_team_size(self) -> bool:
+        return self.policy_kwargs.get("global_head", "mlp") != "pooled"
+
+    def _team_size_advice(self) -> str:
+        return (
+            "GDQ's paper head reads a fixed number of agents: build the model with "
+            "policy_kwargs=dict(global_head='pooled') to move between team sizes, or warm-start a new model's "
+            "agent network from this one (python -m sb3_eps.train --init-from)"
+        )
+
     def _setup_model(self) -> None:
         super()._setup_model()
         if self.global_values == "target" and self.policy.q_net_target is None:

@@ -16,6 +16,9 @@ DEFAULT_GLOBAL_NET_ARCH = [64, 64]
 DEFAULT_WEIGHT_AVERAGE_TAU = 2e-4
 GlobalInit = Literal["random", "sum", "mean"]
 GLOBAL_INITS: tuple[str, ...] = typing.get_args(GlobalInit)
+#: ``"mlp"``: the paper's head over a fixed number of agents; ``"pooled"``: a Deep Sets head over any number.
+GlobalHead = Literal["mlp", "pooled"]
+GLOBAL_HEADS: tuple[str, ...] = typing.get_args(GlobalHead)
 
 
 @th.no_grad()
@@ -140,6 +143,9 @@ class GDQPolicy(MultiAgentQPolicy):
 
     :param global_net_arch: hidden sizes of the global value head (default ``[64, 64]``)
     :param global_init: initialisation of the global value head, see :class:`GlobalValueNetwork`
+    :param global_head: ``"mlp"`` (the default, the paper's ``V_G`` over exactly ``n`` agents,
+        :class:`GlobalValueNetwork`) or ``"pooled"`` (:class:`PooledGlobalValueNetwork`, any number of agents: the
+        model can be loaded on, or ``set_env`` to, a world with another team size and keep training)
     :param weight_average_tau: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`, but on by default for GDQ
         (``2e-4``: greedy actions from an exponential moving average of the agent network's weights over about
         5,000 gradient steps; training is unchanged). Chosen on held-out seeds
@@ -157,19 +163,24 @@ class GDQPolicy(MultiAgentQPolicy):
         *args: Any,
         global_net_arch: list[int] | None = None,
         global_init: GlobalInit = "mean",
+        global_head: GlobalHead = "mlp",
         weight_average_tau: float | None = DEFAULT_WEIGHT_AVERAGE_TAU,
         **kwargs: Any,
     ) -> None:
         self.global_net_arch = list(global_net_arch or DEFAULT_GLOBAL_NET_ARCH)
         self.global_init = global_init
+        if global_head not in GLOBAL_HEADS:
+            raise ValueError(f"global_head must be one of {GLOBAL_HEADS}, got {global_head!r}")
+        self.global_head = global_head
         super().__init__(*args, weight_average_tau=weight_average_tau, **kwargs)
 
     def _build_joint_modules(self) -> None:
         # Dense ReLU layers as the paper's V_G, whatever the agent network's activation (the sum/mean
         # initialisations are exact only with ReLU).
         args = (self.n_agents, self.global_net_arch, nn.ReLU, self.global_init)
-        self.global_value_net = GlobalValueNetwork(*args)
-        self.global_value_net_target = GlobalValueNetwork(*args)
+        head = PooledGlobalValueNetwork if self.global_head == "pooled" else GlobalValueNetwork
+        self.global_value_net = head(*args)
+        self.global_value_net_target = head(*args)
         self.global_value_net_target.load_state_dict(self.global_value_net.state_dict())
         self.global_value_net_target.train(False)
         self.global_value_net.to(self.device)
@@ -183,6 +194,7 @@ class GDQPolicy(MultiAgentQPolicy):
         data.update(
             global_net_arch=self.global_net_arch,
             global_init=self.global_init,
+            global_head=self.global_head,
         )
         return data
 

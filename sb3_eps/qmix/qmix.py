@@ -196,6 +196,8 @@ class VDN(QMIX):
 
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": VDNPolicy}
     uses_global_state: ClassVar[bool] = False
+    # The sum reads any number of agents: a VDN model moves between team sizes (QMIX's hypernetworks cannot).
+    requires_fixed_n_agents: ClassVar[bool] = False
 
     def __init__(
         self,
