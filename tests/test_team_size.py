@@ -56,7 +56,7 @@ def two_then_four(algorithm, tmp_path, **kwargs):
 )
 def test_a_model_trained_on_two_robots_loads_and_keeps_training_on_four(algorithm, policy_kwargs, tmp_path):
     kwargs = {**SMALL, "policy_kwargs": {**SMALL["policy_kwargs"], **policy_kwargs}}
-    model, loaded, four = two_then_four(algorithm, tmp_path, **kwargs)
+    model, loaded, _ = two_then_four(algorithm, tmp_path, **kwargs)
     for name, value in model.policy.q_net.state_dict().items():  # the agent network came over as it was
         assert th.equal(loaded.policy.q_net.state_dict()[name], value)
     assert loaded.n_agents == 4 and loaded.replay_buffer.n_agents == 4
