@@ -30,7 +30,6 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import CSVOutputFormat
 
 from sb3_eps.common.evaluation import evaluate_team
-from sb3_eps.common.utils import moved_names
 from sb3_eps.common.vec_env import MultiAgentVecEnv
 from sb3_eps.zoo import run_folder
 from sb3_eps.zoo.checkpoint import save_checkpoint, save_model_atomic, set_rng_states, write_bytes_atomic
@@ -526,13 +525,3 @@ def _number(text: str) -> int | float | str:
         except ValueError:
             continue
     return text
-
-
-__getattr__ = moved_names(
-    __name__,
-    {
-        "CheckpointCallback": "sb3_eps.zoo.callbacks:TrainingStateCallback",
-        **{name: f"sb3_eps.zoo.run_folder:{name}" for name in (
-            "MONITOR_NAME", "EVALUATIONS_NAME", "BEST_MODEL_NAME", "PROGRESS_NAME", "read_monitor")},
-    },
-)  # fmt: skip

@@ -19,7 +19,6 @@ import sys
 import time
 import types
 import typing
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,7 +34,7 @@ from stable_baselines3.common.save_util import load_from_zip_file
 import envs
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.subproc_vec_env import VecEnvWorkerError, overlap_layout
-from sb3_eps.common.utils import describe_space, moved_names
+from sb3_eps.common.utils import describe_space
 from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env, vec_env_mode
 from sb3_eps.version import __version__
 from sb3_eps.zoo import run_folder
@@ -618,19 +617,3 @@ def _run(
             flush=True,
         )
     return TrainResult(run_dir, "complete", int(model.num_timesteps))
-
-
-def check_eval_env(model: MultiAgentOffPolicyAlgorithm, eval_env: MultiAgentVecEnv, flag: str = "--eval-env") -> None:
-    """Deprecated, goes in the next release: :func:`sb3_eps.zoo.evaluation.check_spaces` (one check for evaluation
-    worlds of a run and of a loaded model)."""
-    warnings.warn(
-        "check_eval_env is deprecated: use sb3_eps.zoo.evaluation.check_spaces", DeprecationWarning, stacklevel=2
-    )
-    check_spaces(model, eval_env, str(eval_env.env_id), "the model", f"{flag}: ")
-
-
-__getattr__ = moved_names(
-    __name__,
-    {name: f"sb3_eps.zoo.run_folder:{name}" for name in (
-        "ARGS_NAME", "CONFIG_NAME", "FINAL_REPORT_NAME", "final_model_name", "create_run_folder")},
-)  # fmt: skip
