@@ -71,7 +71,7 @@ def test_every_entry_builds_its_model(algo, env_id) -> None:
         callbacks = build_callbacks(config.entry, env_id, 0, str(path))
         assert [name for name, _ in callbacks] == ([EVOLUTION_CALLBACK] if ALGORITHMS[algo].eps else [])
         for _, callback in callbacks:
-            assert callback.eval_env_id == envs.eps_env_id_for(env_id)
+            assert callback.settings.eval_env_id == envs.eps_env_id_for(env_id)
     finally:
         env.close()
 

@@ -130,7 +130,7 @@ def test_eps_searches_its_rounds_and_world_and_the_entries_build() -> None:
         assert arguments.get("share_experience", False) is team
         worlds.add(team)
         ((_, callback),) = build_callbacks(entry, env_id, 0, "a trial")
-        assert callback.share_experience is team and callback.max_eps_share == arguments["max_eps_share"]
+        assert callback.settings.share_experience is team and callback.settings.max_eps_share == arguments["max_eps_share"]
         study.tell(trial, 0.0)
     assert worlds == {False, True}
 

@@ -31,6 +31,7 @@ from stable_baselines3.common.logger import CSVOutputFormat
 
 from sb3_eps.common.evaluation import evaluate_team
 from sb3_eps.common.vec_env import MultiAgentVecEnv
+from sb3_eps.eps import EvolutionCallback
 from sb3_eps.zoo import run_folder
 from sb3_eps.zoo.checkpoint import save_checkpoint, save_model_atomic, set_rng_states, write_bytes_atomic
 
@@ -43,8 +44,8 @@ class TrainingInterrupted(Exception):
 
 
 def eps_ticks_of(callbacks: Sequence[BaseCallback]) -> int:
-    """:return: the ticks simulated by EPS so far (the ``eps_ticks`` of the callbacks that count them)."""
-    return int(sum(int(getattr(callback, "eps_ticks", 0)) for callback in callbacks))
+    """:return: the ticks simulated by EPS so far (the ``eps_ticks`` of the EvolutionCallbacks among ``callbacks``)."""
+    return sum(callback.eps_ticks for callback in callbacks if isinstance(callback, EvolutionCallback))
 
 
 def eps_timesteps(model: Any, callbacks: Sequence[BaseCallback]) -> int:

@@ -36,6 +36,8 @@ from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.subproc_vec_env import VecEnvWorkerError, overlap_layout
 from sb3_eps.common.utils import describe_space
 from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env, vec_env_mode
+from sb3_eps.eps import EvolutionCallback
+from sb3_eps.eps.evaluation import agent_space, make_eval_env
 from sb3_eps.version import __version__
 from sb3_eps.zoo import run_folder
 from sb3_eps.zoo.callbacks import (
@@ -269,13 +271,11 @@ def check_callback_worlds(
 
     :raises ConfigError: naming the callback, both worlds and their spaces
     """
-    from sb3_eps.eps.evaluation import agent_space, make_eval_env
-
     for name, callback in callbacks:
-        eval_env_id = getattr(callback, "eval_env_id", None)
-        if eval_env_id is None:
+        if not isinstance(callback, EvolutionCallback):
             continue
-        eval_env = make_eval_env(eval_env_id, getattr(callback, "eval_env_kwargs", None))
+        eval_env_id = callback.settings.eval_env_id
+        eval_env = make_eval_env(eval_env_id, callback.settings.eval_env_kwargs)
         try:
             for kind in ("observation_space", "action_space"):
                 theirs, ours = agent_space(eval_env, kind), getattr(env, kind)
@@ -442,12 +442,12 @@ def train(options: TrainOptions, extra_callbacks: Sequence[BaseCallback] = ()) -
 def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | None = None) -> TrainResult:
     """Continue an interrupted run from its checkpoint to its total (``--resume``).
 
-    :param run_dir: the run folder
+    :param run_dir: the run folder, or its parameter folder ``<run>/<env id>/``
     :param progress: show a progress bar (None: as the run was started)
     :param verbose: verbosity (None: as the run was started)
     :raises ConfigError: when the folder holds no resumable run
     """
-    run_dir = Path(run_dir)
+    run_dir = run_folder.run_dir_of(run_dir)
     args_path, config_path = (run_folder.run_file(run_dir, name) for name in (run_folder.ARGS_NAME, run_folder.CONFIG_NAME))
     for path in (args_path, config_path):
         if not path.is_file():
