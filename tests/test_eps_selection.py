@@ -13,6 +13,7 @@ import torch as th
 from stable_baselines3.common.logger import Logger, configure
 
 import envs
+from research.eps_inspection import team_check_changes
 from sb3_eps.eps import EvolutionCallback
 from sb3_eps.eps import round as round_module
 from sb3_eps.eps.evaluation import (
@@ -35,7 +36,7 @@ from sb3_eps.eps.mutations import (
     population_outputs,
 )
 from sb3_eps.eps.round import gain_accepted, scheduled_alpha
-from sb3_eps.eps.round_log import RoundLog, read_round_log, team_check_changes
+from sb3_eps.eps.round_log import RoundLog, read_round_log
 from sb3_eps.eps.settings import PAPER_SETTINGS, EPSSettings
 from sb3_eps.gdq import GDQ
 from sb3_eps.iql import IQL

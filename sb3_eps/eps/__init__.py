@@ -20,7 +20,7 @@ from sb3_eps.eps.mutations import (
     select_best,
 )
 from sb3_eps.eps.round import sample_visited_observations
-from sb3_eps.eps.round_log import RoundLog, read_round_log, team_check_changes
+from sb3_eps.eps.round_log import RoundLog, read_round_log
 from sb3_eps.eps.settings import PAPER_SETTINGS, EPSSettings
 
 __all__ = [
@@ -44,5 +44,4 @@ __all__ = [
     "safe_mutation_step",
     "sample_visited_observations",
     "select_best",
-    "team_check_changes",
 ]

@@ -63,6 +63,8 @@ class EvolutionCallback(BaseCallback):
 
     def __init__(self, settings: EPSSettings | None = None, verbose: int = 0, **settings_kwargs: Any) -> None:
         super().__init__(verbose=verbose)
+        if not isinstance(settings, EPSSettings | None):
+            raise TypeError(f"settings must be an EPSSettings or None, got {settings!r} (the world is eval_env_id=...)")
         if settings is not None and settings_kwargs:
             raise ValueError("give EvolutionCallback either settings or keyword arguments of EPSSettings, not both")
         self.settings = settings if settings is not None else EPSSettings(**settings_kwargs)
@@ -252,7 +254,8 @@ class EvolutionCallback(BaseCallback):
         template = copy.deepcopy(self.model.policy.q_net).to("cpu")
         arguments = (settings.eval_env_id, settings.eval_env_kwargs, settings.n_individuals, settings.n_eval_episodes)
         # A worker evaluates whole individuals, so more workers than individuals would idle.
-        n_workers = min(os.cpu_count() or 1 if settings.n_workers is None else settings.n_workers, settings.n_individuals)
+        n_workers = (os.cpu_count() or 1) if settings.n_workers is None else settings.n_workers
+        n_workers = min(n_workers, settings.n_individuals)
         record = record_mode(self.model) if settings.share_experience else None
         pool: EnvPool
         if n_workers == 0:
