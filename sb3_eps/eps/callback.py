@@ -61,6 +61,8 @@ class EvolutionCallback(BaseCallback):
         ``settings`` is not given
     """
 
+    model: Any  # the multi-agent attributes (n_agents, replay_buffer) are not on SB3's BaseAlgorithm type
+
     def __init__(self, settings: EPSSettings | None = None, verbose: int = 0, **settings_kwargs: Any) -> None:
         super().__init__(verbose=verbose)
         if not isinstance(settings, EPSSettings | None):
@@ -221,7 +223,7 @@ class EvolutionCallback(BaseCallback):
         try:
             record = self.round.run()
         except EvaluationFailed as error:
-            self._skip_round(error, time.perf_counter() - start, getattr(error, "record", {}))
+            self._skip_round(error, time.perf_counter() - start, error.record or {})
             return
         record = self.records.played(record, time.perf_counter() - start, self._counters())
         elapsed = time.perf_counter() - self._training_start

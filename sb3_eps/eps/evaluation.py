@@ -123,6 +123,9 @@ PoolAnswer = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[TeamEpis
 class EvaluationFailed(RuntimeError):
     """An evaluation worker crashed, raised or did not answer in time; the round cannot be scored."""
 
+    record: dict[str, Any] | None = None
+    """What the round measured before (set by :class:`~sb3_eps.eps.round.EPSRound`)."""
+
 
 def check_eval_env_id(env_id: str) -> None:
     """Raise ``ValueError`` unless ``env_id`` names an EPS world: a single-agent env (ours or a gymnasium id), or

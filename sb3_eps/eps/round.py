@@ -130,7 +130,7 @@ class EPSRound:
             population = population_from_directions(theta, directions, scale, max_step)
             return float(policy_change(population_outputs(q_net, population, observations))[0][1:].mean())
 
-        initial = self.scale if self.scale is not None else settings.sigma
+        initial = self.scale if self.scale is not None else float(settings.sigma)  # type: ignore[arg-type]
         self.scale, _ = calibrate_scale(flip_share_at, settings.target_flip_share, initial)
         return self.scale
 

@@ -192,7 +192,8 @@ def params_from_signature(function: Callable[..., Any], skip: Sequence[str] = ()
 
 def _dataclass_of_hint(hint: Any) -> type | None:
     members = [member for member in _hint_members(hint) if member is not type(None)]
-    return members[0] if len(members) == 1 and dataclasses.is_dataclass(members[0]) else None
+    found = members[0] if len(members) == 1 else None
+    return found if isinstance(found, type) and dataclasses.is_dataclass(found) else None
 
 
 def _param_of_hint(hint: Any) -> Param | None:

@@ -316,7 +316,7 @@ class _Objective:
                         kwargs["n_workers"] = 0
         config = ResolvedConfig(self.config.algo, self.config.env_id, entry, f"trial {trial.number}")
         summaries = [
-            self._run_seed(trial, config, int(self.options.seed) + index, index * self.tuning.n_evaluations)  # type: ignore[arg-type,operator]
+            self._run_seed(trial, config, int(self.options.seed) + index, index * self.tuning.n_evaluations)  # type: ignore[arg-type]
             for index in range(self.tuning.n_seeds_per_trial)
         ]
         scores = [objective_score(summary, self.options.eval_episodes) for summary in summaries]
