@@ -33,11 +33,11 @@ test-slow: install
 	$(PY) -m pytest -m slow --durations=15 $(PYTEST_ARGS)
 
 lint: install
-	$(VENV)/bin/ruff check sb3_eps envs tests benchmarks
+	$(VENV)/bin/ruff check sb3_eps envs research tests benchmarks
 
 format: install
-	$(VENV)/bin/ruff format sb3_eps envs tests benchmarks
-	$(VENV)/bin/ruff check --fix sb3_eps envs tests benchmarks
+	$(VENV)/bin/ruff format sb3_eps envs research tests benchmarks
+	$(VENV)/bin/ruff check --fix sb3_eps envs research tests benchmarks
 
 type: install
 	$(VENV)/bin/mypy sb3_eps envs

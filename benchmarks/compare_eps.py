@@ -31,11 +31,11 @@ import pathlib
 
 import numpy as np
 
-from sb3_eps.results import EvaluationRun, read_evaluation_run
+from sb3_eps.zoo.plotting import EvaluationRun, read_evaluation_run
 
 
 def read_runs(folder: pathlib.Path) -> dict[int, EvaluationRun]:
-    """:return: seed -> the evaluations of that seed (``sb3_eps.results``' reader of the committed records)."""
+    """:return: seed -> the evaluations of that seed (``sb3_eps.zoo.plotting``' reader of the committed records)."""
     runs = {run.seed: run for run in map(read_evaluation_run, sorted(folder.glob("*_seed*.jsonl")))}
     if not runs:
         raise SystemExit(f"{folder}: no <algo>_<env id>_seed<k>.jsonl record files")

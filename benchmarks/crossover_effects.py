@@ -16,8 +16,13 @@ import argparse
 import math
 import pathlib
 import statistics
+import sys
+from pathlib import Path
 
-from sb3_eps.eps.diagnostics import DIAGNOSTICS_NAME, read_round_log, team_check_changes
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # research/ sits beside the package
+
+from research.eps_inspection import team_check_changes
+from sb3_eps.eps.round_log import DIAGNOSTICS_NAME, read_round_log
 
 
 def report(folders: list[pathlib.Path]) -> str:

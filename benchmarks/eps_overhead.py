@@ -72,14 +72,14 @@ def overhead(args: argparse.Namespace) -> tuple[GDQ, EvolutionCallback]:
         (
             "EPS-GDQ",
             make_model(args.env, args.n_envs, args.seed),
-            EvolutionCallback(eval_env_id, seed=args.seed),
+            EvolutionCallback(eval_env_id=eval_env_id, seed=args.seed),
         ),
         # alpha = 0: every round runs, but the crossover changes nothing, so this run follows GDQ's trajectory
         # exactly and its extra time is the cost of EPS alone, free of the noise of a different trajectory.
         (
             "EPS a=0",
             make_model(args.env, args.n_envs, args.seed),
-            EvolutionCallback(eval_env_id, alpha=0.0, seed=args.seed),
+            EvolutionCallback(eval_env_id=eval_env_id, alpha=0.0, seed=args.seed),
         ),
     ]
     n_agents = runs[0][1].n_agents
@@ -184,7 +184,7 @@ def mutation_size(model: GDQ, callback: EvolutionCallback, args: argparse.Namesp
     visited = buffer.observations[:size][buffer.alive[:size] > 0]
     rng = np.random.default_rng(args.seed)
     q_net = model.policy.q_net
-    sensitivity_batch = th.as_tensor(visited[rng.choice(len(visited), callback.sensitivity_batch_size)])
+    sensitivity_batch = th.as_tensor(visited[rng.choice(len(visited), callback.settings.sensitivity_batch_size)])
     test = th.as_tensor(visited[rng.choice(len(visited), min(2000, len(visited)), replace=False)])
     omega = output_sensitivity(q_net, sensitivity_batch)
     theta = network_parameters(q_net)

@@ -156,7 +156,7 @@ def probe_worlds(model: GDQ, args: argparse.Namespace) -> None:
     seeds = [int(seed) for seed in np.random.default_rng(args.seed).integers(2**31 - 1, size=args.episodes)]
     print("| EPS world | success | collision | timeout | mean return | mean length |")
     print("|---|---|---|---|---|---|")
-    for scenario in ("eps", "eps_pillars", "eps_open"):
+    for scenario in ("eps", "eps_pillars"):
         for limit in (600, 400):
             row = play(model.policy.q_net, {"scenario": scenario, "max_episode_steps": limit}, seeds)
             print(

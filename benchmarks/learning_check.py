@@ -121,7 +121,7 @@ def main() -> None:
         "--env-kwargs",
         type=json.loads,
         default=None,
-        help='JSON dict of world arguments for the training and evaluation worlds, e.g. \'{"heading_reward": 0.5}\'',
+        help='JSON dict of world arguments for the training and evaluation worlds, e.g. \'{"lidar_noise_std": 0.01}\'',
     )
     parser.add_argument(
         "--eps",

@@ -1,7 +1,7 @@
 """Plot greedy team success against training ticks from ``learning_check.py`` records (one curve per group).
 
 Each ``--group LABEL=GLOB`` names the JSON-lines files of one configuration (one file per seed); the plot shows
-every seed as a thin line and the mean over seeds as a thick one (``sb3_eps.results.draw_seed_curves``), and the
+every seed as a thin line and the mean over seeds as a thick one (``research.results.draw_seed_curves``), and the
 script prints the table behind it.
 
     python benchmarks/plot_learning_check.py --out docs/results/gdq_2robot.png \
@@ -13,8 +13,13 @@ from __future__ import annotations
 
 import argparse
 import glob
+import sys
+from pathlib import Path
 
-from sb3_eps.results import EvaluationRun, draw_seed_curves, read_evaluation_run
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # research/ sits beside the package
+
+from research.results import draw_seed_curves
+from sb3_eps.zoo.plotting import EvaluationRun, read_evaluation_run
 
 
 def read_group(pattern: str) -> list[EvaluationRun]:

@@ -24,7 +24,7 @@ import math
 import statistics
 from dataclasses import dataclass
 
-from sb3_eps.results import read_evaluation_run
+from sb3_eps.zoo.plotting import read_evaluation_run
 
 
 @dataclass

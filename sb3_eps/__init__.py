@@ -3,7 +3,7 @@
 from sb3_eps.common.evaluation import evaluate_team
 from sb3_eps.common.export import export_policy
 from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env
-from sb3_eps.eps import EvolutionCallback
+from sb3_eps.eps import EPSSettings, EvolutionCallback
 from sb3_eps.gdq import GDQ
 from sb3_eps.iql import IQL
 from sb3_eps.qmix import QMIX, VDN
@@ -14,6 +14,7 @@ __all__ = [
     "IQL",
     "QMIX",
     "VDN",
+    "EPSSettings",
     "EvolutionCallback",
     "MultiAgentVecEnv",
     "__version__",

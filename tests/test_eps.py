@@ -28,7 +28,7 @@ from sb3_eps.eps import (
     safe_mutation_step,
     select_best,
 )
-from sb3_eps.eps import callback as callback_module
+from sb3_eps.eps import round as round_module
 from sb3_eps.eps.evaluation import PopulationResult
 from sb3_eps.eps.mutations import network_parameters
 from sb3_eps.gdq import GDQ
@@ -211,7 +211,7 @@ def _scripted_evaluation(monkeypatch, fitness: list[float], record: dict) -> Non
             np.repeat(values[:, None], len(episode_seeds), 1), lengths, np.ones(n, bool), values, 0 * lengths
         )
 
-    monkeypatch.setattr(callback_module, "evaluate_population", fake_evaluate)
+    monkeypatch.setattr(round_module, "evaluate_population", fake_evaluate)
 
 
 def test_round_crossover_moves_online_and_target_nets_toward_the_winner(monkeypatch) -> None:
@@ -250,7 +250,7 @@ def test_nothing_changes_when_the_unmutated_copy_wins(monkeypatch) -> None:
 
 
 def test_a_nan_mutant_never_wins_a_real_round(monkeypatch) -> None:
-    original = callback_module.population_from_directions  # the callback builds its population with it
+    original = round_module.population_from_directions  # the callback builds its population with it
 
     def poisoned(*args, **kwargs):
         population = original(*args, **kwargs)
@@ -258,7 +258,7 @@ def test_a_nan_mutant_never_wins_a_real_round(monkeypatch) -> None:
             stacked[1:] = float("nan")  # every mutant
         return population
 
-    monkeypatch.setattr(callback_module, "population_from_directions", poisoned)
+    monkeypatch.setattr(round_module, "population_from_directions", poisoned)
     model = _no_training(IQL)
     before = network_parameters(model.policy.q_net)
     callback = tiny_callback(period=1, period_unit="ticks", n_workers=0)
@@ -533,6 +533,6 @@ def test_mismatched_spaces_and_models_fail_before_training() -> None:
 
 
 def test_sigma_defaults_depend_on_the_mutation() -> None:
-    assert tiny_callback().sigma == 0.001
-    assert tiny_callback(mutation="gaussian").sigma == 0.03
-    assert tiny_callback(mutation="gaussian", sigma=0.5).sigma == 0.5
+    assert tiny_callback().settings.sigma == 0.001
+    assert tiny_callback(mutation="gaussian").settings.sigma == 0.03
+    assert tiny_callback(mutation="gaussian", sigma=0.5).settings.sigma == 0.5

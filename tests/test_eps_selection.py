@@ -13,10 +13,9 @@ import torch as th
 from stable_baselines3.common.logger import Logger, configure
 
 import envs
+from research.eps_inspection import team_check_changes
 from sb3_eps.eps import EvolutionCallback
-from sb3_eps.eps import callback as callback_module
-from sb3_eps.eps.callback import PAPER_SETTINGS, gain_accepted, scheduled_alpha
-from sb3_eps.eps.diagnostics import RoundLog, read_round_log, team_check_changes
+from sb3_eps.eps import round as round_module
 from sb3_eps.eps.evaluation import (
     InProcessEnvPool,
     PopulationResult,
@@ -36,6 +35,9 @@ from sb3_eps.eps.mutations import (
     population_from_directions,
     population_outputs,
 )
+from sb3_eps.eps.round import gain_accepted, scheduled_alpha
+from sb3_eps.eps.round_log import RoundLog, read_round_log
+from sb3_eps.eps.settings import PAPER_SETTINGS, EPSSettings
 from sb3_eps.gdq import GDQ
 from sb3_eps.iql import IQL
 from tests.test_eps import MPE_EPISODE, MPE_SINGLE, tiny_model
@@ -229,7 +231,7 @@ def _scripted(monkeypatch, selection: list[float], fresh: list[float], calls: li
         fitness = population_fitness(returns, outcomes, np.isfinite(values), kind)
         return PopulationResult(returns, lengths, np.isfinite(values), fitness, outcomes)
 
-    monkeypatch.setattr(callback_module, "evaluate_population", fake_evaluate)
+    monkeypatch.setattr(round_module, "evaluate_population", fake_evaluate)
 
 
 @pytest.mark.parametrize(("fresh", "crossed"), [([1.0, 1.0], False), ([1.0, 30.0], True)])
@@ -362,7 +364,7 @@ def test_diagnostics_path_choices(tmp_path) -> None:
     model.set_logger(Logger(None, []))  # no folder: history only
     callback = new_callback()
     model.learn(300, callback=callback)
-    assert callback.n_rounds >= 1 and callback._round_log is None
+    assert callback.n_rounds >= 1 and callback.records.file is None
 
 
 def test_the_team_check_plays_the_training_env_before_and_after_the_crossover(monkeypatch) -> None:
@@ -407,14 +409,18 @@ def test_the_team_check_plays_the_training_env_before_and_after_the_crossover(mo
 
 # ---------------------------------------------------------------------- settings and the world
 def test_paper_settings_and_the_default_world() -> None:
-    paper = EvolutionCallback.paper(eval_env_id=MPE_SINGLE, alpha=0.2)
+    paper = EvolutionCallback.paper(eval_env_id=MPE_SINGLE, alpha=0.2, verbose=1)
+    assert paper.verbose == 1 and paper.settings == EPSSettings.paper(eval_env_id=MPE_SINGLE, alpha=0.2)
     for name, value in PAPER_SETTINGS.items():
-        assert getattr(paper, name) == (0.2 if name == "alpha" else value), name
-    default = EvolutionCallback()
-    assert default.eval_env_kwargs == {"scenario": "eps_pillars", "max_episode_steps": 400}
-    assert EvolutionCallback.paper().eval_env_kwargs == {}  # the bars world of Fig. 3
-    assert EvolutionCallback(eval_env_id=MPE_SINGLE).eval_env_kwargs == {}
-    assert EvolutionCallback(eval_env_kwargs={"scenario": "eps"}).eval_env_kwargs == {"scenario": "eps"}
+        assert getattr(paper.settings, name) == (0.2 if name == "alpha" else value), name
+    default = EvolutionCallback().settings
+    assert default == EPSSettings() and default.eval_env_kwargs == {"scenario": "eps_pillars", "max_episode_steps": 400}
+    assert EvolutionCallback.paper().settings.eval_env_kwargs == {}  # the bars world of Fig. 3
+    assert EvolutionCallback(eval_env_id=MPE_SINGLE).settings.eval_env_kwargs == {}
+    assert EvolutionCallback(eval_env_kwargs={"scenario": "eps"}).settings.eval_env_kwargs == {"scenario": "eps"}
+    assert EvolutionCallback(EPSSettings(alpha=0.1)).settings.alpha == 0.1
+    with pytest.raises(ValueError, match="either settings or keyword arguments"):
+        EvolutionCallback(EPSSettings(), alpha=0.1)
 
 
 def test_the_pillars_world_has_robot_sized_obstacles_and_the_training_spaces() -> None:
@@ -472,14 +478,38 @@ def test_state_dict_round_trip() -> None:
     restored.init_callback(tiny_model(GDQ))
     restored.load_state_dict(state)
     assert restored.history == callback.history and restored.n_rounds == callback.n_rounds
-    assert restored._scale == callback._scale and restored.eps_ticks == callback.eps_ticks
-    assert th.equal(restored._generator.get_state(), callback._generator.get_state())
+    assert restored.round.scale == callback.round.scale and restored.eps_ticks == callback.eps_ticks
+    assert th.equal(restored.round.generator.get_state(), callback.round.generator.get_state())
+    assert restored.round.rng.random() == callback.round.rng.random()
+    assert restored.budget.last_round_mark == callback.budget.last_round_mark
     restored._on_training_end()
-    # The attribute dictionary of checkpoints written before state_dict() existed.
-    old_format = {
-        "eps_ticks": 7, "n_rounds": 1, "n_skipped_rounds": 0, "eps_time": 1.0,
-        "history": [{"round": 1, "episode_lengths": [[3, 4]], "skipped": False}],
-        "_rng": np.random.default_rng(1), "_last_round_mark": 5, "_generator": state["generator"],
-    }  # fmt: skip
-    restored.load_state_dict(old_format)
-    assert restored.eps_ticks == 7 and restored._last_round_mark == 5 and restored._scale is None
+    # A state loaded before init_callback (a checkpoint's, at the start of learn()) waits for it.
+    early = new_callback()
+    early.load_state_dict(state)
+    early.init_callback(tiny_model(GDQ))
+    assert early.eps_ticks == callback.eps_ticks and early.round.scale == callback.round.scale
+    assert th.equal(early.round.generator.get_state(), callback.round.generator.get_state())
+    early._on_training_end()
+
+
+def test_a_run_whose_budget_allows_no_round_warns_once() -> None:
+    """A round of ``new_callback`` may cost (4 + 2) x 2 episodes of 25 ticks, half of it expected before the first
+    round: 150 ticks, more than 10 % of the 100 ticks of 300 timesteps of three agents."""
+    import warnings
+
+    model = tiny_model(IQL)
+    callback = new_callback(max_eps_share=0.1, period=2)
+    with pytest.warns(UserWarning, match=r"no EPS round in this run: a round is expected to cost 150 ticks.*raise max_eps_share"):
+        model.learn(300, callback=callback)
+    assert callback.n_rounds == 0
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        model.learn(300, callback=callback, reset_num_timesteps=False)
+    assert not [warning for warning in caught if "no EPS round" in str(warning.message)]  # once per callback
+    with pytest.warns(UserWarning, match=r"period=1000000 ticks is longer than this run's 100 training ticks"):
+        tiny_model(IQL).learn(300, callback=new_callback(period=10**6))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        budgeted = new_callback(max_eps_share=0.1, period=2)
+        tiny_model(IQL).learn(6000, callback=budgeted)  # 2,000 ticks: a round fits after 1,500
+    assert budgeted.n_rounds >= 1 and not [warning for warning in caught if "no EPS round" in str(warning.message)]

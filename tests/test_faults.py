@@ -25,7 +25,7 @@ from sb3_eps import evaluate as evaluate_command
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.vec_env import MultiAgentVecEnv
 from sb3_eps.eps import SubprocessEnvPool
-from sb3_eps.eps import callback as callback_module
+from sb3_eps.eps import round as round_module
 from sb3_eps.zoo import checkpoint as checkpoint_module
 from sb3_eps.zoo.callbacks import TrainingStateCallback
 from sb3_eps.zoo.checkpoint import (
@@ -91,7 +91,7 @@ def crashed_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, where: str) -> 
         elif where == "gradient step":  # inside train(), between the loss and the optimiser step
             crash_on_call(patch, GDQ, "_compute_loss", 90)
         elif where == "eps round":  # while the population is being evaluated
-            crash_on_call(patch, callback_module, "evaluate_population", 4)
+            crash_on_call(patch, round_module, "evaluate_population", 4)
         elif where == "checkpoint write":  # half-way through writing the third checkpoint
             crash_on_call(
                 patch, zipfile.ZipFile, "writestr", 3,
@@ -269,7 +269,7 @@ def test_a_disconnected_pybullet_client_skips_the_round_and_the_workers_restart(
 
 def test_a_killed_worker_through_the_command_line_run_completes(tmp_path, monkeypatch) -> None:
     """The command line's EPS-GDQ run with worker processes: one worker killed, the run still finishes."""
-    original = callback_module.evaluate_population
+    original = round_module.evaluate_population
     killed: list[int] = []
 
     def evaluate_after_a_kill(pool, *args, **kwargs):  # the first round finds its worker dead
@@ -279,7 +279,7 @@ def test_a_killed_worker_through_the_command_line_run_completes(tmp_path, monkey
             os.kill(pool.pids[0], signal.SIGKILL)
         return original(pool, *args, **kwargs)
 
-    monkeypatch.setattr(callback_module, "evaluate_population", evaluate_after_a_kill)
+    monkeypatch.setattr(round_module, "evaluate_population", evaluate_after_a_kill)
     argv = [*ARGV, "callback.n_workers:1", "--save-freq", "0", "--eval-freq", "0", "-f", str(tmp_path)]
     with pytest.warns(RuntimeWarning, match="EPS round skipped"):
         assert train.main(argv) == 0
@@ -394,14 +394,14 @@ def test_a_checkpoint_of_non_finite_weights_is_refused(tmp_path) -> None:
 
 
 def test_a_non_finite_mutant_is_disqualified_with_a_warning(monkeypatch) -> None:
-    original = callback_module.population_from_directions  # the callback builds its population with it
+    original = round_module.population_from_directions  # the callback builds its population with it
 
     def with_nan_mutant(*args, **kwargs):
         population = original(*args, **kwargs)
         next(iter(population.values()))[2].fill_(np.nan)
         return population
 
-    monkeypatch.setattr(callback_module, "population_from_directions", with_nan_mutant)
+    monkeypatch.setattr(round_module, "population_from_directions", with_nan_mutant)
     model = mpe_model(GDQ)
     callback = EvolutionCallback(
         eval_env_id="CooperativeNavigationSingle-v0", population_size=3, period=2, n_workers=0, seed=0,
@@ -609,10 +609,6 @@ def test_a_model_file_of_another_algorithm_or_observation_size_is_one_clear_line
     with pytest.raises(ValueError, match=r"observation_space Box\(30,\), the env has Box\(18,\)") as error:
         GDQ.load(models / "gdq_robot.zip", env=venv)
     assert len(str(error.value).splitlines()) == 1
-
-
-def test_there_are_at_least_thirty_new_bad_inputs() -> None:
-    assert len(TRAIN_CASES) + len(RESUME_CASES) + 4 + len(API_CASES) + 2 >= 30
 
 
 def test_a_real_process_with_a_robot_world_prints_one_line(tmp_path) -> None:

@@ -13,10 +13,7 @@ from matplotlib.figure import Figure
 from torch import nn
 
 import envs  # noqa: F401
-from sb3_eps.common.evaluation import record_frames
-from sb3_eps.common.utils import format_table
-from sb3_eps.eps.evaluation import PopulationResult
-from sb3_eps.eps.inspection import (
+from research.eps_inspection import (
     draw_flip_curves,
     draw_layer_bars,
     draw_population,
@@ -24,9 +21,7 @@ from sb3_eps.eps.inspection import (
     sensitivity_by_layer,
     step_by_layer,
 )
-from sb3_eps.eps.mutations import mutation_directions, network_parameters
-from sb3_eps.notebook import Animation, filmstrip, gif_bytes, show_picture
-from sb3_eps.results import (
+from research.results import (
     best_covered,
     draw_seed_curves,
     find_evaluation_runs,
@@ -35,6 +30,11 @@ from sb3_eps.results import (
     read_progress,
     results_table,
 )
+from sb3_eps.common.evaluation import record_frames
+from sb3_eps.common.utils import format_table
+from sb3_eps.eps.evaluation import PopulationResult
+from sb3_eps.eps.mutations import mutation_directions, network_parameters
+from sb3_eps.notebook import Animation, filmstrip, gif_bytes, show_picture
 
 
 def _write_records(path, points) -> None:

@@ -3,8 +3,6 @@ gradient_steps_per_target_update (gradient steps, not SB3 DQN's env steps of tar
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import pytest
 from stable_baselines3.common.buffers import ReplayBuffer
@@ -47,16 +45,6 @@ def test_gradient_steps_per_target_update_counts_gradient_steps() -> None:
     assert _update_schedule(default) == list(range(1, default._n_updates + 1))
 
 
-def test_a_config_with_the_old_key_loads_with_a_warning(tmp_path) -> None:
-    path = tmp_path / "iql.yml"
-    path.write_text("default:\n  n_timesteps: 1000\n  target_update_interval: 4\n")
-    with pytest.warns(DeprecationWarning, match="rename it gradient_steps_per_target_update"):
-        entry = resolve_config("iql", "CooperativeNavigation-v0", conf_file=path).entry
-    assert entry["gradient_steps_per_target_update"] == 4 and "target_update_interval" not in entry
-    path.write_text("default:\n  n_timesteps: 1000\n  target_update_interval: 4\n  gradient_steps_per_target_update: 2\n")
-    with pytest.raises(Exception, match="same setting"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        resolve_config("iql", "CooperativeNavigation-v0", conf_file=path)
 
 
 # ---------------------------------------------------------------------------------------------- replay buffers
@@ -130,49 +118,10 @@ def test_prioritised_and_uniform_buffers_learn_the_same_as_before() -> None:
         assert np.array_equal(tensor.numpy(), explicit.policy.state_dict()[name].numpy()), name
 
 
-# ---------------------------------------------------------------------------------------------- moved names
-MOVED = [
-    *[("sb3_eps.zoo.exp_manager", name, "sb3_eps.zoo.run_folder", name)
-      for name in ("ARGS_NAME", "CONFIG_NAME", "FINAL_REPORT_NAME", "final_model_name", "create_run_folder")],
-    *[("sb3_eps.zoo.callbacks", name, "sb3_eps.zoo.run_folder", name)
-      for name in ("MONITOR_NAME", "EVALUATIONS_NAME", "BEST_MODEL_NAME", "PROGRESS_NAME", "read_monitor")],
-    ("sb3_eps.zoo.callbacks", "CheckpointCallback", "sb3_eps.zoo.callbacks", "TrainingStateCallback"),
-    ("sb3_eps.zoo.evaluation", "find_run", "sb3_eps.zoo.run_folder", "find_run"),
-]  # fmt: skip
-
-
-@pytest.mark.parametrize(("old_module", "old", "new_module", "new"), MOVED, ids=[f"{m}.{n}" for m, n, _, _ in MOVED])
-def test_moved_names_keep_a_deprecated_alias(old_module, old, new_module, new) -> None:
-    import importlib
-
-    with pytest.warns(DeprecationWarning, match=f"{old_module}.{old} is now {new_module}.{new}"):
-        value = getattr(importlib.import_module(old_module), old)
-    assert value is getattr(importlib.import_module(new_module), new)
-    with pytest.raises(AttributeError):
-        importlib.import_module(old_module).no_such_name  # noqa: B018
-
-
-def test_check_eval_env_is_a_deprecated_wrapper_of_check_spaces() -> None:
-    from sb3_eps.zoo.errors import ConfigError
-    from sb3_eps.zoo.exp_manager import check_eval_env
-
-    model = tiny_model(IQL)
-    from sb3_eps import make_vec_env
-
-    other = make_vec_env("Corridor-2-v0", n_envs=1)
-    with pytest.warns(DeprecationWarning, match="check_spaces"), pytest.raises(ConfigError, match="--eval-env: Corridor-2-v0 has observation_space"):
-        check_eval_env(model, other)
-
-
-def test_a_config_with_gdq_options_in_policy_kwargs_loads_with_a_warning(tmp_path) -> None:
+def test_gdq_options_belong_to_the_entry_not_to_policy_kwargs(tmp_path) -> None:
     path = tmp_path / "gdq.yml"
-    path.write_text(
-        "default:\n  n_timesteps: 1000\n  policy_kwargs: \"dict(net_arch=[16], global_values='stored', "
-        "global_bootstrap=0.5)\"\n"
-    )
-    with pytest.warns(DeprecationWarning, match="global_values, global_bootstrap in policy_kwargs is deprecated"):
-        entry = resolve_config("gdq", "CooperativeNavigation-v0", conf_file=path).entry
-    assert entry["global_values"] == "stored" and entry["global_bootstrap"] == 0.5
-    assert entry["policy_kwargs"]["net_arch"] == [16] and not {"global_values", "global_bootstrap"} & set(entry["policy_kwargs"])
+    path.write_text("default:\n  n_timesteps: 1000\n  policy_kwargs: \"dict(net_arch=[16], global_values='stored')\"\n")
+    with pytest.raises(Exception, match="unknown key 'global_values' for gdq"):
+        resolve_config("gdq", "CooperativeNavigation-v0", conf_file=path)
     with pytest.raises(Exception, match="global_values must be one of recomputed, stored, target"):
         resolve_config("gdq", "CooperativeNavigation-v0", hyperparams=["global_values:cached"])

@@ -29,7 +29,6 @@ from sb3_eps.zoo.schema import (
     EVOLUTION_CALLBACK,
     NAME_SPELLINGS,
     POLICY_KWARGS_KEY,
-    RENAMED_KEYS,
     RUN_PARAMS,
     algorithm_kwargs,
     algorithm_spec,
@@ -72,7 +71,7 @@ def test_every_entry_builds_its_model(algo, env_id) -> None:
         callbacks = build_callbacks(config.entry, env_id, 0, str(path))
         assert [name for name, _ in callbacks] == ([EVOLUTION_CALLBACK] if ALGORITHMS[algo].eps else [])
         for _, callback in callbacks:
-            assert callback.eval_env_id == envs.eps_env_id_for(env_id)
+            assert callback.settings.eval_env_id == envs.eps_env_id_for(env_id)
     finally:
         env.close()
 
@@ -123,7 +122,7 @@ def _parameters(cls: type) -> dict[str, object]:
 def test_schema_covers_every_constructor_argument(algo) -> None:
     spec = ALGORITHMS[algo]
     arguments = set(inspect.signature(spec.algorithm_class.__init__).parameters) - {"self"}
-    assert arguments == set(spec.params) | set(COMMAND_LINE_ARGUMENTS) | {POLICY_KWARGS_KEY} | set(RENAMED_KEYS)
+    assert arguments == set(spec.params) | set(COMMAND_LINE_ARGUMENTS) | {POLICY_KWARGS_KEY}
     policy_class = spec.algorithm_class.policy_aliases["MlpPolicy"]
     internal = {"self", "args", "kwargs", "observation_space", "action_space", "lr_schedule", "n_agents",
                 "state_dim", "features_extractor_class", "features_extractor_kwargs"}  # fmt: skip

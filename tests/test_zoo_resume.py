@@ -14,7 +14,7 @@ import torch as th
 from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_eps import train
-from sb3_eps.eps.diagnostics import read_round_log
+from sb3_eps.eps.round_log import read_round_log
 from sb3_eps.zoo.checkpoint import read_checkpoint_meta
 from sb3_eps.zoo.errors import ConfigError
 
@@ -208,6 +208,21 @@ def test_resume_needs_a_checkpoint(tmp_path) -> None:
     (tmp_path / "config.yml").write_text("CooperativeNavigation-v0:\n  n_timesteps: 10\n")
     with pytest.raises(ConfigError, match=r"no checkpoint\.zip"):
         train.main(["--resume", str(tmp_path)])
+
+
+def test_resume_takes_the_parameter_folder_of_a_run(tmp_path, capsys) -> None:
+    """RL Zoo's layout: ``<run>/<env id>/`` holds ``args.yml`` and ``config.yml``; ``--resume`` given that folder
+    resumes the run above it (here a finished one, so nothing trains)."""
+    run = tmp_path / f"{ENV_ID}_1"
+    params = run / ENV_ID
+    params.mkdir(parents=True)
+    (params / "args.yml").write_text(f"algo: gdq\nenv: {ENV_ID}\nn_timesteps: 10\n")
+    (params / "config.yml").write_text(f"{ENV_ID}:\n  n_timesteps: 10\n")
+    with pytest.raises(ConfigError, match=rf"{run.name} has no checkpoint\.zip"):
+        train.main(["--resume", str(params)])
+    (run / f"{ENV_ID}.zip").write_bytes(b"")
+    assert train.main(["--resume", str(params)]) == 0
+    assert f"{run} has finished already" in capsys.readouterr().out
 
 
 def test_resume_of_a_run_sharing_experience_equals_the_uninterrupted_run(tmp_path) -> None:

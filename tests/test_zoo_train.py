@@ -68,7 +68,7 @@ def test_run_folder_follows_the_zoo_layout(run_dir) -> None:
     frame = load_results(str(run_dir))
     assert len(frame) == len(columns["r"]) and {"r", "l", "t"} <= set(frame.columns)
     # SB3's keys (EvalCallback's eval/mean_reward, eval/mean_ep_length), the team ones as extras, no duplicates.
-    from sb3_eps.results import read_progress
+    from research.results import read_progress
 
     progress = read_progress(run_dir / "progress.csv")
     sb3_keys = {"eval/mean_reward", "eval/mean_ep_length", "rollout/ep_rew_mean", "rollout/ep_len_mean"}
@@ -150,7 +150,7 @@ def test_rl_zoo_plot_scripts_read_the_log_folder(run_dir, tmp_path, monkeypatch)
 
 def test_read_progress_gives_old_logs_the_sb3_keys(tmp_path) -> None:
     """progress.csv files written before the SB3 keys (the committed records) read with both names."""
-    from sb3_eps.results import read_progress
+    from research.results import read_progress
 
     path = tmp_path / "progress.csv"
     path.write_text("time/ticks,eval/team_return,eval/length,rollout/team_return\n10,1.5,25,\n20,,,2.0\n")

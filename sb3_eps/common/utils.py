@@ -136,27 +136,3 @@ def format_table(rows: list[dict[str, Any]], columns: list[str] | None = None, p
     lines.append("  ".join("-" * width for width in widths))
     lines += ["  ".join(value.ljust(width) for value, width in zip(line, widths, strict=True)) for line in cells]
     return "\n".join(line.rstrip() for line in lines)
-
-
-def moved_names(module_name: str, moved: dict[str, str]) -> Callable[[str], Any]:
-    """A module ``__getattr__`` that still serves names moved or renamed elsewhere, for one release, each with a
-    ``DeprecationWarning`` that says where it went (listed in ``CHANGELOG.md``).
-
-    :param module_name: the old module (``__name__``)
-    :param moved: old name -> ``"new.module:new_name"``
-    """
-    import importlib
-    import warnings
-
-    def __getattr__(name: str) -> Any:
-        if name not in moved:
-            raise AttributeError(f"module {module_name!r} has no attribute {name!r}")
-        new_module, _, new_name = moved[name].partition(":")
-        warnings.warn(
-            f"{module_name}.{name} is now {new_module}.{new_name}; the old name goes in the next release",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return getattr(importlib.import_module(new_module), new_name)
-
-    return __getattr__

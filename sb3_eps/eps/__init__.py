@@ -1,7 +1,6 @@
 """Evolutionary Policy Search (Marchesini & Farinelli, ICRA 2022) as an SB3 callback, and its math."""
 
-from sb3_eps.eps.callback import PAPER_SETTINGS, EvolutionCallback, sample_visited_observations
-from sb3_eps.eps.diagnostics import RoundLog, read_round_log, team_check_changes
+from sb3_eps.eps.callback import EvolutionCallback
 from sb3_eps.eps.evaluation import (
     EvaluationFailed,
     InProcessEnvPool,
@@ -20,9 +19,13 @@ from sb3_eps.eps.mutations import (
     safe_mutation_step,
     select_best,
 )
+from sb3_eps.eps.round import sample_visited_observations
+from sb3_eps.eps.round_log import RoundLog, read_round_log
+from sb3_eps.eps.settings import PAPER_SETTINGS, EPSSettings
 
 __all__ = [
     "PAPER_SETTINGS",
+    "EPSSettings",
     "EvaluationFailed",
     "EvolutionCallback",
     "InProcessEnvPool",
@@ -41,5 +44,4 @@ __all__ = [
     "safe_mutation_step",
     "sample_visited_observations",
     "select_best",
-    "team_check_changes",
 ]

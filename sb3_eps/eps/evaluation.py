@@ -41,6 +41,7 @@ from torch import nn
 from torch.func import functional_call, vmap
 
 from sb3_eps.common.parallel_wrappers import TeamAsGymnasium, TeamTick
+from sb3_eps.common.subproc_vec_env import default_start_method
 from sb3_eps.eps.mutations import Parameters, finite_individuals, individual
 
 
@@ -121,6 +122,9 @@ PoolAnswer = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[TeamEpis
 
 class EvaluationFailed(RuntimeError):
     """An evaluation worker crashed, raised or did not answer in time; the round cannot be scored."""
+
+    record: dict[str, Any] | None = None
+    """What the round measured before (set by :class:`~sb3_eps.eps.round.EPSRound`)."""
 
 
 def check_eval_env_id(env_id: str) -> None:
@@ -418,8 +422,8 @@ class SubprocessEnvPool(EnvPool):
     :param network: architecture template (CPU; copied into the workers)
     :param batched: batched forward pass in the workers
     :param n_workers: number of worker processes (at most ``n_individuals``)
-    :param start_method: multiprocessing start method; None: ``"fork"`` where available (the workers start in
-        milliseconds with everything imported), else ``"spawn"``
+    :param start_method: multiprocessing start method; None: the worlds' workers' default
+        (:func:`~sb3_eps.common.subproc_vec_env.default_start_method`)
     :param record: what the workers record of every episode (:data:`RECORD_MODES`): the arrays of a block's
         episodes come back with its answer, one message per round
     """
@@ -438,9 +442,7 @@ class SubprocessEnvPool(EnvPool):
     ) -> None:
         if record not in RECORD_MODES:
             raise ValueError(f"record must be one of {RECORD_MODES}, got {record!r}")
-        if start_method is None:
-            start_method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
-        context: Any = mp.get_context(start_method)
+        context: Any = mp.get_context(start_method or default_start_method())
         self.n_individuals, self.n_episodes = n_individuals, n_episodes
         n_blocks = max(1, min(n_workers, n_individuals))
         self.blocks = [block for block in np.array_split(np.arange(n_individuals), n_blocks) if len(block)]

@@ -65,47 +65,6 @@ def sharing_problem(model: Any, eval_env: Any) -> str | None:
     return None
 
 
-def shared_gradient_steps(model: MultiAgentOffPolicyAlgorithm, n_ticks: int) -> int:
-    """The gradient steps the training rollout takes for ``n_ticks`` world ticks: ``gradient_steps`` (with -1, SB3's
-    one per timestep: ``n_agents`` per world tick) per ``train_freq`` vector-env steps, each vector-env step being one
-    tick of each of the ``n_worlds`` training worlds.
-
-    :raises ValueError: for a ``train_freq`` counted in episodes (the steps per tick are not fixed then)
-    """
-    frequency, unit = model.train_freq.frequency, model.train_freq.unit.value
-    if unit != "step":
-        raise ValueError(
-            f"train_on_shared_rows takes the gradient steps of the shared ticks, which needs train_freq in steps, not "
-            f"{unit}s: set train_freq=(n, 'step') or train_on_shared_rows=False"
-        )
-    return round(n_ticks * rollout_gradient_steps(model) / (frequency * model.n_worlds))
-
-
-def rollout_gradient_steps(model: MultiAgentOffPolicyAlgorithm) -> int:
-    """The gradient steps the model takes after each rollout of ``train_freq`` vector-env steps (SB3's ``-1``: as
-    many as the rollout's timesteps)."""
-    if model.gradient_steps >= 0:
-        return int(model.gradient_steps)
-    return int(model.train_freq.frequency * model.n_envs)
-
-
-def train_on_shared(model: MultiAgentOffPolicyAlgorithm, gradient_steps: int) -> int:
-    """Take ``gradient_steps`` of the model's own training (:meth:`train`, its batch size) between two rollouts,
-    leaving a pending ``overlap_training`` step as it was; none before ``learning_starts``.
-
-    :return: the gradient steps taken
-    """
-    if gradient_steps <= 0 or model.num_timesteps <= model.learning_starts:
-        return 0
-    trained_ahead, model._trained_ahead = model._trained_ahead, False
-    try:
-        model.train(gradient_steps, model.batch_size)
-    finally:
-        model._trained_ahead = trained_ahead
-        model.policy.set_training_mode(False)
-    return gradient_steps
-
-
 def record_mode(model: MultiAgentOffPolicyAlgorithm) -> str:
     """What the evaluation workers must record for ``model``'s rows: the global states only where it stores them."""
     return "ticks+states" if model.uses_global_state else "ticks"
@@ -128,7 +87,7 @@ def share_episodes(model: MultiAgentOffPolicyAlgorithm, episodes: Sequence[TeamE
     assert model.replay_buffer is not None
     observations = np.concatenate([episode.observations[:-1] for episode in played])
     next_observations = np.concatenate([episode.observations[1:] for episode in played])
-    values = model._collection_values(observations, next_observations)  # one pass for the whole round
+    values = model.collection_values(observations, next_observations)  # one pass for the whole round
     counter = _RowCounter(model.replay_buffer)
     offset = 0
     for episode in played:

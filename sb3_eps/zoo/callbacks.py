@@ -30,8 +30,8 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import CSVOutputFormat
 
 from sb3_eps.common.evaluation import evaluate_team
-from sb3_eps.common.utils import moved_names
 from sb3_eps.common.vec_env import MultiAgentVecEnv
+from sb3_eps.eps import EvolutionCallback
 from sb3_eps.zoo import run_folder
 from sb3_eps.zoo.checkpoint import save_checkpoint, save_model_atomic, set_rng_states, write_bytes_atomic
 
@@ -44,8 +44,8 @@ class TrainingInterrupted(Exception):
 
 
 def eps_ticks_of(callbacks: Sequence[BaseCallback]) -> int:
-    """:return: the ticks simulated by EPS so far (the ``eps_ticks`` of the callbacks that count them)."""
-    return int(sum(int(getattr(callback, "eps_ticks", 0)) for callback in callbacks))
+    """:return: the ticks simulated by EPS so far (the ``eps_ticks`` of the EvolutionCallbacks among ``callbacks``)."""
+    return sum(callback.eps_ticks for callback in callbacks if isinstance(callback, EvolutionCallback))
 
 
 def eps_timesteps(model: Any, callbacks: Sequence[BaseCallback]) -> int:
@@ -526,13 +526,3 @@ def _number(text: str) -> int | float | str:
         except ValueError:
             continue
     return text
-
-
-__getattr__ = moved_names(
-    __name__,
-    {
-        "CheckpointCallback": "sb3_eps.zoo.callbacks:TrainingStateCallback",
-        **{name: f"sb3_eps.zoo.run_folder:{name}" for name in (
-            "MONITOR_NAME", "EVALUATIONS_NAME", "BEST_MODEL_NAME", "PROGRESS_NAME", "read_monitor")},
-    },
-)  # fmt: skip

@@ -11,7 +11,7 @@ import numpy as np
 
 from sb3_eps.common.evaluation import evaluate_team, record_frames
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
-from sb3_eps.common.utils import describe_space, moved_names
+from sb3_eps.common.utils import describe_space
 from sb3_eps.common.vec_env import make_vec_env
 from sb3_eps.zoo import run_folder
 from sb3_eps.zoo.checkpoint import write_text_atomic
@@ -195,6 +195,3 @@ def record_gif(
     finally:
         venv.close()
     return save_gif(frames, path, fps=fps)
-
-
-__getattr__ = moved_names(__name__, {"find_run": "sb3_eps.zoo.run_folder:find_run"})

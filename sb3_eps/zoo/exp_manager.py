@@ -19,7 +19,6 @@ import sys
 import time
 import types
 import typing
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,8 +34,10 @@ from stable_baselines3.common.save_util import load_from_zip_file
 import envs
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.subproc_vec_env import VecEnvWorkerError, overlap_layout
-from sb3_eps.common.utils import describe_space, moved_names
+from sb3_eps.common.utils import describe_space
 from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env, vec_env_mode
+from sb3_eps.eps import EvolutionCallback
+from sb3_eps.eps.evaluation import agent_space, make_eval_env
 from sb3_eps.version import __version__
 from sb3_eps.zoo import run_folder
 from sb3_eps.zoo.callbacks import (
@@ -270,13 +271,11 @@ def check_callback_worlds(
 
     :raises ConfigError: naming the callback, both worlds and their spaces
     """
-    from sb3_eps.eps.evaluation import agent_space, make_eval_env
-
     for name, callback in callbacks:
-        eval_env_id = getattr(callback, "eval_env_id", None)
-        if eval_env_id is None:
+        if not isinstance(callback, EvolutionCallback):
             continue
-        eval_env = make_eval_env(eval_env_id, getattr(callback, "eval_env_kwargs", None))
+        eval_env_id = callback.settings.eval_env_id
+        eval_env = make_eval_env(eval_env_id, callback.settings.eval_env_kwargs)
         try:
             for kind in ("observation_space", "action_space"):
                 theirs, ours = agent_space(eval_env, kind), getattr(env, kind)
@@ -322,7 +321,7 @@ def load_agent_weights(model: MultiAgentOffPolicyAlgorithm, path: str | Path) ->
         first = str(error).splitlines()[1:2] or [str(error)]
         raise ConfigError(
             f"--init-from: the agent network of {path} does not fit this model (use the same policy_kwargs "
-            f"net_arch / stream_arch / activation_fn / angle_features): {first[0].strip()}"
+            f"net_arch / stream_arch / activation_fn): {first[0].strip()}"
         ) from None
 
 
@@ -443,12 +442,12 @@ def train(options: TrainOptions, extra_callbacks: Sequence[BaseCallback] = ()) -
 def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | None = None) -> TrainResult:
     """Continue an interrupted run from its checkpoint to its total (``--resume``).
 
-    :param run_dir: the run folder
+    :param run_dir: the run folder, or its parameter folder ``<run>/<env id>/``
     :param progress: show a progress bar (None: as the run was started)
     :param verbose: verbosity (None: as the run was started)
     :raises ConfigError: when the folder holds no resumable run
     """
-    run_dir = Path(run_dir)
+    run_dir = run_folder.run_dir_of(run_dir)
     args_path, config_path = (run_folder.run_file(run_dir, name) for name in (run_folder.ARGS_NAME, run_folder.CONFIG_NAME))
     for path in (args_path, config_path):
         if not path.is_file():
@@ -618,19 +617,3 @@ def _run(
             flush=True,
         )
     return TrainResult(run_dir, "complete", int(model.num_timesteps))
-
-
-def check_eval_env(model: MultiAgentOffPolicyAlgorithm, eval_env: MultiAgentVecEnv, flag: str = "--eval-env") -> None:
-    """Deprecated, goes in the next release: :func:`sb3_eps.zoo.evaluation.check_spaces` (one check for evaluation
-    worlds of a run and of a loaded model)."""
-    warnings.warn(
-        "check_eval_env is deprecated: use sb3_eps.zoo.evaluation.check_spaces", DeprecationWarning, stacklevel=2
-    )
-    check_spaces(model, eval_env, str(eval_env.env_id), "the model", f"{flag}: ")
-
-
-__getattr__ = moved_names(
-    __name__,
-    {name: f"sb3_eps.zoo.run_folder:{name}" for name in (
-        "ARGS_NAME", "CONFIG_NAME", "FINAL_REPORT_NAME", "final_model_name", "create_run_folder")},
-)  # fmt: skip

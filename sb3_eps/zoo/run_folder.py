@@ -70,6 +70,19 @@ def run_file(run_dir: str | Path, name: str) -> Path:
     return inside[0] if inside else run_dir / name
 
 
+def run_dir_of(path: str | Path) -> Path:
+    """:return: the run folder ``path`` names: ``path`` itself, or the run above it when ``path`` is the run's
+    parameter folder ``<run>/<env id>/`` (RL Zoo's layout: the folder that holds ``config.yml``)."""
+    path = Path(path)
+    if not (path / ARGS_NAME).is_file():
+        return path
+    try:
+        env_id = read_args(path).get("env")
+    except ConfigError:
+        return path
+    return path.parent if path.name == env_id else path
+
+
 def is_run_folder(path: str | Path) -> bool:
     """:return: whether ``path`` is a run folder of ``python -m sb3_eps.train`` (it has an ``args.yml``)."""
     return run_file(path, ARGS_NAME).is_file()

@@ -15,15 +15,14 @@ and callback objects.
 
 from __future__ import annotations
 
-import functools
-import importlib
+import collections.abc
+import dataclasses
 import inspect
 import math
 import re
 import sys
 import types
 import typing
-import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -35,6 +34,8 @@ from torch import nn
 
 from sb3_eps.common import buffers
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
+from sb3_eps.common.policies import MultiAgentQPolicy
+from sb3_eps.eps import EvolutionCallback
 from sb3_eps.gdq import GDQ
 from sb3_eps.iql import IQL
 from sb3_eps.qmix import QMIX, VDN
@@ -62,6 +63,12 @@ for _name in _ACTIVATION_CLASSES:
 for _name in _OPTIMIZER_CLASSES:
     for _prefix in ("", "optim.", "th.optim.", "torch.optim."):
         NAME_SPELLINGS[f"{_prefix}{_name}"] = f"th.optim.{_name}"
+#: The joint replay buffers a config may name (``replay_buffer_class``): those of :mod:`sb3_eps.common.buffers`.
+REPLAY_BUFFER_CLASSES: dict[str, type[buffers.JointReplayBuffer]] = {
+    name: cls
+    for name, cls in vars(buffers).items()
+    if isinstance(cls, type) and issubclass(cls, buffers.JointReplayBuffer)
+}
 
 _SCHEDULE_PATTERN = re.compile(r"^lin_([0-9.eE+-]+)$")
 _FLOAT_PATTERN = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
@@ -70,7 +77,7 @@ _FLOAT_PATTERN = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 # ---------------------------------------------------------------------------------------------- parameters
 @dataclass(frozen=True)
 class Param:
-    """What one key may hold.
+    """What one key may hold, read from its constructor's type hint (:func:`params_from_signature`).
 
     :param kind: ``int``, ``float``, ``bool``, ``str``, ``choice``, ``schedule``, ``train_freq``, ``int_list``,
         ``list`` (of plain data), ``mapping``, ``activation``, ``optimizer``, ``any`` (plain data)
@@ -129,12 +136,16 @@ class Param:
         )
 
 
-#: The joint replay buffers a config may name (``replay_buffer_class``): those of :mod:`sb3_eps.common.buffers`.
-REPLAY_BUFFER_CLASSES: dict[str, type[buffers.JointReplayBuffer]] = {
-    name: cls
-    for name, cls in vars(buffers).items()
-    if isinstance(cls, type) and issubclass(cls, buffers.JointReplayBuffer)
-}
+#: The ranges the constructors check (``MultiAgentOffPolicyAlgorithm``, the policies), in interval notation: a
+#: config out of range fails when it is loaded, before a run folder exists. Type hints hold no ranges.
+RANGES: dict[str, str] = {
+    "learning_rate": "(0, inf)", "buffer_size": "[1, inf)", "learning_starts": "[0, inf)",
+    "batch_size": "[1, inf)", "tau": "(0, 1]", "gamma": "[0, 1]", "gradient_steps": "[-1, inf)",
+    "gradient_steps_per_target_update": "[1, inf)", "n_steps": "[1, inf)", "prioritized_replay_alpha": "[0, inf)",
+    "prioritized_replay_beta0": "[0, 1]", "exploration_fraction": "[0, 1]", "exploration_initial_eps": "[0, 1]",
+    "exploration_final_eps": "[0, 1]", "max_grad_norm": "(0, inf)", "stats_window_size": "[1, inf)",
+    "net_arch": "[1, inf)", "stream_arch": "[1, inf)", "weight_average_tau": "(0, 1]",
+}  # fmt: skip
 #: Run keys of an entry (not algorithm arguments). ``policy`` and ``callback`` are checked separately.
 RUN_PARAMS: dict[str, Param] = {
     "tuned": Param("bool"),
@@ -148,60 +159,110 @@ RUN_PARAMS: dict[str, Param] = {
 }
 CALLBACK_KEY = "callback"
 POLICY_KWARGS_KEY = "policy_kwargs"
-
-#: Constructor arguments of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm` settable from a
-#: config (``policy_kwargs`` is checked against the policy). Counts are SB3 timesteps (agent-steps) except
-#: ``buffer_size`` / ``batch_size`` (joint rows) and ``train_freq`` (vector-env steps).
-ALGORITHM_PARAMS: dict[str, Param] = {
-    "learning_rate": Param("schedule", low=0, open_low=True),
-    "buffer_size": Param("int", low=1),
-    "learning_starts": Param("int", low=0),
-    "batch_size": Param("int", low=1),
-    "tau": Param("float", low=0, high=1, open_low=True),
-    "gamma": Param("float", low=0, high=1),
-    "train_freq": Param("train_freq"),
-    "gradient_steps": Param("int", low=-1),
-    "replay_buffer_class": Param("choice", choices=tuple(REPLAY_BUFFER_CLASSES)),
-    "replay_buffer_kwargs": Param("mapping"),
-    "gradient_steps_per_target_update": Param("int", low=1),
-    "n_steps": Param("int", low=1),
-    "prioritized_replay": Param("bool"),
-    "prioritized_replay_alpha": Param("float", low=0),
-    "prioritized_replay_beta0": Param("float", low=0, high=1),
-    "double_q": Param("bool"),
-    "exploration_fraction": Param("float", low=0, high=1),
-    "exploration_initial_eps": Param("float", low=0, high=1),
-    "exploration_final_eps": Param("float", low=0, high=1),
-    "max_grad_norm": Param("float", low=0, open_low=True),
-    "team_reward_mode": Param("choice", choices=buffers.TEAM_REWARD_MODES),
-    "overlap_training": Param("bool"),
-    "others_end_bootstrap": Param("bool"),
-    "stats_window_size": Param("int", low=1),
-}
-#: Deprecated keys (one release) -> their new name; an entry with the old key loads with a DeprecationWarning.
-RENAMED_KEYS: dict[str, str] = {"target_update_interval": "gradient_steps_per_target_update"}
 #: Constructor arguments that come from the command line, never from a config.
-COMMAND_LINE_ARGUMENTS = (
-    "policy",
-    "env",
-    "tensorboard_log",
-    "verbose",
-    "seed",
-    "device",
-    "_init_setup_model",
-)
+COMMAND_LINE_ARGUMENTS = ("policy", "env", "tensorboard_log", "verbose", "seed", "device", "_init_setup_model")
+#: Policy constructor arguments the algorithm sets itself.
+_POLICY_INTERNALS = (
+    "observation_space", "action_space", "lr_schedule", "n_agents", "state_dim", "features_extractor_class",
+    "features_extractor_kwargs",
+)  # fmt: skip
 
-COMMON_POLICY_PARAMS: dict[str, Param] = {
-    "net_arch": Param("int_list", low=1),
-    "stream_arch": Param("int_list", low=1),
-    "activation_fn": Param("activation"),
-    "optimizer_class": Param("optimizer"),
-    "optimizer_kwargs": Param("mapping"),
-    "agent_target": Param("bool"),
-    "angle_features": Param("int_list", low=0, choices=("auto",), nullable=True),
-    "weight_average_tau": Param("float", low=0, high=1, open_low=True, nullable=True),
-    "normalize_images": Param("bool"),
-}
+
+def params_from_signature(function: Callable[..., Any], skip: Sequence[str] = ()) -> dict[str, Param]:
+    """:return: ``{argument: Param}`` of the keyword arguments of ``function`` whose type hint a config can hold
+    (``bool``, ``int``, ``float``, ``str``, ``Literal[...]``, ``list[int]``, a mapping, a schedule, a class of
+    :data:`ACTIVATIONS`, :data:`OPTIMIZERS` or :data:`REPLAY_BUFFER_CLASSES`; ``None`` allowed beside them), with
+    the range of :data:`RANGES`; the others are left out. A keyword whose hint is a dataclass (``EPSSettings``)
+    stands for the dataclass's fields."""
+    hints = typing.get_type_hints(function)
+    params: dict[str, Param] = {}
+    for name, parameter in inspect.signature(function).parameters.items():
+        variadic = parameter.kind in (parameter.VAR_POSITIONAL, parameter.VAR_KEYWORD)
+        if variadic or name in skip or name == "self" or name not in hints:
+            continue
+        settings = _dataclass_of_hint(hints[name])
+        if settings is not None:
+            params.update(params_from_signature(settings, skip))
+            continue
+        param = _param_of_hint(hints[name])
+        if param is not None:
+            params[name] = _with_range(param, RANGES.get(name))
+    return params
+
+
+def _dataclass_of_hint(hint: Any) -> type | None:
+    members = [member for member in _hint_members(hint) if member is not type(None)]
+    found = members[0] if len(members) == 1 else None
+    return found if isinstance(found, type) and dataclasses.is_dataclass(found) else None
+
+
+def _param_of_hint(hint: Any) -> Param | None:
+    members = [member for member in _hint_members(hint) if member is not type(None)]
+    nullable = len(members) < len(_hint_members(hint))
+    origins = [typing.get_origin(member) for member in members]
+    if set(members) == {int} | {m for m in members if typing.get_origin(m) is tuple}:
+        return Param("train_freq") if len(members) == 2 else Param("int", nullable=nullable)
+    if len(members) == 2 and float in members and collections.abc.Callable in origins:
+        return Param("schedule", nullable=nullable)  # a number or SB3's Schedule
+    choices = tuple(str(argument) for member in members if typing.get_origin(member) is typing.Literal
+                    for argument in typing.get_args(member))  # fmt: skip
+    members = [member for member in members if typing.get_origin(member) is not typing.Literal]
+    if not members:
+        return Param("choice", choices=choices, nullable=nullable)
+    if len(members) != 1:
+        return None
+    member = members[0]
+    origin, arguments = typing.get_origin(member), typing.get_args(member)
+    if origin in (list, tuple):
+        return Param("int_list" if arguments[:1] == (int,) else "list", choices=choices, nullable=nullable)
+    if origin is type:
+        return _class_param(arguments[0], nullable)
+    kinds = {bool: "bool", int: "int", float: "float", str: "str", dict: "mapping", Any: "any"}
+    if member in kinds or origin is dict:
+        return Param(kinds[origin or member], nullable=nullable)
+    return None
+
+
+def _class_param(base: Any, nullable: bool) -> Param | None:
+    if base is nn.Module:
+        return Param("activation", nullable=nullable)
+    if base is th.optim.Optimizer:
+        return Param("optimizer", nullable=nullable)
+    if base is buffers.JointReplayBuffer:
+        return Param("choice", choices=tuple(REPLAY_BUFFER_CLASSES), nullable=nullable)
+    return None
+
+
+def _with_range(param: Param, interval: str | None) -> Param:
+    """:return: ``param`` bounded by an interval such as ``"(0, 1]"`` or ``"[1, inf)"``."""
+    if interval is None:
+        return param
+    low, high = (float(bound) for bound in interval[1:-1].split(","))
+    return dataclasses.replace(
+        param,
+        low=None if math.isinf(low) else low,
+        high=None if math.isinf(high) else high,
+        open_low=interval[0] == "(",
+        open_high=interval[-1] == ")" and not math.isinf(high),
+    )
+
+
+def _hint_members(hint: Any) -> tuple[Any, ...]:
+    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
+        return typing.get_args(hint)
+    return (hint,)
+
+
+#: Arguments of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm` a config may set, read from its
+#: signature (``policy_kwargs`` is checked against the policy). Counts are SB3 timesteps (agent-steps) except
+#: ``buffer_size`` / ``batch_size`` (joint rows) and ``train_freq`` (vector-env steps).
+ALGORITHM_PARAMS: dict[str, Param] = params_from_signature(
+    MultiAgentOffPolicyAlgorithm.__init__, (*COMMAND_LINE_ARGUMENTS, POLICY_KWARGS_KEY)
+)
+#: ``policy_kwargs`` keys of every algorithm, read from the shared policy's signature.
+COMMON_POLICY_PARAMS: dict[str, Param] = params_from_signature(MultiAgentQPolicy.__init__, _POLICY_INTERNALS)
+
+
 # ---------------------------------------------------------------------------------------------- algorithms
 @dataclass(frozen=True)
 class AlgorithmSpec:
@@ -212,7 +273,7 @@ class AlgorithmSpec:
     :param policy_params: the ``policy_kwargs`` keys it accepts
     :param eps: an ``eps_*`` name: the base algorithm plus an ``EvolutionCallback`` from the config
     :param label: the name in plots and tables (the paper's)
-    :param extra_params: constructor arguments of its own beyond :data:`ALGORITHM_PARAMS` (plug-in algorithms)
+    :param extra_params: constructor arguments of its own beyond :data:`ALGORITHM_PARAMS`
     """
 
     name: str
@@ -241,8 +302,7 @@ def register_algorithm(
 ) -> AlgorithmSpec:
     """Make an algorithm of one's own a name of the configs and command lines (``--algo <name>``); a module that
     ``--gym-packages`` imports calls it. Its config keys come from its signatures: the base's arguments, its own
-    constructor arguments and its policy's, each typed ``bool``, ``int``, ``float``, ``str``, ``Literal[...]``,
-    ``list[int]`` or ``dict`` (:func:`params_from_signature`).
+    constructor arguments and its policy's (:func:`params_from_signature`).
 
     :param name: the name (lower case, digits and ``_``); its config file is ``<name>.yml``
     :param algorithm_class: a subclass of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`
@@ -260,9 +320,7 @@ def register_algorithm(
     known = ALGORITHMS.get(name)
     if known is not None and known.algorithm_class is not algorithm_class:
         raise ValueError(f"algorithm name {name!r} is taken by {known.algorithm_class.__name__}; pick another")
-    # The keys of its own: its constructor's and its policy's arguments beyond the base's, typed in the signatures.
-    skip = (*ALGORITHM_PARAMS, *COMMAND_LINE_ARGUMENTS, *RENAMED_KEYS, POLICY_KWARGS_KEY)
-    own = params_from_signature(algorithm_class.__init__, skip)
+    own = params_from_signature(algorithm_class.__init__, (*ALGORITHM_PARAMS, *COMMAND_LINE_ARGUMENTS, POLICY_KWARGS_KEY))
     policy_class = algorithm_class.policy_aliases["MlpPolicy"]
     policy_params = dict(COMMON_POLICY_PARAMS)
     if "__init__" in vars(policy_class):  # a policy that only inherits its constructor adds no keys (VDN's)
@@ -270,52 +328,6 @@ def register_algorithm(
     spec = AlgorithmSpec(name, algorithm_class, policy_params, eps, label or algorithm_class.__name__, own)
     ALGORITHMS[name] = spec
     return spec
-
-
-#: Policy constructor arguments the algorithm sets itself.
-_POLICY_INTERNALS = (
-    "observation_space", "action_space", "lr_schedule", "n_agents", "state_dim", "features_extractor_class",
-    "features_extractor_kwargs",
-)  # fmt: skip
-
-
-def params_from_signature(function: Callable[..., Any], skip: Sequence[str] = ()) -> dict[str, Param]:
-    """:return: ``{argument: Param}`` of the keyword arguments of ``function`` whose type hint a config can hold
-    (``bool``, ``int``, ``float``, ``str``, ``Literal[...]``, ``list[int]``, a mapping; ``None`` allowed beside
-    them); the others are left out."""
-    hints = typing.get_type_hints(function)
-    params: dict[str, Param] = {}
-    for name, parameter in inspect.signature(function).parameters.items():
-        variadic = parameter.kind in (parameter.VAR_POSITIONAL, parameter.VAR_KEYWORD)
-        if variadic or name in skip or name == "self" or name not in hints:
-            continue
-        param = _param_of_hint(hints[name])
-        if param is not None:
-            params[name] = param
-    return params
-
-
-def _param_of_hint(hint: Any) -> Param | None:
-    members = [member for member in _hint_members(hint) if member is not type(None)]
-    nullable = len(members) < len(_hint_members(hint))
-    if len(members) != 1:
-        return None
-    member = members[0]
-    origin, arguments = typing.get_origin(member), typing.get_args(member)
-    if origin is typing.Literal:
-        return Param("choice", choices=tuple(str(argument) for argument in arguments), nullable=nullable)
-    kinds = {bool: "bool", int: "int", float: "float", str: "str", dict: "mapping", Any: "any"}
-    if member in kinds or origin is dict:
-        return Param(kinds[origin or member], nullable=nullable)
-    if origin in (list, tuple):
-        return Param("int_list" if arguments[:1] == (int,) else "list", nullable=nullable)
-    return None
-
-
-def _hint_members(hint: Any) -> tuple[Any, ...]:
-    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
-        return typing.get_args(hint)
-    return (hint,)
 
 
 def algorithm_spec(name: str) -> AlgorithmSpec:
@@ -326,8 +338,8 @@ def algorithm_spec(name: str) -> AlgorithmSpec:
 
 
 # ---------------------------------------------------------------------------------------------- callbacks
-#: Callbacks a config may name: canonical name -> ``"module:attribute"``. Nothing else is ever imported.
-CALLBACKS: dict[str, str] = {"sb3_eps.EvolutionCallback": "sb3_eps.eps:EvolutionCallback"}
+#: Callbacks a config may name: canonical name -> class. Nothing else is ever built from a config.
+CALLBACKS: dict[str, type[BaseCallback]] = {"sb3_eps.EvolutionCallback": EvolutionCallback}
 EVOLUTION_CALLBACK = "sb3_eps.EvolutionCallback"
 _CALLBACK_SPELLINGS: dict[str, str] = {
     "sb3_eps.EvolutionCallback": EVOLUTION_CALLBACK,
@@ -353,42 +365,45 @@ def register_callback(callback_class: type[BaseCallback], name: str | None = Non
             f"{callback_class.__name__} needs state_dict() and load_state_dict() so that a checkpoint resumes it "
             "(return {} when it keeps no state)"
         )
-    target = f"{callback_class.__module__}:{callback_class.__qualname__}"
     canonical = name or f"{callback_class.__module__}.{callback_class.__qualname__}"
-    if CALLBACKS.get(canonical, target) != target:
-        raise ValueError(f"callback name {canonical!r} is taken by {CALLBACKS[canonical]}; pick another")
-    CALLBACKS[canonical] = target
+    known = CALLBACKS.get(canonical, callback_class)
+    if known is not callback_class:
+        raise ValueError(
+            f"callback name {canonical!r} is taken by {known.__module__}.{known.__qualname__}; pick another"
+        )
+    CALLBACKS[canonical] = callback_class
     for spelling in (canonical, callback_class.__name__):
         _CALLBACK_SPELLINGS.setdefault(spelling, canonical)
     return canonical
 
 
 def callback_class(name: str, where: str = "callback") -> type[BaseCallback]:
-    """Import an allowed callback class.
+    """:return: the callback class of a config name (:data:`CALLBACKS`).
 
-    :param name: a canonical name of :data:`CALLBACKS`
+    :param name: a name of :data:`CALLBACKS`, or another accepted spelling of one
     :param where: what named it, for error messages
-    :raises ConfigError: when it is not allowed or not importable
+    :raises ConfigError: when it is not allowed
     """
     canonical = _CALLBACK_SPELLINGS.get(name)
     if canonical is None:
         raise ConfigError(f"{where}: unknown callback {name!r}; allowed: {allowed(CALLBACKS)}")
-    module_name, _, attribute = CALLBACKS[canonical].partition(":")
-    try:
-        found: Any = functools.reduce(getattr, attribute.split("."), importlib.import_module(module_name))
-        return found
-    except (ImportError, AttributeError) as error:
-        raise ConfigError(f"{where}: callback {canonical} cannot be imported here ({error})") from None
+    return CALLBACKS[canonical]
 
 
 def callback_parameters(cls: type[BaseCallback]) -> dict[str, inspect.Parameter]:
-    """:return: the keyword arguments of a callback's constructor (no ``self``, no ``*args``)."""
-    signature = inspect.signature(cls.__init__)
-    return {
-        name: parameter
-        for name, parameter in signature.parameters.items()
-        if name != "self" and parameter.kind not in (parameter.VAR_POSITIONAL, parameter.VAR_KEYWORD)
-    }
+    """:return: the keyword arguments of a callback's constructor (no ``self``, no ``*args``); a keyword whose hint
+    is a dataclass (``EvolutionCallback``'s ``settings``) stands for the dataclass's fields."""
+    hints = typing.get_type_hints(cls.__init__)
+    parameters: dict[str, inspect.Parameter] = {}
+    for name, parameter in inspect.signature(cls.__init__).parameters.items():
+        if name == "self" or parameter.kind in (parameter.VAR_POSITIONAL, parameter.VAR_KEYWORD):
+            continue
+        settings = _dataclass_of_hint(hints.get(name))
+        if settings is not None:
+            parameters.update(inspect.signature(settings).parameters)
+        else:
+            parameters[name] = parameter
+    return parameters
 
 
 # ---------------------------------------------------------------------------------------------- checking
@@ -405,7 +420,6 @@ def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, An
         raise ConfigError(
             f"{where}: an entry must be a mapping of keys to values, got {type(entry).__name__}"
         )
-    entry = _lift_algorithm_options(_renamed_keys(entry, where), spec, where)
     keys = [*RUN_PARAMS, *spec.params, POLICY_KWARGS_KEY, CALLBACK_KEY]
     for key in entry:
         if key not in keys:
@@ -425,45 +439,6 @@ def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, An
             param = RUN_PARAMS.get(key) or spec.params[key]
             result[key] = normalize_value(value, param, f"{where}: {key}")
     return result
-
-
-def _renamed_keys(entry: Mapping[str, Any], where: str) -> Mapping[str, Any]:
-    """:return: ``entry`` with the deprecated keys of :data:`RENAMED_KEYS` renamed (warning once per key)."""
-    for old, new in RENAMED_KEYS.items():
-        if old in entry:
-            if new in entry:
-                raise ConfigError(f"{where}: {old} and {new} are the same setting; keep {new} alone")
-            warnings.warn(
-                f"{where}: {old} is deprecated and goes in the next release; rename it {new} (same value)",
-                DeprecationWarning,
-                stacklevel=4,
-            )
-            entry = {(new if key == old else key): value for key, value in entry.items()}
-    return entry
-
-
-def _lift_algorithm_options(entry: Mapping[str, Any], spec: AlgorithmSpec, where: str) -> Mapping[str, Any]:
-    """:return: ``entry`` with the algorithm's own arguments that ``policy_kwargs`` holds (GDQ's ``global_values``,
-    ``global_bootstrap`` before they were GDQ's) moved to the entry, with a DeprecationWarning."""
-    policy_kwargs = entry.get(POLICY_KWARGS_KEY)
-    if isinstance(policy_kwargs, str):
-        policy_kwargs = parse_literal(policy_kwargs, NAME_SPELLINGS, f"{where}: {POLICY_KWARGS_KEY}")
-    if not isinstance(policy_kwargs, Mapping):
-        return entry
-    moved = [key for key in policy_kwargs if key in spec.extra_params and key not in spec.policy_params]
-    if not moved:
-        return entry
-    for key in moved:
-        if key in entry:
-            raise ConfigError(f"{where}: {key} is given twice, in policy_kwargs and in the entry; keep the entry's")
-    warnings.warn(
-        f"{where}: {', '.join(moved)} in policy_kwargs is deprecated and goes in the next release: they are arguments "
-        f"of {spec.algorithm_class.__name__}, give them as keys of the entry",
-        DeprecationWarning,
-        stacklevel=4,
-    )
-    rest = {key: value for key, value in policy_kwargs.items() if key not in moved}
-    return {**entry, POLICY_KWARGS_KEY: rest, **{key: policy_kwargs[key] for key in moved}}
 
 
 def check_complete(entry: Mapping[str, Any], spec: AlgorithmSpec, where: str) -> None:
@@ -751,7 +726,7 @@ def algorithm_kwargs(entry: Mapping[str, Any]) -> dict[str, Any]:
             value = LinearSchedule(float(value[4:]), 0.0, 1.0)
         elif key == "train_freq" and isinstance(value, list):
             value = (value[0], value[1])
-        elif key == "replay_buffer_class":
+        elif key == "replay_buffer_class" and value is not None:
             value = REPLAY_BUFFER_CLASSES[value]
         kwargs[key] = value
     if POLICY_KWARGS_KEY in entry:

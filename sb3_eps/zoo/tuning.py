@@ -184,7 +184,6 @@ def sample_gdq(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str, A
         "exploration_fraction": trial.suggest_categorical("exploration_fraction", [0.02, 0.05, 0.1, 0.2]),
         "exploration_final_eps": trial.suggest_categorical("exploration_final_eps", [0.01, 0.02, 0.05]),
         "prioritized_replay": trial.suggest_categorical("prioritized_replay", [True, False]),
-        "global_timeout_bootstrap": trial.suggest_categorical("global_timeout_bootstrap", [False, True]),
     }
     learning_starts = trial.suggest_categorical("learning_starts", [1_000, 2_000, 5_000])
     params["learning_starts"] = min(learning_starts, max(n_timesteps // 4, 1))
@@ -316,7 +315,7 @@ class _Objective:
                         kwargs["n_workers"] = 0
         config = ResolvedConfig(self.config.algo, self.config.env_id, entry, f"trial {trial.number}")
         summaries = [
-            self._run_seed(trial, config, int(self.options.seed) + index, index * self.tuning.n_evaluations)  # type: ignore[arg-type,operator]
+            self._run_seed(trial, config, int(self.options.seed) + index, index * self.tuning.n_evaluations)  # type: ignore[arg-type]
             for index in range(self.tuning.n_seeds_per_trial)
         ]
         scores = [objective_score(summary, self.options.eval_episodes) for summary in summaries]

@@ -195,3 +195,33 @@ def draw_population(
         axis.grid(alpha=0.3, axis="y")
     figure.tight_layout()
     return figure
+
+
+def team_check_changes(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The paired greedy team checks of the rounds that crossed over (``n_team_check_episodes > 0``).
+
+    Each check plays the same episodes (one seed) before and after the crossover, so the change is the crossover's
+    effect on the multi-robot policy, apart from the ticks EPS takes from training.
+
+    :param records: the records of an ``eps_rounds.jsonl`` file (or ``EvolutionCallback.history``)
+    :return: one dict per checked crossover: ``round``, ``model_ticks``, ``alpha``, ``gain``, the success and the team
+        return before and after, and their changes ``success_change`` and ``return_change``
+    """
+    changes = []
+    for record in records:
+        if record.get("skipped") or "team_success_after" not in record:
+            continue
+        before, after = record["team_success_before"], record["team_success_after"]
+        changes.append(
+            {
+                "round": record["round"],
+                "model_ticks": record["model_ticks"],
+                "alpha": record["alpha"],
+                "gain": record["gain"],
+                "success_before": before,
+                "success_after": after,
+                "success_change": after - before,
+                "return_change": record["team_return_after"] - record["team_return_before"],
+            }
+        )
+    return changes

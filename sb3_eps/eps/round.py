@@ -1,0 +1,338 @@
+"""One EPS round (Algorithm 1, lines 3-13 of Marchesini & Farinelli, ICRA 2022): copy the shared agent network,
+mutate the copies, evaluate them in the evaluation worlds, select the best, reevaluate it against copy 0 and cross it
+over into the network."""
+
+from __future__ import annotations
+
+import warnings
+from typing import Any
+
+import numpy as np
+import torch as th
+from torch import nn
+
+from sb3_eps.eps.evaluation import (
+    EnvPool,
+    EvaluationFailed,
+    PopulationResult,
+    evaluate_population,
+    population_fitness,
+)
+from sb3_eps.eps.mutations import (
+    Parameters,
+    calibrate_scale,
+    finite_individuals,
+    individual,
+    mutation_directions,
+    network_parameters,
+    output_sensitivity,
+    policy_change,
+    polyak_crossover_,
+    population_from_directions,
+    population_outputs,
+    select_best,
+)
+from sb3_eps.eps.settings import ALPHA_SCHEDULES, EPSSettings
+from sb3_eps.eps.sharing import share_episodes
+
+
+class EPSRound:
+    """Plays the rounds of one model: holds the generators, the calibrated noise scale and the tick counters.
+
+    :param settings: the EPS settings
+    :param model: the model (``policy.q_net``, ``replay_buffer``)
+    :param evolved: names of the ``q_net`` parameters mutated and crossed over
+    :param rng: generator of the buffer sampling and the episode seeds
+    :param generator: torch generator of the mutation noise
+    """
+
+    def __init__(
+        self,
+        settings: EPSSettings,
+        model: Any,
+        evolved: list[str],
+        rng: np.random.Generator,
+        generator: th.Generator,
+    ) -> None:
+        self.settings, self.model, self.evolved = settings, model, evolved
+        self.rng, self.generator = rng, generator
+        self.pool: EnvPool | None = None
+        self.scale: float | None = None
+        """The last calibrated noise scale: the next calibration starts there."""
+        self.eps_ticks = 0
+        """Ticks simulated by EPS, all rounds together (evaluations, reevaluations, team checks)."""
+        self.shared_rows = 0
+        """Replay rows written from the evaluation episodes (``share_experience``), all rounds together."""
+        self.round_shared_rows = 0
+
+    def run(self) -> dict[str, Any]:
+        """Play one round; the model's network is crossed over when the winner is accepted.
+
+        :return: the round's record (see docs/modules/eps.md, "The round record")
+        :raises EvaluationFailed: with ``record`` set to what the round measured before
+        """
+        settings = self.settings
+        self.round_shared_rows = 0
+        q_net = self.model.policy.q_net
+        theta = network_parameters(q_net)  # line 5: the copies of theta^e
+        observations = self.visited_observations(None)
+        assert observations is not None
+        sensitivities = self._sensitivities(q_net, observations) if settings.mutation == "safe" else None  # 7-8
+        directions = mutation_directions(  # lines 6 and 9 at unit scale: G ~ N(0, 1), G / omega
+            theta, settings.population_size, self.generator, sensitivities, settings.sensitivity_floor, self.evolved
+        )
+        max_step = settings.max_step if settings.mutation == "safe" else float("inf")
+        scale = self._mutation_scale(q_net, theta, directions, observations, max_step)
+        population = population_from_directions(theta, directions, scale, max_step)
+        outputs = population_outputs(q_net, population, observations)
+        flip_share, mean_abs_dq = policy_change(outputs)
+        record: dict[str, Any] = {
+            "scale": scale,
+            "flip_share": flip_share[1:].tolist(),
+            "mean_abs_dq": mean_abs_dq[1:].tolist(),
+            "mean_abs_q": float(outputs[0].abs().mean()),
+        }
+        try:
+            result = self._evaluate(population, record)  # line 10
+            if not result.valid.all():
+                _warn_disqualified(population, result.valid)
+            winner = select_best(result.fitness)  # line 11, Eq. 4 (never a disqualified individual)
+            accepted = self._accept(population, result, winner, record)
+        except EvaluationFailed as error:
+            error.record = record
+            raise
+        remaining = float(getattr(self.model, "_current_progress_remaining", 1.0))
+        alpha = scheduled_alpha(settings.alpha, settings.alpha_schedule, remaining)
+        record.update(winner=winner, accepted=accepted, alpha=alpha, mean_abs_delta=0.0)
+        if accepted and alpha > 0:  # line 13, Eq. 5 (copy 0 winning would leave theta as it is)
+            self._team_check(record, "before")
+            best = individual(population, winner)
+            record["mean_abs_delta"] = polyak_crossover_(q_net, best, alpha, self.evolved)
+            target = getattr(self.model.policy, "q_net_target", None)
+            if isinstance(target, nn.Module):
+                polyak_crossover_(target, best, alpha, self.evolved)
+            self._team_check(record, "after")
+        return record
+
+    def visited_observations(self, robot: int | None) -> th.Tensor | None:
+        """``sensitivity_batch_size`` visited observations of one robot (None: of every robot), or None."""
+        return sample_visited_observations(self.model, self.settings.sensitivity_batch_size, self.rng, robot)
+
+    def _mutation_scale(
+        self, q_net: nn.Module, theta: Parameters, directions: Parameters, observations: th.Tensor, max_step: float
+    ) -> float:
+        """The noise scale of this round: ``sigma``, or calibrated to ``target_flip_share`` of greedy actions."""
+        settings = self.settings
+        if settings.target_flip_share is None:
+            return float(settings.sigma)  # type: ignore[arg-type]  # set by EPSSettings
+
+        def flip_share_at(scale: float) -> float:
+            population = population_from_directions(theta, directions, scale, max_step)
+            return float(policy_change(population_outputs(q_net, population, observations))[0][1:].mean())
+
+        initial = self.scale if self.scale is not None else float(settings.sigma)  # type: ignore[arg-type]
+        self.scale, _ = calibrate_scale(flip_share_at, settings.target_flip_share, initial)
+        return self.scale
+
+    def _play(self, population: Parameters, active: np.ndarray | None = None) -> tuple[list[int], PopulationResult]:
+        """Play the population on fresh common-random-number episodes and count their ticks."""
+        settings = self.settings
+        assert self.pool is not None
+        seeds = [int(seed) for seed in self.rng.integers(2**31 - 1, size=settings.n_eval_episodes)]
+        result = evaluate_population(self.pool, population, seeds, settings.eval_timeout, settings.fitness, active)
+        self.eps_ticks += int(result.lengths.sum())
+        if settings.share_experience and result.episodes is not None:
+            rows = share_episodes(self.model, result.episodes)  # before any crossover: the round's network
+            self.round_shared_rows += rows
+            self.shared_rows += rows
+            result.episodes = None  # the arrays are in the buffer now
+        return seeds, result
+
+    def _evaluate(self, population: Parameters, record: dict[str, Any]) -> PopulationResult:
+        """Algorithm 1, line 10, with every episode noted in the round's record."""
+        seeds, result = self._play(population)
+        outcomes = result.outcomes if result.outcomes is not None else np.zeros_like(result.lengths)
+        record.update(
+            round_ticks=int(result.lengths.sum()),
+            episode_seeds=seeds,
+            returns=result.returns.tolist(),
+            successes=result.successes.astype(int).tolist(),
+            outcomes=outcomes.tolist(),
+            episode_lengths=result.lengths.tolist(),
+            fitness=result.fitness.tolist(),
+        )
+        return result
+
+    def _accept(self, population: Parameters, result: PopulationResult, winner: int, record: dict[str, Any]) -> bool:
+        """The acceptance rule: a gain over copy 0 beyond ``min_gain``, and again on fresh episodes."""
+        fitness, min_gain = result.fitness, self.settings.min_gain
+        gain = float(fitness[winner] - fitness[0]) if np.isfinite(fitness[0]) else float("nan")
+        finite = np.sort(fitness[np.isfinite(fitness)])
+        record["gain"] = gain
+        record["runner_up_margin"] = float(finite[-1] - finite[-2]) if finite.size >= 2 else float("nan")
+        accepted = winner != 0 and gain_accepted(gain, min_gain)
+        if accepted and self.settings.n_reevaluation_episodes > 0:
+            record["reevaluation"] = self._reevaluate(population, winner)
+            record["reevaluation_gain"] = record["reevaluation"]["gain"]
+            accepted = gain_accepted(record["reevaluation_gain"], min_gain)
+        return accepted
+
+    def _reevaluate(self, population: Parameters, winner: int) -> dict[str, Any]:
+        """Copy 0 and the winner on ``n_reevaluation_episodes`` fresh episodes (in batches of the pool's size)."""
+        active = np.zeros(self.settings.n_individuals, dtype=bool)
+        active[[0, winner]] = True
+        pair = [0, winner]
+        seeds: list[int] = []
+        returns, outcomes, lengths = [], [], []
+        for _ in range(self.settings.n_reevaluation_batches):
+            batch_seeds, result = self._play(population, active)
+            seeds += batch_seeds
+            returns.append(result.returns[pair])
+            outcomes.append(
+                result.outcomes[pair] if result.outcomes is not None else np.zeros_like(result.lengths[pair])
+            )
+            lengths.append(result.lengths[pair])
+            valid = result.valid[pair]
+        returns_, outcomes_ = np.concatenate(returns, axis=1), np.concatenate(outcomes, axis=1)
+        fitness = population_fitness(returns_, outcomes_, valid, self.settings.fitness)
+        return {
+            "episode_seeds": seeds,
+            "returns": returns_.tolist(),
+            "successes": (outcomes_ == 1).astype(int).tolist(),
+            "outcomes": outcomes_.tolist(),
+            "episode_lengths": np.concatenate(lengths, axis=1).tolist(),
+            "fitness": fitness.tolist(),
+            "gain": float(fitness[1] - fitness[0]) if np.isfinite(fitness[0]) else float("nan"),
+            "ticks": int(sum(int(part.sum()) for part in lengths)),
+        }
+
+    def _team_check(self, record: dict[str, Any], when: str) -> None:
+        """Greedy episodes of the training env, same seeds before and after the crossover (optional)."""
+        n_episodes = self.settings.n_team_check_episodes
+        if n_episodes == 0:
+            return
+        from sb3_eps.common.evaluation import evaluate_team
+
+        env_id = self.model.get_env().env_id
+        if when == "before":
+            record["team_check_seed"] = int(self.rng.integers(2**31 - 1))
+        # The online network, the one the crossover changed (a kept weight average, GDQ's default, follows it only
+        # slowly): its greedy actions without the model's exploration.
+        online = _OnlineGreedy(self.model.policy)
+        summary = evaluate_team(online, env_id, n_episodes, n_envs=1, seed=record["team_check_seed"])
+        ticks = int(sum(episode["l"] for episode in summary["episodes"]))
+        self.eps_ticks += ticks
+        record[f"team_success_{when}"] = summary.get("success_rate", float("nan"))
+        record[f"team_return_{when}"] = summary["team_return_mean"]
+        record["team_check_ticks"] = record.get("team_check_ticks", 0) + ticks
+
+    def _sensitivities(self, q_net: nn.Module, observations: th.Tensor) -> list[Parameters]:
+        """Eq. 6 on a batch of visited observations: one for all mutants, or one per robot (``per_robot``)."""
+        population_size = self.settings.population_size
+        if not self.settings.per_robot:
+            return [output_sensitivity(q_net, observations)]
+        # Mutant i follows robot i % n: the paper's m = n when population_size = n_agents.
+        n_agents = int(self.model.n_agents)
+        robots = sorted({index % n_agents for index in range(population_size)})
+        by_robot = {robot: self._sensitivity_of(q_net, robot) for robot in robots}
+        return [by_robot[index % n_agents] for index in range(population_size)]
+
+    def _sensitivity_of(self, q_net: nn.Module, robot: int | None) -> Parameters:
+        """Eq. 6 on visited observations of one robot (None: of every robot)."""
+        observations = self.visited_observations(robot)
+        if observations is None:  # this robot has no alive entry yet: use every robot's states
+            observations = self.visited_observations(None)
+        assert observations is not None
+        return output_sensitivity(q_net, observations)
+
+
+class _OnlineGreedy:
+    """A policy's greedy actions from its online network: ``predict`` for :func:`evaluate_team`, whatever network
+    the model's own ``predict(deterministic=True)`` takes (``q_net_average`` when the policy keeps one). The
+    package's policies and SB3's ``DQNPolicy`` both take the online network's argmax with ``deterministic=False``
+    (exploration is the algorithm's)."""
+
+    def __init__(self, policy: Any) -> None:
+        self.policy = policy
+
+    def predict(
+        self, observation: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True
+    ) -> tuple[np.ndarray, Any]:
+        return self.policy.predict(observation, state, episode_start, deterministic=False)
+
+
+def visited_mask(replay_buffer: Any, robot: int | None = None) -> np.ndarray:
+    """``(rows, agents)`` bool: True where the replay buffer holds a real visited observation (an alive agent).
+
+    :param replay_buffer: the model's replay buffer (ours records ``alive``; in SB3's every stored row is real)
+    :param robot: keep only this agent's column of the joint rows; None for every agent
+    """
+    size = int(replay_buffer.size())
+    alive = getattr(replay_buffer, "alive", None)
+    mask = np.ones(replay_buffer.observations.shape[1:2], dtype=bool)[None].repeat(size, 0)
+    if alive is not None:
+        mask = np.asarray(alive[:size]) > 0
+    return mask if robot is None else mask[:, robot : robot + 1]
+
+
+def sample_visited_observations(
+    model: Any, batch_size: int, rng: np.random.Generator, robot: int | None = None
+) -> th.Tensor | None:
+    """Sample up to ``batch_size`` distinct visited observations (alive agents' entries) from a model's replay
+    buffer: the batch ``b`` of Eq. 6, of the calibration and of the diagnostics.
+
+    :param model: an off-policy model with ``replay_buffer`` and ``policy.q_net``
+    :param batch_size: the most observations returned
+    :param rng: the generator that picks them
+    :param robot: restrict to this agent's column of the joint rows; None for every agent
+    :return: ``(batch, obs_dim)`` on the network's device, or None when nothing was visited yet
+    """
+    mask = visited_mask(model.replay_buffer, robot)
+    candidates = np.flatnonzero(mask.reshape(-1))
+    if candidates.size == 0:
+        return None
+    chosen = np.sort(rng.choice(candidates, size=min(batch_size, candidates.size), replace=False))
+    observations = model.replay_buffer.observations[: mask.shape[0]]
+    if robot is not None:
+        observations = observations[:, robot : robot + 1]
+    flat = np.asarray(observations).reshape(-1, observations.shape[-1])
+    device = next(model.policy.q_net.parameters()).device
+    return th.as_tensor(flat[chosen], dtype=th.float32, device=device)
+
+
+def _warn_disqualified(population: Parameters, valid: np.ndarray) -> None:
+    """Warn about individuals whose weights (after mutation) or Q-values were not finite; they cannot win."""
+    weights_ok = finite_individuals({name: stacked.detach().cpu() for name, stacked in population.items()})
+    bad_weights = np.flatnonzero(~weights_ok).tolist()
+    bad_outputs = np.flatnonzero(weights_ok & ~np.asarray(valid, dtype=bool)).tolist()
+    parts = [f"individuals {bad_weights} have non-finite weights"] if bad_weights else []
+    parts += [f"individuals {bad_outputs} gave non-finite Q-values"] if bad_outputs else []
+    warnings.warn(
+        f"EPS round: {' and '.join(parts)}; they are disqualified and never written into the network",
+        RuntimeWarning,
+        stacklevel=3,
+    )
+
+
+def gain_accepted(gain: float, min_gain: float) -> bool:
+    """The acceptance rule: a finite fitness gain over copy 0 strictly above ``min_gain``.
+
+    :param gain: winner's fitness minus copy 0's (NaN when copy 0 was disqualified)
+    :param min_gain: the margin (>= 0)
+    """
+    return bool(np.isfinite(gain) and gain > min_gain)
+
+
+def scheduled_alpha(alpha: float, schedule: str, progress_remaining: float) -> float:
+    """Eq. 5's alpha at a point of training.
+
+    :param alpha: the base share of the best individual
+    :param schedule: ``"constant"`` or ``"linear"`` (``alpha`` times the share of training still to come, so it
+        reaches 0 at the end)
+    :param progress_remaining: SB3's ``_current_progress_remaining``: 1 at the start, 0 at the end
+    """
+    if schedule not in ALPHA_SCHEDULES:
+        raise ValueError(f"alpha_schedule must be one of {ALPHA_SCHEDULES}, got {schedule!r}")
+    if schedule == "constant":
+        return alpha
+    return alpha * float(np.clip(progress_remaining, 0.0, 1.0))

@@ -1,0 +1,261 @@
+"""The settings of Evolutionary Policy Search: :class:`EPSSettings`, with :meth:`EPSSettings.paper` the published
+method (Marchesini & Farinelli, ICRA 2022, Algorithm 1) and the package defaults what ``docs/results/eps_probes.md``
+measured to work better."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import typing
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from sb3_eps.eps.evaluation import FITNESS_KINDS, check_eval_env_id
+
+Mutation = Literal["safe", "gaussian"]
+PeriodUnit = Literal["episodes", "ticks"]
+AlphaSchedule = Literal["constant", "linear"]
+Fitness = Literal["return", "outcome"]
+MUTATIONS: tuple[str, ...] = typing.get_args(Mutation)
+PERIOD_UNITS: tuple[str, ...] = typing.get_args(PeriodUnit)
+ALPHA_SCHEDULES: tuple[str, ...] = typing.get_args(AlphaSchedule)
+assert typing.get_args(Fitness) == FITNESS_KINDS
+# Noise scales giving a mean |Q change| of about 5-10 % of |Q| on a mid-training GDQ robot network (measured); with
+# a target_flip_share they are only the first scale the calibration tries.
+DEFAULT_SIGMA = {"safe": 0.001, "gaussian": 0.03}
+#: Algorithm 1 as the paper gives it: the settings :meth:`EPSSettings.paper` sets. The bars world is
+#: ``SingleRobotNav-v0``'s default scenario.
+PAPER_SETTINGS: dict[str, Any] = {
+    "population_size": 10,
+    "period": 100,
+    "period_unit": "episodes",
+    "alpha": 0.3,
+    "alpha_schedule": "constant",
+    "n_eval_episodes": 2,
+    "target_flip_share": None,
+    "frozen_groups": [],
+    "fitness": "return",
+    "min_gain": 0.0,
+    "n_reevaluation_episodes": 0,
+    "max_eps_share": None,
+    "eval_env_kwargs": {},
+}
+#: The evaluation world's options when ``eval_env_kwargs`` is None, by evaluation env id: the default EPS world
+#: drops the thin bars the training worlds never show and puts three robot-sized pillars in the 4-robot arena's
+#: room, with a 400-tick limit (docs/results/eps_probes.md). Other ids: their own defaults.
+DEFAULT_EVAL_ENV_KWARGS: dict[str, dict[str, Any]] = {
+    "SingleRobotNav-v0": {"scenario": "eps_pillars", "max_episode_steps": 400},
+}
+
+
+@dataclass
+class EPSSettings:
+    """What one EPS run does (see ``docs/modules/eps.md``; the defaults' evidence is ``docs/results/eps_probes.md``).
+
+    :meth:`paper` is Algorithm 1 as published (:data:`PAPER_SETTINGS`: fixed noise scale, every weight mutated, mean
+    return as fitness, any gain accepted, a round every 100 episodes, the bars world). The defaults change what the
+    measurements showed to go wrong: the mutation size is calibrated each round to change ``target_flip_share`` of
+    the greedy actions on visited states; the value stream is neither mutated nor crossed over; fitness ranks
+    reaching the target above the shaped return and waiting above crashing; the winner must beat copy 0 again on
+    fresh episodes; alpha decays to 0 by the end of training; rounds come by ticks and only while EPS has spent at
+    most ``max_eps_share`` of the training ticks; the evaluation world is the training arena's room with pillars.
+
+    :param eval_env_id: the evaluation world: single-agent (``"SingleRobotNav-v0"`` for the robots,
+        ``"CooperativeNavigationSingle-v0"`` for Cooperative Navigation; see ``envs.eps_env_id_for``), or a
+        multi-agent id (a team world, e.g. ``"MultiRobotNav-4-v0"``: every robot acts with the individual's
+        weights, as in training, and fitness sees robot-robot collisions; an episode's ticks are world ticks, the
+        unit of the training ticks). Its (per-agent) observation and action spaces must equal the model's.
+    :param population_size: ``m``, the number of mutated copies; ``m + 1`` individuals are evaluated. Default 5
+        (paper: 10, the author's earlier evolutionary work)
+    :param period: the least number of ``period_unit`` between two rounds (``e_s`` of Algorithm 1). Default 10,000
+        ticks; the budget ``max_eps_share`` usually spaces the rounds further
+    :param period_unit: ``"ticks"`` (simulator steps of one world, summed over the worlds: ``model.ticks``) or
+        ``"episodes"`` (world episodes, the paper's epochs). A round starts at the first rollout end after ``period``
+        units since the previous round (and within the budget)
+    :param sigma: the noise scale ``G ~ N(0, sigma)``. With ``target_flip_share`` it is only the calibration's first
+        guess (later rounds start from the previous round's scale). Default None: 0.001 for ``mutation="safe"``,
+        0.03 for ``"gaussian"``
+    :param alpha: share of the best individual in the crossover, Eq. 5, in [0, 1]. Default 0.3 (the paper found
+        alpha >= 0.4 harmful), decaying under ``alpha_schedule``
+    :param alpha_schedule: ``"linear"`` (default): ``alpha`` times the share of training still to come
+        (``model._current_progress_remaining``), so crossovers fade out before the final evaluations;
+        ``"constant"``: always ``alpha``
+    :param n_eval_episodes: common-random-number episodes per individual. Default 4 (paper settings: 2)
+    :param mutation: ``"safe"`` (Eq. 6-normalised noise, the paper's operator) or ``"gaussian"`` (plain noise)
+    :param target_flip_share: calibrate the noise scale each round so that the mutants change on average this share
+        of the greedy actions on the visited observations of the sensitivity batch
+        (:func:`~sb3_eps.eps.mutations.calibrate_scale`); None keeps the fixed ``sigma``. Default 0.1
+    :param frozen_groups: parameter groups (module or parameter names of ``q_net``) neither mutated nor crossed
+        over. Default None: the value stream of a dueling network (``["value_stream"]``), nothing for other networks;
+        ``[]`` evolves every weight (paper)
+    :param fitness: ``"outcome"`` (default: mean of +1 reached / 0 timed out / -1 failed per episode, plus 0.01 x
+        the mean return) or ``"return"`` (the paper's mean return); see
+        :func:`~sb3_eps.eps.evaluation.population_fitness`
+    :param min_gain: the winner's fitness must exceed copy 0's by more than this, in the selection and in the
+        reevaluation. Default 0.05: with ``fitness="outcome"`` more than the return's tie-break can give (0.01 x a
+        few units of return), so at least one episode must end better on balance; 0 accepts any gain (paper)
+    :param n_reevaluation_episodes: before a crossover, play copy 0 and the winner again on this many fresh
+        common-random-number episodes (rounded up to a multiple of ``n_eval_episodes``) and cross over only if the
+        winner beats copy 0 by more than ``min_gain`` there too; the ticks count as EPS ticks. Against the winner's
+        curse: the best of ``m + 1`` noisy scores wins by chance. Default 8; 0: no reevaluation (paper)
+    :param max_eps_share: a round starts only if the EPS ticks so far plus the expected cost of the round stay
+        within this share of the training ticks (default 0.1; None: no budget). The expected cost is every episode a
+        round may play (selection, reevaluation, team checks) at the previous round's mean episode length, or before
+        the first round half of the most the round can cost. A run too short for one round within the budget warns
+        once: raise ``max_eps_share`` (or set None), lower ``n_eval_episodes`` / ``n_reevaluation_episodes``, or
+        train longer
+    :param sensitivity_batch_size: ``|b|``, visited observations (alive agents' entries) sampled from the replay
+        buffer for Eq. 6, the calibration and the diagnostics. Default 128
+    :param sensitivity_floor: lower bound on the sensitivity ``omega`` (a sensitivity of exactly 0 counts as 1).
+        Default 0.01, as in Lehman et al.'s reference implementation
+    :param max_step: per-weight clip on the safe mutation's step. Default 0.2, Lehman et al.'s value;
+        ``float("inf")`` disables it. Not applied to ``mutation="gaussian"``
+    :param n_team_check_episodes: greedy episodes of the multi-robot training env (``model.get_env().env_id``)
+        played before and after every crossover, with the same seeds, to see what the crossover did to the team;
+        their ticks count as EPS ticks. Default 0: no check
+    :param diagnostics_path: JSON-lines file of the per-round records (``history``). Default None: ``eps_rounds.jsonl``
+        in the logger's folder when it has one (the run folder of ``python -m sb3_eps.train``, or SB3's
+        ``tensorboard_log`` run folder), else no file; ``""`` writes none
+    :param n_workers: evaluation worker processes; 0 evaluates in the main process. Default None: one per CPU core
+        (at most one per individual)
+    :param eval_timeout: seconds a whole evaluation round may take before its workers count as hung; the round is
+        then skipped and the workers restarted. Default 120
+    :param batched_forward: one ``vmap``-ed ``functional_call`` per tick for a block of individuals (default True)
+    :param per_robot: normalise mutant ``i`` by the sensitivity computed on robot ``i % n_agents``'s own visited
+        observations (paper III-B's "individual experiences"). Needs ``mutation="safe"``
+    :param eval_env_kwargs: constructor arguments of the evaluation env. Default None: the world of
+        :data:`DEFAULT_EVAL_ENV_KWARGS` (robot-sized pillars for ``SingleRobotNav-v0``); ``{}``: the env's own
+        defaults (the bars world, paper)
+    :param worker_start_method: multiprocessing start method of the workers; None: the package's default
+        (:func:`~sb3_eps.common.subproc_vec_env.default_start_method`)
+    :param seed: seed of the noise, the buffer sampling and the evaluation episodes; None: derived from the
+        model's seed (a seeded model gives a reproducible EPS), or random when the model has none
+    :param share_experience: write every tick of every evaluation episode (all individuals, the reevaluation
+        episodes too) into the model's replay buffer, as a training world's tick is written (Evolutionary RL,
+        Khadka & Tumer, NeurIPS 2018: the population's transitions feed the RL agent's replay buffer). Needs a team
+        world whose agents are the training worlds' (same agent count, spaces and global-state size) and one of
+        this package's algorithms. Default False
+    """
+
+    eval_env_id: str = "SingleRobotNav-v0"
+    population_size: int = 5
+    period: int = 10_000
+    period_unit: PeriodUnit = "ticks"
+    sigma: float | None = None
+    alpha: float = 0.3
+    alpha_schedule: AlphaSchedule = "linear"
+    n_eval_episodes: int = 4
+    mutation: Mutation = "safe"
+    target_flip_share: float | None = 0.1
+    frozen_groups: list[str] | None = None
+    fitness: Fitness = "outcome"
+    min_gain: float = 0.05
+    n_reevaluation_episodes: int = 8
+    max_eps_share: float | None = 0.1
+    sensitivity_batch_size: int = 128
+    sensitivity_floor: float = 0.01
+    max_step: float = 0.2
+    n_team_check_episodes: int = 0
+    diagnostics_path: str | None = None
+    n_workers: int | None = None
+    eval_timeout: float = 120.0
+    batched_forward: bool = True
+    per_robot: bool = False
+    eval_env_kwargs: dict[str, Any] | None = None
+    worker_start_method: str | None = None
+    seed: int | None = None
+    share_experience: bool = False
+
+    def __post_init__(self) -> None:
+        _check(self)
+        check_eval_env_id(self.eval_env_id)
+        if self.sigma is None:
+            self.sigma = DEFAULT_SIGMA[self.mutation]
+        if self.frozen_groups is not None:
+            self.frozen_groups = list(self.frozen_groups)
+        if self.eval_env_kwargs is None:
+            self.eval_env_kwargs = DEFAULT_EVAL_ENV_KWARGS.get(self.eval_env_id, {})
+        self.eval_env_kwargs = copy.deepcopy(dict(self.eval_env_kwargs))
+
+    @classmethod
+    def paper(cls, **kwargs: Any) -> EPSSettings:
+        """Algorithm 1 as published: :data:`PAPER_SETTINGS`, updated by ``kwargs`` (any field)."""
+        return cls(**{**copy.deepcopy(PAPER_SETTINGS), **kwargs})
+
+    @property
+    def n_individuals(self) -> int:
+        """``m + 1``: the mutants plus the unmutated copy 0."""
+        return self.population_size + 1
+
+    @property
+    def n_reevaluation_batches(self) -> int:
+        """Reevaluation batches of ``n_eval_episodes`` each (``n_reevaluation_episodes`` rounded up)."""
+        return -(-self.n_reevaluation_episodes // self.n_eval_episodes)
+
+    @property
+    def most_episodes_per_round(self) -> int:
+        """Every episode a round may play: selection, reevaluation (both individuals) and team checks."""
+        per_batch = self.n_eval_episodes
+        return (self.n_individuals + 2 * self.n_reevaluation_batches) * per_batch + 2 * self.n_team_check_episodes
+
+
+FIELDS = tuple(field.name for field in dataclasses.fields(EPSSettings))
+
+
+def _check(settings: EPSSettings) -> None:
+    """Each a ``ValueError`` that says what to change."""
+    values = dataclasses.asdict(settings)
+    if not isinstance(values["share_experience"], bool):
+        raise ValueError(f"share_experience must be True or False, got {values['share_experience']!r}")
+    for name, low, meaning in (
+        ("population_size", 1, " (mutants per round)"),
+        ("period", 1, ""),
+        ("n_eval_episodes", 1, ""),
+        ("sensitivity_batch_size", 1, ""),
+        ("n_reevaluation_episodes", 0, " (0: no reevaluation)"),
+        ("n_team_check_episodes", 0, ""),
+    ):
+        if not isinstance(values[name], int) or values[name] < low:
+            raise ValueError(f"{name}{meaning} must be an int >= {low}, got {values[name]!r}")
+    if values["period_unit"] not in PERIOD_UNITS:
+        raise ValueError(f"period_unit must be one of {PERIOD_UNITS}, got {values['period_unit']!r}")
+    if values["sigma"] is not None and not values["sigma"] > 0:
+        raise ValueError(f"sigma (noise scale) must be > 0, got {values['sigma']!r}")
+    if not 0.0 <= values["alpha"] <= 1.0:
+        raise ValueError(
+            f"alpha (crossover share of the best individual, Eq. 5) must be in [0, 1], got {values['alpha']!r}"
+        )
+    if values["mutation"] not in MUTATIONS:
+        raise ValueError(f"unknown mutation {values['mutation']!r}; use one of {MUTATIONS}")
+    if not values["sensitivity_floor"] > 0:
+        raise ValueError(f"sensitivity_floor must be > 0, got {values['sensitivity_floor']!r}")
+    if not values["max_step"] > 0:
+        raise ValueError(f"max_step must be > 0 (float('inf') disables the clip), got {values['max_step']!r}")
+    workers = values["n_workers"]
+    if workers is not None and (not isinstance(workers, int) or workers < 0):
+        raise ValueError(f"n_workers must be None or an int >= 0 (0: in the main process), got {workers!r}")
+    if not values["eval_timeout"] > 0:
+        raise ValueError(f"eval_timeout must be > 0 seconds, got {values['eval_timeout']!r}")
+    if values["per_robot"] and values["mutation"] != "safe":
+        raise ValueError("per_robot=True chooses each mutant's sensitivity: it needs mutation='safe'")
+    if values["alpha_schedule"] not in ALPHA_SCHEDULES:
+        raise ValueError(f"alpha_schedule must be one of {ALPHA_SCHEDULES}, got {values['alpha_schedule']!r}")
+    share = values["target_flip_share"]
+    if share is not None and not 0.0 < share < 1.0:
+        raise ValueError(
+            f"target_flip_share (share of greedy actions a mutant changes) must be in (0, 1) or None, got {share!r}"
+        )
+    groups = values["frozen_groups"]
+    if groups is not None and (isinstance(groups, str) or not all(isinstance(group, str) for group in groups)):
+        raise ValueError(
+            f"frozen_groups must be a list of parameter-group names (e.g. ['value_stream']) or None, got {groups!r}"
+        )
+    if values["fitness"] not in FITNESS_KINDS:
+        raise ValueError(f"unknown fitness {values['fitness']!r}; use one of {FITNESS_KINDS}")
+    if not np.isfinite(values["min_gain"]) or values["min_gain"] < 0:
+        raise ValueError(f"min_gain must be a finite number >= 0, got {values['min_gain']!r}")
+    max_share = values["max_eps_share"]
+    if max_share is not None and not max_share > 0:
+        raise ValueError(f"max_eps_share must be > 0 or None (no budget), got {max_share!r}")
