@@ -8,7 +8,7 @@ amendment 2 of rule T17 (``docs/results/sixteenth_session/rules.md``): it chose 
 ``weight_average_tau``::
 
     python benchmarks/average_warmup_check.py --seeds 189 190 191 --ticks 20000 \
-        --out docs/results/baselines/gdq2_s16_warmup/records.jsonl
+        --out docs/results/baselines/gdq2_average_warmup/records.jsonl
 """
 
 from __future__ import annotations
