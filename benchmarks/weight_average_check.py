@@ -7,7 +7,7 @@ after the n-th gradient step, ``r = max(tau, 4 / (n + 3))``, ``sb3_eps.common.po
 initial weights, which the records of T12-T17 hold), and at every evaluation point from ``--average-from`` on (and at ``--average-also``) it evaluates each
 average on the same evaluation worlds as the model. The averages only read the weights, so the training run is
 the one ``learning_check.py`` makes with the same arguments, and each comparison is paired within one run.
-Fifteenth session, rules T12/T13 (``docs/results/fifteenth_session/rules.md``).
+Fifteenth session, rules T12/T13 (``docs/results/baselines/gdq4_weight_average_screen/rules.md``).
 
 The model's records are written as ``learning_check.py`` writes them; each average's go to
 ``<out>/ema<tau>/<same file name>``, with ``n_updates`` (gradient steps so far). Every other argument is

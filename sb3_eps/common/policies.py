@@ -29,7 +29,7 @@ def weight_average_rate(tau: float, n_updates: int, eta: int = WEIGHT_AVERAGE_WA
     online weights: ``max(tau, (eta + 1) / (n + eta))``, eta = :data:`WEIGHT_AVERAGE_WARMUP_ETA`. Early on, the
     polynomial-decay average (weights growing as ``n^eta``, none left on the initial network after the first step)
     keeps up with a short run; once its rate falls to ``tau`` it is the exponential moving average. Chosen in the
-    sixteenth session (rule T17, ``docs/results/sixteenth_session/rules.md``): the mean of all weights so far
+    sixteenth session (rule T17, ``docs/results/baselines/gdq4_weight_average_check/rules.md``): the mean of all weights so far
     (``eta`` 0) lagged a 20k-tick robot run by about 17 points of greedy success on three held-out seeds, ``eta`` 3
     and 7 kept up with it (``benchmarks/average_warmup_check.py``, which compares ``eta`` values)."""
     return max(float(tau), (eta + 1.0) / (max(int(n_updates), 1) + eta))
