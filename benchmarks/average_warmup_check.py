@@ -3,12 +3,12 @@
 Each average follows ``avg <- (1 - r) avg + r theta`` after the n-th gradient step with ``r = max(tau, (eta + 1) /
 (n + eta))`` (polynomial-decay averaging, Shamir & Zhang, ICML 2013; ``eta`` 0 is the mean of all weights so far).
 The model trains without an average of its own, so its run is the package defaults' training run; at the end the
-online network and every average are evaluated greedily on the same evaluation worlds. Sixteenth session,
-amendment 2 of rule T17 (``docs/results/sixteenth_session/rules.md``): it chose the warm-up of
+online network and every average are evaluated greedily on the same evaluation worlds. Amendment 2
+of rule T17 (``docs/results/baselines/gdq4_weight_average_check/rules.md``): it chose the warm-up of
 ``weight_average_tau``::
 
     python benchmarks/average_warmup_check.py --seeds 189 190 191 --ticks 20000 \
-        --out docs/results/baselines/gdq2_s16_warmup/records.jsonl
+        --out docs/results/baselines/gdq2_average_warmup/records.jsonl
 """
 
 from __future__ import annotations

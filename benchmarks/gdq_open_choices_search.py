@@ -3,7 +3,7 @@
 Every trial trains GDQ on ``MultiRobotNav-2-v0`` (4 worlds, seed = trial number), evaluates it greedily on 50
 world episodes at each of ``--eval-at`` ticks and appends one JSON line to ``--out``. The objective is the last
 team return (``--space wide``) or the mean success over the evaluations (``--space focused``, which rewards
-staying good). Two processes with the same ``--storage`` share a study. Used for ``docs/results/baselines.md (history section)``::
+staying good). Two processes with the same ``--storage`` share a study. Used for ``docs/results/gdq_2robots.md`` (the learning check)::
 
     python benchmarks/gdq_open_choices_search.py --sampler-seed 1 --trials 20 &
     python benchmarks/gdq_open_choices_search.py --sampler-seed 2 --trials 20

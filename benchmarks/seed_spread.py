@@ -10,7 +10,7 @@ what the setting does on average.
 
     python benchmarks/seed_spread.py --at 150000 --threshold 90 \
         --group "GDQ 4 robots=docs/results/baselines/gdq4_lambda_report/*.jsonl" \
-        --group "GDQ 4 robots=docs/results/baselines/gdq4_s12_ho/defaults/*.jsonl"
+        --group "GDQ 4 robots=docs/results/baselines/gdq4_lambda_changes_heldout/defaults/*.jsonl"
 
 A ``LABEL`` given more than once pools its globs. A seed found in two folders of one label is an error (two runs
 of one seed are not two draws).

@@ -3,11 +3,12 @@
 ``benchmarks/learning_check.py`` with one addition: besides the model's own network, the run keeps an exponential
 moving average of the agent network's weights for each ``--average-taus`` value (``avg <- (1 - r) avg + r theta``
 after the n-th gradient step, ``r = max(tau, 4 / (n + 3))``, ``sb3_eps.common.policies.weight_average_rate``: what
-``policy_kwargs=dict(weight_average_tau=tau)`` keeps; until the sixteenth session both used ``r = tau`` from the
+``policy_kwargs=dict(weight_average_tau=tau)`` keeps; until 2026-12-02 both used ``r = tau`` from the
 initial weights, which the records of T12-T17 hold), and at every evaluation point from ``--average-from`` on (and at ``--average-also``) it evaluates each
 average on the same evaluation worlds as the model. The averages only read the weights, so the training run is
 the one ``learning_check.py`` makes with the same arguments, and each comparison is paired within one run.
-Fifteenth session, rules T12/T13 (``docs/results/fifteenth_session/rules.md``).
+Rules T12/T13 (``docs/results/baselines/gdq4_weight_average_screen/rules.md``); findings:
+``docs/results/gdq_weight_average.md``.
 
 The model's records are written as ``learning_check.py`` writes them; each average's go to
 ``<out>/ema<tau>/<same file name>``, with ``n_updates`` (gradient steps so far). Every other argument is
@@ -17,7 +18,7 @@ The model's records are written as ``learning_check.py`` writes them; each avera
         --algo gdq --env MultiRobotNav-4-v0 --ticks 150000 --seeds 163 --eval-every 10000 --eval-episodes 50
 
 A seed whose run restarts (its record file had no final evaluation) starts its average files afresh too. The model
-itself must act greedily with its online network: GDQ keeps a weight average by default (sixteenth session, rule
+itself must act greedily with its online network: GDQ keeps a weight average by default (rule
 T17), so a GDQ run here takes ``--hyperparams '{"policy_kwargs": {"weight_average_tau": null}}'``; the script says so
 and stops before it trains otherwise.
 """

@@ -242,8 +242,8 @@ def test_gdq_stored_values_are_the_networks_values_at_collection_time(tmp_path) 
 
 @pytest.mark.parametrize("bootstrap", [None, 1.0], ids=["package-defaults", "paper-target"])
 def test_gdq_defaults_are_gdq_lambda_and_the_paper_target_is_one_argument(bootstrap, monkeypatch) -> None:
-    """The package defaults train GDQ-lambda 0.1 with 3-step returns (docs/results/baselines.md, "Eleventh
-    session"); global_bootstrap=1.0 is the paper's target, which ignores the agents' own next values."""
+    """The package defaults train GDQ-lambda 0.1 with 3-step returns (docs/results/gdq_target.md);
+    global_bootstrap=1.0 is the paper's target, which ignores the agents' own next values."""
     from sb3_eps.gdq import gdq as gdq_module
 
     lambdas = []

@@ -470,7 +470,7 @@ def test_rounds_that_cross_nothing_over_leave_training_as_it_was_without_eps() -
     """A round draws from its own generators and changes the model only by a crossover: with every round rejected
     (``min_gain`` out of reach), the trained network is bit for bit the one trained without the callback. So an
     EPS run and its base are the same run up to the first round, and, when the schedules run over the nominal
-    training budget, up to the first crossover (docs/results/eps.md, "Twelfth session")."""
+    training budget, up to the first crossover (docs/results/eps.md, "The pairs, seed by seed")."""
     parameters, callback = [], None
     for with_eps in (False, True):
         model = tiny_model(GDQ, seed=3)

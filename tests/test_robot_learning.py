@@ -17,7 +17,7 @@ from sb3_eps.common.evaluation import evaluate_team
 
 TICKS = 30_000
 EPISODES = 40
-# Measured for this seed on the 2-core VM, about 65 s of CPU. 2026-12-02 (nineteenth session), uniform replay, GDQ's
+# Measured for this seed on the 2-core VM, about 65 s of CPU. 2026-12-02, uniform replay, GDQ's
 # default since then: 85 % at 30k ticks (prioritized replay, the same run otherwise, re-run that day: 75 %). Earlier
 # that day, the package defaults of then (GDQ-lambda 0.1,
 # 3-step returns, greedy actions from a 2e-4 weight average): 87.5 % at 30k ticks (the online network: 87.5 %); at

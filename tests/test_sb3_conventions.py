@@ -75,7 +75,7 @@ def test_replay_buffer_class_and_kwargs_as_sb3() -> None:
 
 
 def test_gdq_replays_uniformly_by_default_and_the_others_prioritise() -> None:
-    """GDQ's default is uniform replay (rule T24, docs/results/baselines.md); IQL, QMIX and VDN keep PER."""
+    """GDQ's default is uniform replay (rule T24, docs/results/gdq_uniform_replay.md); IQL, QMIX and VDN keep PER."""
     from sb3_eps import QMIX, VDN
 
     gdq = tiny_model(GDQ)

@@ -80,7 +80,7 @@ def test_three_trials_two_jobs_write_a_sqlite_study_and_best_params(tmp_path, ca
 @pytest.mark.parametrize("algo", ["gdq", "eps_gdq"])
 def test_gdq_searches_its_own_space_around_the_measured_settings(algo) -> None:
     # GDQ's space stays near the measured GDQ-lambda 0.1 (the paper's global_bootstrap=1 cost 28 points on 4 robots,
-    # docs/results/baselines.md), spans 3- and 30-step returns, decays the learning rate, and leaves the settled
+    # docs/results/gdq_target.md), spans 3- and 30-step returns, decays the learning rate, and leaves the settled
     # choices (team reward, agent target) to the base entry.
     spec = ALGORITHMS[algo]
     base = resolve_config(algo, ENV_ID).entry
@@ -135,7 +135,7 @@ def test_eps_searches_its_rounds_and_world_and_the_entries_build() -> None:
 
 
 def test_a_trial_can_train_several_seeds_and_scores_their_mean(tmp_path) -> None:
-    # One seed per trial ranks noise on the robot worlds (docs/results/baselines.md, the 4-robot study): each trial
+    # One seed per trial ranks noise on the robot worlds (docs/results/gdq_tuning.md, the 4-robot study): each trial
     # here trains seeds 5 and 6, reports 2 evaluations of each (4 pruning steps) and scores the mean of the seeds.
     argv = ["--algo", "gdq", "--env", ENV_ID, "-n", "300", "--seed", "5", "-f", str(tmp_path), "--verbose", "0",
             "--eval-episodes", "2", "--n-eval-envs", "1", "-optimize", "--n-trials", "2", "--pruner", "none",

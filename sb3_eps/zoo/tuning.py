@@ -163,7 +163,7 @@ def sample_common(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str
 
 
 def sample_gdq(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str, Any]:
-    """GDQ's search space: around what the measurements of ``docs/results/baselines.md`` left open.
+    """GDQ's search space: around what the measurements of ``docs/results/gdq_tuning.md`` left open.
 
     Not searched, because the measurements settled them: the mean team reward, the agent target network with
     ``v'`` read from it, one gradient step per vector-env step. ``global_bootstrap`` stays near the package
