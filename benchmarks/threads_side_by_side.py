@@ -3,7 +3,8 @@
 Each run is the README's Python path (``GDQ("MlpPolicy", make_vec_env("MultiRobotNav-2-v0", n_envs=4))``, package
 defaults) in its own process: a warm-up of ``--warmup`` agent-steps, then ``--steps`` timed agent-steps. The
 processes are started the way a user's script starts: ``package`` leaves the thread count to the model (one thread,
-``sb3_eps/common/threads.py``); ``torch-default`` first sets torch to one thread per core, as torch does on its own.
+``sb3_eps/common/threads.py``); ``torch-default`` sets torch back to one thread per core after the model is built, as torch has it when
+nothing sets the threads (the package before 2026-12-03).
 Prints agent-steps/s of one run alone and of each of two runs at once, and their ratio, for both settings, measured
 in one invocation (run it on a quiet machine).
 
@@ -21,11 +22,11 @@ import sys
 CHILD = """
 import json, sys, time
 import torch as th
-if {torch_default}:
-    th.set_num_threads({cores})
 import envs
 from sb3_eps import GDQ, make_vec_env
 model = GDQ("MlpPolicy", make_vec_env("MultiRobotNav-2-v0", n_envs=4, seed=0), seed=0, learning_starts=500)
+if {torch_default}:  # after the model: what a run gets where nothing sets the threads (torch's one per core)
+    th.set_num_threads({cores})
 model.learn({warmup})
 start = time.perf_counter()
 model.learn({steps}, reset_num_timesteps=False)
