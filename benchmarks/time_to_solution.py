@@ -48,6 +48,7 @@ class StopAtLevel(BaseCallback):
         self.args, self.path, self.seed = args, path, seed
         self.next_eval = args.eval_every
         self.eval_s = 0.0
+        self.last: dict[str, Any] | None = None  # the latest evaluation's record
         self.start = time.perf_counter()
 
     def _on_step(self) -> bool:
@@ -72,6 +73,7 @@ class StopAtLevel(BaseCallback):
         }
         with self.path.open("a") as file:
             file.write(json.dumps(record) + "\n")
+        self.last = record
         print(json.dumps({"file": self.path.name, **record}), flush=True)
         return float(summary["success_rate"])
 
@@ -103,8 +105,8 @@ def run(args: argparse.Namespace, spec: str, seed: int) -> list[dict[str, Any]]:
     model = ALGORITHMS[args.algo]("MlpPolicy", venv, seed=seed, **arguments)
     callback = StopAtLevel(args, path, seed)
     model.learn(args.ticks * venv.n_agents, callback=callback, log_interval=1_000_000)
-    records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
-    if not records or (records[-1]["success_rate"] < args.levels[-1] and records[-1]["ticks"] < int(model.ticks)):
+    last = callback.last
+    if last is None or (last["success_rate"] < args.levels[-1] and last["ticks"] < int(model.ticks)):
         callback.evaluate(int(model.ticks))  # the budget ended between two evaluations
     venv.close()
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]

@@ -138,7 +138,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     # Ticks and agent-steps before the last change of team size (set_env / load on another team size).
     _tick_offset: int = 0
     _step_offset: int = 0
-    _team_size_changed: bool = False
     default_agent_target: ClassVar[bool] = True
     # Only state-conditioned mixers (QMIX) read the global state; the others neither query nor store it.
     uses_global_state: ClassVar[bool] = False
@@ -288,7 +287,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                 )
             # Another team size: the ticks so far stay counted (agent-steps per tick change with the team).
             self._tick_offset, self._step_offset = self.ticks, self.num_timesteps
-            self._team_size_changed = True
         self.n_agents = n_agents
         self.n_worlds = int(multi_agent_env.n_worlds)
         state_space = getattr(multi_agent_env, "state_space", None)
@@ -328,12 +326,12 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         """SB3's ``set_env``; an env with another number of agents per world is accepted when the joint modules
         read any team size (IQL, VDN, GDQ with ``global_head="pooled"``): the networks and the optimizer carry
         over, the replay buffer starts empty (its rows hold one team), the ticks so far stay counted."""
+        previous_team = self.n_agents
         self._read_env_layout(env)  # type: ignore[arg-type]
-        if self._team_size_changed and getattr(self, "policy", None) is not None:
+        if self.n_agents != previous_team and getattr(self, "policy", None) is not None:
             self.policy.n_agents = self.n_agents
             self.replay_buffer = self._make_replay_buffer()
             self.n_envs = env.num_envs  # one SB3 sub-env per agent: SB3's check would refuse the new count
-        self._team_size_changed = False
         super().set_env(env, force_reset=force_reset)
         self._collector = None
         self._last_state = None
@@ -357,7 +355,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                 f"{type(self).__name__} needs a policy derived from {expected.__name__}, got {self.policy_class!r}"
             )
         self.replay_buffer = self._make_replay_buffer()
-        self._team_size_changed = False  # the buffer and the policy below are built for the env's team
         self.policy = self.policy_class(  # type: ignore[assignment]
             self.observation_space, self.action_space, self.lr_schedule, **self._policy_constructor_kwargs()
         ).to(self.device)

@@ -15,7 +15,7 @@ from sb3_eps.common.losses import masked_huber, row_priority, weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm, TDTerms
 from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.common.utils import input_gain, td_target
-from sb3_eps.gdq.policies import GDQPolicy, MlpPolicy
+from sb3_eps.gdq.policies import DEFAULT_GLOBAL_HEAD, GDQPolicy, MlpPolicy
 
 #: Where ``v`` and ``v'`` (the inputs of ``V_G`` and ``V_G'``) come from (``GDQ(global_values=...)``).
 GlobalValues = Literal["recomputed", "stored", "target"]
@@ -98,7 +98,6 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
 
     policy: GDQPolicy
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": MlpPolicy}
-    requires_fixed_n_agents: ClassVar[bool] = True
     # The paper's agents had no target network. With one, and v' read from it (global_values="target"), GDQ
     # learned the robot worlds faster and without the collapses of the online v' (docs/results/gdq_target.md).
     default_agent_target: ClassVar[bool] = True
@@ -204,7 +203,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         }
 
     def _fixed_team_size(self) -> bool:
-        return self.policy_kwargs.get("global_head", "mlp") != "pooled"
+        return self.policy_kwargs.get("global_head", DEFAULT_GLOBAL_HEAD) != "pooled"
 
     def _team_size_advice(self) -> str:
         return (

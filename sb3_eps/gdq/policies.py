@@ -19,6 +19,7 @@ GLOBAL_INITS: tuple[str, ...] = typing.get_args(GlobalInit)
 #: ``"mlp"``: the paper's head over a fixed number of agents; ``"pooled"``: a Deep Sets head over any number.
 GlobalHead = Literal["mlp", "pooled"]
 GLOBAL_HEADS: tuple[str, ...] = typing.get_args(GlobalHead)
+DEFAULT_GLOBAL_HEAD: GlobalHead = "mlp"
 
 
 @th.no_grad()
@@ -39,6 +40,28 @@ def _init_as_linear_sum(linears: list[nn.Linear], n_agents: int, scale: float) -
     last.weight[0, :n_agents] = scale
     last.weight[0, n_agents:width] = -scale
     last.bias.zero_()
+
+
+def _checked_arch(
+    net_arch: list[int] | None, activation_fn: type[nn.Module], init: str, carriers: int
+) -> list[int]:
+    """:return: the hidden sizes of a global head, after checking that ``init`` can be built on them: the exact
+    ``"sum"`` / ``"mean"`` initialisations need ReLU and ``2 carriers`` units per hidden layer
+    (:func:`_init_as_linear_sum`; ``carriers`` is the number of values the first layer reads)"""
+    arch = list(DEFAULT_GLOBAL_NET_ARCH if net_arch is None else net_arch)
+    if init not in GLOBAL_INITS:
+        raise ValueError(f"global_init must be one of {GLOBAL_INITS}, got {init!r}")
+    if init != "random":
+        if activation_fn is not nn.ReLU:
+            raise ValueError(
+                f"global_init={init!r} needs activation_fn=nn.ReLU, got {activation_fn.__name__}"
+            )
+        if not arch or min(arch) < 2 * carriers:
+            raise ValueError(
+                f"global_init={init!r} needs hidden layers of at least 2 * n_agents = {2 * carriers} units, "
+                f"got global_net_arch={arch}; widen it or use global_init='random'"
+            )
+    return arch
 
 
 class GlobalValueNetwork(nn.Module):
@@ -62,19 +85,7 @@ class GlobalValueNetwork(nn.Module):
         init: GlobalInit = "random",
     ):
         super().__init__()
-        arch = list(DEFAULT_GLOBAL_NET_ARCH if net_arch is None else net_arch)
-        if init not in GLOBAL_INITS:
-            raise ValueError(f"global_init must be one of {GLOBAL_INITS}, got {init!r}")
-        if init != "random":
-            if activation_fn is not nn.ReLU:
-                raise ValueError(
-                    f"global_init={init!r} needs activation_fn=nn.ReLU, got {activation_fn.__name__}"
-                )
-            if not arch or min(arch) < 2 * n_agents:
-                raise ValueError(
-                    f"global_init={init!r} needs hidden layers of at least 2 * n_agents = {2 * n_agents} units, "
-                    f"got global_net_arch={arch}; widen it or use global_init='random'"
-                )
+        arch = _checked_arch(net_arch, activation_fn, init, n_agents)
         self.n_agents = n_agents
         self.net = nn.Sequential(*create_mlp(n_agents, 1, arch, activation_fn))
         if init != "random":
@@ -114,15 +125,9 @@ class PooledGlobalValueNetwork(nn.Module):
         init: GlobalInit = "random",
     ):
         super().__init__()
-        arch = list(DEFAULT_GLOBAL_NET_ARCH if net_arch is None else net_arch)
-        if init not in GLOBAL_INITS:
-            raise ValueError(f"global_init must be one of {GLOBAL_INITS}, got {init!r}")
+        arch = _checked_arch(net_arch, activation_fn, init, carriers=1)  # phi reads one value at a time
         if not arch:
             raise ValueError("the pooled global head needs at least one hidden layer (global_net_arch)")
-        if init != "random" and (activation_fn is not nn.ReLU or min(arch) < 2):
-            raise ValueError(
-                f"global_init={init!r} needs activation_fn=nn.ReLU and hidden layers of >= 2 units"
-            )
         self.n_agents = n_agents
         self.phi = nn.Sequential(*create_mlp(1, arch[-1], arch[:-1], activation_fn), activation_fn())
         self.rho = nn.Linear(arch[-1], 1)
@@ -163,7 +168,7 @@ class GDQPolicy(MultiAgentQPolicy):
         *args: Any,
         global_net_arch: list[int] | None = None,
         global_init: GlobalInit = "mean",
-        global_head: GlobalHead = "mlp",
+        global_head: GlobalHead = DEFAULT_GLOBAL_HEAD,
         weight_average_tau: float | None = DEFAULT_WEIGHT_AVERAGE_TAU,
         **kwargs: Any,
     ) -> None:
