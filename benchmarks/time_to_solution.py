@@ -11,7 +11,8 @@ and of the ticks to the first evaluation at or above the level, and the ratio B 
 
 A configuration is a preset name from ``PRESETS`` (``defaults-2026-12-03``: the package defaults of that date, kept
 so later defaults can be compared with them) or a JSON dict of algorithm arguments (``{"n_envs": 8, ...}``, where
-``n_envs`` sets the worlds and the rest goes to the algorithm). Example::
+``n_envs`` sets the worlds and the rest goes to the algorithm; with ``"overlap_training": true`` every world steps in a
+worker process, as the command line lays them out, ``overlap_layout``). Example::
 
     python benchmarks/time_to_solution.py --env MultiRobotNav-4-v0 --levels 0.8 0.9 --seeds 0 1 2 \\
         --a defaults-2026-12-03 --b '{"overlap_training": true}'
@@ -32,11 +33,15 @@ from stable_baselines3.common.callbacks import BaseCallback
 import envs  # noqa: F401
 from sb3_eps import GDQ, IQL, QMIX, VDN, make_vec_env
 from sb3_eps.common.evaluation import evaluate_team
+from sb3_eps.common.subproc_vec_env import overlap_layout
 
 ALGORITHMS = {"iql": IQL, "gdq": GDQ, "qmix": QMIX, "vdn": VDN}
 #: Named configurations: algorithm arguments (``n_envs``: the worlds) that differ from the package defaults.
 PRESETS: dict[str, dict[str, Any]] = {
     "defaults-2026-12-03": {"n_envs": 4},
+    # 8 worlds, learning while they step in a worker: half the gradient steps per tick, each hidden behind the
+    # worlds' step (docs/results/time_to_solution/rules.md).
+    "overlap8": {"n_envs": 8, "overlap_training": True},
 }
 
 
@@ -46,7 +51,7 @@ class StopAtLevel(BaseCallback):
     def __init__(self, args: argparse.Namespace, path: pathlib.Path, seed: int) -> None:
         super().__init__()
         self.args, self.path, self.seed = args, path, seed
-        self.next_eval = args.eval_every
+        self.next_eval = max(args.eval_start, args.eval_every)
         self.eval_s = 0.0
         self.last: dict[str, Any] | None = None  # the latest evaluation's record
         self.start = time.perf_counter()
@@ -101,7 +106,12 @@ def run(args: argparse.Namespace, spec: str, seed: int) -> list[dict[str, Any]]:
         if records and (records[-1]["success_rate"] >= args.levels[-1] or records[-1]["ticks"] >= args.ticks):
             return records
         path.unlink()  # an unfinished run restarts
-    venv = make_vec_env(args.env, n_envs=int(arguments.pop("n_envs", 4)), seed=seed)
+    n_envs = int(arguments.pop("n_envs", 4))
+    if arguments.get("overlap_training"):
+        layout = {"vec_env_cls": "subproc", "vec_env_kwargs": overlap_layout(n_envs)}
+    else:
+        layout = {}
+    venv = make_vec_env(args.env, n_envs=n_envs, seed=seed, **layout)
     model = ALGORITHMS[args.algo]("MlpPolicy", venv, seed=seed, **arguments)
     callback = StopAtLevel(args, path, seed)
     model.learn(args.ticks * venv.n_agents, callback=callback, log_interval=1_000_000)
@@ -130,6 +140,9 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[220, 221, 222])
     parser.add_argument("--ticks", type=int, default=300_000, help="the most world ticks a run may train")
     parser.add_argument("--eval-every", type=int, default=10_000)
+    parser.add_argument(
+        "--eval-start", type=int, default=0, help="the first evaluation's tick (default: --eval-every)"
+    )
     parser.add_argument("--eval-episodes", type=int, default=100)
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
