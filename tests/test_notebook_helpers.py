@@ -21,6 +21,7 @@ from research.eps_inspection import (
     sensitivity_by_layer,
     step_by_layer,
 )
+from research.notebook import Animation, filmstrip, gif_bytes, show_picture
 from research.results import (
     best_covered,
     draw_seed_curves,
@@ -34,7 +35,6 @@ from sb3_eps.common.evaluation import record_frames
 from sb3_eps.common.utils import format_table
 from sb3_eps.eps.evaluation import PopulationResult
 from sb3_eps.eps.mutations import mutation_directions, network_parameters
-from sb3_eps.notebook import Animation, filmstrip, gif_bytes, show_picture
 
 
 def _write_records(path, points) -> None:

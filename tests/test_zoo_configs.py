@@ -10,6 +10,7 @@ import yaml
 
 import envs
 from sb3_eps.common.policies import DEFAULT_NET_ARCH, DEFAULT_STREAM_ARCH, MultiAgentQPolicy
+from sb3_eps.eps import eps_env_id_for
 from sb3_eps.zoo.config import (
     DEFAULT_KEY,
     ResolvedConfig,
@@ -71,7 +72,7 @@ def test_every_entry_builds_its_model(algo, env_id) -> None:
         callbacks = build_callbacks(config.entry, env_id, 0, str(path))
         assert [name for name, _ in callbacks] == ([EVOLUTION_CALLBACK] if ALGORITHMS[algo].eps else [])
         for _, callback in callbacks:
-            assert callback.settings.eval_env_id == envs.eps_env_id_for(env_id)
+            assert callback.settings.eval_env_id == eps_env_id_for(env_id)
     finally:
         env.close()
 

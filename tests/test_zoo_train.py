@@ -11,7 +11,8 @@ import torch as th
 import yaml
 from stable_baselines3.common.save_util import load_from_zip_file
 
-from sb3_eps import benchmark, evaluate, plot, train
+from research import benchmark
+from sb3_eps import evaluate, plot, train
 from sb3_eps.zoo.config import load_config_entries
 from sb3_eps.zoo.errors import ConfigError
 from sb3_eps.zoo.run_folder import read_monitor

@@ -325,7 +325,7 @@ class EvolutionCallback(BaseCallback):
                     raise ValueError(
                         f"the {kind} of eval_env_id {self.settings.eval_env_id!r} ({ours}) differs from the model's "
                         f"({theirs}): pick the evaluation world that matches the training env "
-                        "(envs.eps_env_id_for(training env id))"
+                        "(sb3_eps.eps.eps_env_id_for(training env id))"
                     )
             problem = sharing_problem(self.model, env) if self.settings.share_experience else None
             if problem is not None:

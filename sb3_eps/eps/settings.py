@@ -49,6 +49,33 @@ DEFAULT_EVAL_ENV_KWARGS: dict[str, dict[str, Any]] = {
     "SingleRobotNav-v0": {"scenario": "eps_pillars", "max_episode_steps": 400},
 }
 
+#: The single-agent world EPS evaluates in, by training env id or by its family (the id up to its first "-"). A
+#: plug-in's world adds its own entry (``EPS_WORLDS["LineWorld-2-v0"] = "LineWorldSingle-v0"``).
+EPS_WORLDS: dict[str, str] = {
+    "MultiRobotNav": "SingleRobotNav-v0",
+    "MultiRobotNavUnseen": "SingleRobotNav-v0",
+    "CooperativeNavigation": "CooperativeNavigationSingle-v0",
+}
+
+
+def eps_env_id_for(env_id: str) -> str:
+    """The single-agent id in which EPS evaluates the policies trained on ``env_id`` (:data:`EPS_WORLDS`).
+
+    :param env_id: a registered id; a single-agent id maps to itself
+    :raises ValueError: when the id is unknown or EPS has no world for it
+    """
+    import envs
+
+    if not envs.is_multi_agent(env_id):
+        return env_id
+    eps_env_id = EPS_WORLDS.get(env_id) or EPS_WORLDS.get(env_id.split("-")[0])
+    if eps_env_id is None:
+        raise ValueError(
+            f"EPS has no single-agent world for {env_id!r}: pass eval_env_id, or name one in "
+            f"sb3_eps.eps.settings.EPS_WORLDS"
+        )
+    return eps_env_id
+
 
 @dataclass
 class EPSSettings:
@@ -63,7 +90,7 @@ class EPSSettings:
     most ``max_eps_share`` of the training ticks; the evaluation world is the training arena's room with pillars.
 
     :param eval_env_id: the evaluation world: single-agent (``"SingleRobotNav-v0"`` for the robots,
-        ``"CooperativeNavigationSingle-v0"`` for Cooperative Navigation; see ``envs.eps_env_id_for``), or a
+        ``"CooperativeNavigationSingle-v0"`` for Cooperative Navigation; see :func:`eps_env_id_for`), or a
         multi-agent id (a team world, e.g. ``"MultiRobotNav-4-v0"``: every robot acts with the individual's
         weights, as in training, and fitness sees robot-robot collisions; an episode's ticks are world ticks, the
         unit of the training ticks). Its (per-agent) observation and action spaces must equal the model's.

@@ -31,12 +31,11 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList, Progr
 from stable_baselines3.common.logger import HumanOutputFormat, KVWriter, Logger, TensorBoardOutputFormat
 from stable_baselines3.common.save_util import load_from_zip_file
 
-import envs
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.subproc_vec_env import VecEnvWorkerError, overlap_layout
 from sb3_eps.common.utils import describe_space
 from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env, vec_env_mode
-from sb3_eps.eps import EvolutionCallback
+from sb3_eps.eps import EvolutionCallback, eps_env_id_for
 from sb3_eps.eps.evaluation import agent_space, make_eval_env
 from sb3_eps.version import __version__
 from sb3_eps.zoo import run_folder
@@ -283,7 +282,7 @@ def check_callback_worlds(
                     raise ConfigError(
                         f"{source}: callback {name}: eval_env_id {eval_env_id} has {kind} {describe_space(theirs)}, "
                         f"the training world {env.env_id} {describe_space(ours)}; use eval_env_id "
-                        f"{envs.eps_env_id_for(str(env.env_id))} (or leave it out: it defaults to the matching world)"
+                        f"{eps_env_id_for(str(env.env_id))} (or leave it out: it defaults to the matching world)"
                     )
         finally:
             eval_env.close()

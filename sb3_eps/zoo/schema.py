@@ -35,7 +35,7 @@ from torch import nn
 from sb3_eps.common import buffers
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.eps import EvolutionCallback
+from sb3_eps.eps import EvolutionCallback, eps_env_id_for
 from sb3_eps.gdq import GDQ
 from sb3_eps.iql import IQL
 from sb3_eps.qmix import QMIX, VDN
@@ -749,19 +749,17 @@ def build_callbacks(
 ) -> list[tuple[str, BaseCallback]]:
     """Make the callbacks of a canonical entry.
 
-    ``EvolutionCallback`` gets ``eval_env_id=envs.eps_env_id_for(env_id)`` unless the entry sets it.
+    ``EvolutionCallback`` gets ``eval_env_id=eps_env_id_for(env_id)`` unless the entry sets it.
 
     :return: ``(canonical name, callback)`` pairs
     :raises ConfigError: when a constructor refuses its arguments
     """
-    import envs
-
     callbacks = []
     for item in entry.get(CALLBACK_KEY, []):
         name, kwargs = next(iter(item.items()))
         kwargs = dict(kwargs)
         if name == EVOLUTION_CALLBACK:
-            kwargs.setdefault("eval_env_id", envs.eps_env_id_for(env_id))
+            kwargs.setdefault("eval_env_id", eps_env_id_for(env_id))
             kwargs.setdefault("verbose", verbose)
         try:
             callbacks.append((name, callback_class(name, where)(**kwargs)))
