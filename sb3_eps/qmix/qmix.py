@@ -23,6 +23,7 @@ DEFAULT_LEARNING_RATE = LinearSchedule(3e-4, 0.0, 1.0)
 #: VDN's default ``advantage_learning`` (held-out seeds 200-205, docs/results/qmix_vdn.md; QMIX's is 0).
 DEFAULT_VDN_ADVANTAGE_LEARNING = 0.5
 
+
 class QMIX(MultiAgentOffPolicyAlgorithm):
     """QMIX: the team's ``Q_tot = mixer(Q_1(s_1, a_1), ..., Q_n(s_n, a_n); s)`` is trained by TD on the team
     reward, ``y = r_team + gamma^k (1 - done) mixer_target(Q_i'(s'_i, a*_i); s')``; agents act greedily on
@@ -129,7 +130,9 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
         super()._update_learning_rate(optimizers)
         apply_lr_scales(self.policy.optimizer)  # the mixer's own rate (policy_kwargs mixer_lr_scale)
 
-    def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
+    def _compute_loss(
+        self, batch: JointReplayBufferSamples
+    ) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         terms = self._td_terms(batch)
         q_total = self.policy.mixer(terms.q_taken * batch.alive, batch.states)
         with th.no_grad():

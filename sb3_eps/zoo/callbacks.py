@@ -65,7 +65,10 @@ def final_against_best(records: dict[str, list[Any]], run_dir: str | Path, drop:
     if not records.get("timesteps"):
         return None
     summaries = [
-        {"success_rate": float(np.nanmean(successes)) if len(successes) else 0.0, "team_return_mean": float(np.mean(results))}
+        {
+            "success_rate": float(np.nanmean(successes)) if len(successes) else 0.0,
+            "team_return_mean": float(np.mean(results)),
+        }
         for successes, results in zip(records["successes"], records["results"], strict=True)
     ]
     best = max(range(len(summaries)), key=lambda index: team_score(summaries[index]))
@@ -399,7 +402,9 @@ class TrainingStateCallback(BaseCallback):
         if self.save_freq > 0:
             self.next_save = (self.num_timesteps // self.save_freq + 1) * self.save_freq
         if self.save() and due and self.snapshot_dir is not None:
-            save_model_atomic(self.model, self.snapshot_dir / run_folder.snapshot_name(self.model.num_timesteps))
+            save_model_atomic(
+                self.model, self.snapshot_dir / run_folder.snapshot_name(self.model.num_timesteps)
+            )
         if self.stop_requested:
             raise TrainingInterrupted(self.stop_requested)
 

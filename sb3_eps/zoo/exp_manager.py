@@ -120,7 +120,9 @@ class TrainOptions(NamespaceOptions):
         if not isinstance(record, dict):
             raise ConfigError(f"{source} is not a mapping of options: not a run folder of sb3_eps.train")
         options = cls(**{key: value for key, value in record.items() if key in cls.__dataclass_fields__})
-        for key, hint in typing.get_type_hints(cls).items():  # the fields' own annotations say what each holds
+        for key, hint in typing.get_type_hints(
+            cls
+        ).items():  # the fields' own annotations say what each holds
             value = getattr(options, key)
             members = typing.get_args(hint) if isinstance(hint, types.UnionType) else (hint,)
             kinds = tuple(typing.get_origin(kind) or kind for kind in members)
@@ -229,7 +231,9 @@ def build_env(
         mode = vec_env_mode(vec_env or config.entry.get("vec_env"))
         vec_env_kwargs = None
         if mode == "subproc" and n_envs is None and config.entry.get("overlap_training"):
-            vec_env_kwargs = overlap_layout(n_worlds)  # the training worlds: the main process learns beside them
+            vec_env_kwargs = overlap_layout(
+                n_worlds
+            )  # the training worlds: the main process learns beside them
         return make_vec_env(
             env_id, n_envs=n_worlds, seed=seed, env_kwargs=env_kwargs_of(config), vec_env_cls=mode,
             vec_env_kwargs=vec_env_kwargs,
@@ -432,7 +436,9 @@ def train(options: TrainOptions, extra_callbacks: Sequence[BaseCallback] = ()) -
         write_text_atomic(params / run_folder.ARGS_NAME, yaml.safe_dump(options_record, sort_keys=False))
         header = f"resolved from {prepared.config.source}\nrerun: python -m sb3_eps.train --algo {options.algo} -conf <this file> ..."
         write_text_atomic(params / run_folder.CONFIG_NAME, entry_yaml(env_id, prepared.config.entry, header))
-        write_text_atomic(params / run_folder.COMMAND_NAME, (options.command or run_folder.command_line()) + "\n")
+        write_text_atomic(
+            params / run_folder.COMMAND_NAME, (options.command or run_folder.command_line()) + "\n"
+        )
         return _run(prepared, run_dir, restore=None, extra_callbacks=extra_callbacks)
     finally:
         prepared.close()
@@ -447,12 +453,16 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
     :raises ConfigError: when the folder holds no resumable run
     """
     run_dir = run_folder.run_dir_of(run_dir)
-    args_path, config_path = (run_folder.run_file(run_dir, name) for name in (run_folder.ARGS_NAME, run_folder.CONFIG_NAME))
+    args_path, config_path = (
+        run_folder.run_file(run_dir, name) for name in (run_folder.ARGS_NAME, run_folder.CONFIG_NAME)
+    )
     for path in (args_path, config_path):
         if not path.is_file():
             raise ConfigError(f"--resume: {run_dir} is not a run folder of sb3_eps.train (no {path.name})")
     options = TrainOptions.from_record(load_yaml(args_path), f"--resume: {args_path}")
-    import_gym_packages([], options.gym_packages)  # the run's plug-ins, before its algorithm and world are named
+    import_gym_packages(
+        [], options.gym_packages
+    )  # the run's plug-ins, before its algorithm and world are named
     spec = algorithm_spec(options.algo)
     check_env_id(options.env, f"--resume: {args_path}: env")
     options.init_from = None  # the warm-start weights are in the checkpoint already
@@ -553,7 +563,13 @@ def _run(
         callbacks.append(callback)
         stateful[f"{index}:{name}"] = callback
     checkpoint = TrainingStateCallback(
-        run_dir / CHECKPOINT_NAME, options.save_freq, total, stateful, restore, options.verbose, snapshot_dir=run_dir
+        run_dir / CHECKPOINT_NAME,
+        options.save_freq,
+        total,
+        stateful,
+        restore,
+        options.verbose,
+        snapshot_dir=run_dir,
     )
     if options.progress:
         callbacks.append(ProgressBarCallback())

@@ -97,7 +97,9 @@ def sample_hyperparams(
     """
     if eps_only and not spec.eps:
         raise ConfigError("--eps-only searches the EPS arguments: use it with an eps_* algorithm")
-    space = next((SEARCH_SPACES[cls] for cls in spec.algorithm_class.__mro__ if cls in SEARCH_SPACES), sample_common)
+    space = next(
+        (SEARCH_SPACES[cls] for cls in spec.algorithm_class.__mro__ if cls in SEARCH_SPACES), sample_common
+    )
     params = {} if eps_only else space(trial, spec, n_timesteps)
     if spec.eps:
         params[CALLBACK_KEY] = [{EVOLUTION_CALLBACK: sample_eps(trial, env_id)}]
@@ -174,7 +176,9 @@ def sample_gdq(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str, A
     20-60, where 3-step returns had left GDQ at 0-10 %.
     """
     params: dict[str, Any] = {
-        "learning_rate": trial.suggest_categorical("learning_rate", ["lin_1e-4", "lin_3e-4", "lin_6e-4", "lin_1e-3"]),
+        "learning_rate": trial.suggest_categorical(
+            "learning_rate", ["lin_1e-4", "lin_3e-4", "lin_6e-4", "lin_1e-3"]
+        ),
         "global_bootstrap": trial.suggest_categorical("global_bootstrap", [0.05, 0.1, 0.2]),
         "n_steps": trial.suggest_categorical("n_steps", [3, 5, 10, 30]),
         "batch_size": trial.suggest_categorical("batch_size", [64, 128, 256]),
@@ -189,7 +193,9 @@ def sample_gdq(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str, A
     params["learning_starts"] = min(learning_starts, max(n_timesteps // 4, 1))
     params[POLICY_KWARGS_KEY] = {
         "net_arch": _NET_ARCHS[trial.suggest_categorical("net_arch", list(_NET_ARCHS))],
-        "global_net_arch": _GLOBAL_NET_ARCHS[trial.suggest_categorical("global_net_arch", ["small", "medium"])],
+        "global_net_arch": _GLOBAL_NET_ARCHS[
+            trial.suggest_categorical("global_net_arch", ["small", "medium"])
+        ],
     }
     return params
 
@@ -326,7 +332,9 @@ class _Objective:
                 trial.set_user_attr(key, [int(summary[key]) for summary in summaries])
         for key in ("success_rate", "collision_rate", "team_return_mean", "length_mean"):
             if all(key in summary for summary in summaries):
-                trial.set_user_attr(key, float(sum(float(summary[key]) for summary in summaries) / len(summaries)))
+                trial.set_user_attr(
+                    key, float(sum(float(summary[key]) for summary in summaries) / len(summaries))
+                )
         if len(scores) > 1:
             trial.set_user_attr("seed_scores", scores)
         return float(sum(scores) / len(scores))
@@ -353,7 +361,9 @@ class _Objective:
         try:
             model = build_model(config, env, seed, self.options.device, verbose=0)
             model.set_logger(Logger(folder=None, output_formats=[]))
-            user_callbacks = [callback for _, callback in build_callbacks(config.entry, config.env_id, 0, config.source)]
+            user_callbacks = [
+                callback for _, callback in build_callbacks(config.entry, config.env_id, 0, config.source)
+            ]
             # EPS pays its evaluation ticks from the trial's budget, and the evaluations fall at points of training
             # plus EPS: a setting is scored at the ticks it used, as in the EPS comparisons.
             eps_callbacks = [callback for callback in user_callbacks if hasattr(callback, "eps_ticks")]
@@ -375,7 +385,9 @@ class _Objective:
                 summary = {
                     **summary,
                     "eps_rounds": sum(int(getattr(callback, "n_rounds", 0)) for callback in eps_callbacks),
-                    "eps_crossovers": sum(int(getattr(callback, "n_crossovers", 0)) for callback in eps_callbacks),
+                    "eps_crossovers": sum(
+                        int(getattr(callback, "n_crossovers", 0)) for callback in eps_callbacks
+                    ),
                 }
         finally:
             env.close()
@@ -396,7 +408,9 @@ def tune(options: TrainOptions, tuning: TuningOptions) -> Path:
     hyperparams = [*options.hyperparams, *(f"env_kwargs.{item}" for item in options.env_kwargs)]
     config = resolve_config(options.algo, options.env, options.conf_file, hyperparams, options.n_timesteps)
     if tuning.eps_only and not config.spec.eps:
-        raise ConfigError(f"--eps-only searches the EPS arguments: {options.algo} has none; use eps_{options.algo}")
+        raise ConfigError(
+            f"--eps-only searches the EPS arguments: {options.algo} has none; use eps_{options.algo}"
+        )
     if options.eval_freq <= 0:
         options.eval_freq = 1  # evaluation is the objective: it cannot be turned off here
     prepare_run(options, config).close()  # builds everything once: mistakes surface before any file exists
@@ -448,7 +462,14 @@ def write_trials_csv(study: Any, path: Path) -> None:
     with temporary.open("w", newline="") as file:
         writer = csv.writer(file)
         writer.writerow(
-            ["number", "state", "value", "duration_s", *PER_SEED_COLUMNS, *(f"params_{name}" for name in param_names)]
+            [
+                "number",
+                "state",
+                "value",
+                "duration_s",
+                *PER_SEED_COLUMNS,
+                *(f"params_{name}" for name in param_names),
+            ]
         )
         for trial in trials:
             duration = trial.duration.total_seconds() if trial.duration is not None else ""
@@ -482,7 +503,11 @@ def write_results(
             f"optuna study {study.study_name}, trial {best.number}: score {best.value:.4f}"
             + (f" (success {100 * success:.0f} %)" if success is not None else "")
             + f", {entry['n_timesteps']} timesteps, "
-            + (f"seed {options.seed}" if n_seeds == 1 else f"seeds {options.seed}-{options.seed + n_seeds - 1}")  # type: ignore[operator]
+            + (
+                f"seed {options.seed}"
+                if n_seeds == 1
+                else f"seeds {options.seed}-{options.seed + n_seeds - 1}"
+            )  # type: ignore[operator]
             + f", {time.strftime('%Y-%m-%d')}"
         ),
         **{key: value for key, value in entry.items() if key not in ("tuned", "notes")},
