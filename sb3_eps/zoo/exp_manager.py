@@ -45,7 +45,6 @@ from sb3_eps.zoo.callbacks import (
     TeamMonitor,
     TrainingInterrupted,
     TrainingStateCallback,
-    callback_state,
     final_against_best,
     stop_on_signals,
 )
@@ -367,13 +366,6 @@ def prepare_run(
                 check_spaces(model, eval_env, eval_env_id, "the model", "--eval-env: ")
         user_callbacks = build_callbacks(config.entry, config.env_id, options.verbose, config.source)
         check_callback_worlds(user_callbacks, env, config.source)
-        for name, callback in user_callbacks:
-            try:
-                callback_state(callback)
-            except ValueError as error:
-                raise ConfigError(
-                    f"{config.source}: callback {name} cannot be checkpointed: {error}"
-                ) from None
     except BaseException:
         env.close()
         if eval_env is not None:
