@@ -1,12 +1,8 @@
 """Learning curves and aggregate metrics from run folders (``python -m sb3_eps.plot``).
 
-Curves follow the paper's Fig. 4: per run, the team return (and success rate) of the training episodes smoothed
-over the last ``window`` (100) episodes, against the ticks simulated so far *including* the ticks of EPS
-evaluation; runs are grouped by algorithm (and env id) and drawn as mean +/- std over seeds, on the range all
-seeds of a group reached. Aggregates are the final scores of the runs (mean of the last ``window`` episodes)
-summarised per algorithm by mean, median and interquartile mean (IQM) with stratified-bootstrap 95 % confidence
-intervals (Agarwal et al., NeurIPS 2021: rliable's definitions, computed here alone, so that every install gives the
-same intervals and tasks may have different numbers of runs).
+Curves follow the paper's Fig. 4: smoothed training episodes against the ticks including EPS's, mean +/- std over
+seeds. Aggregates: mean, median and IQM of the runs' final scores with stratified-bootstrap 95 % confidence
+intervals (Agarwal et al., NeurIPS 2021), computed here (``docs/usage.md``).
 """
 
 from __future__ import annotations

@@ -1,16 +1,10 @@
 """The schema of a config entry: which keys exist, what each may hold, and how an entry becomes objects.
 
-An entry (one env id of a ``zoo_configs/<algo>.yml`` file, see ``docs/usage.md``) has three kinds of keys:
-
-- run keys: ``tuned``, ``notes``, ``n_timesteps``, ``policy``, ``n_envs``, ``vec_env``, ``env_kwargs``, ``callback``;
-- the algorithm's constructor arguments (:data:`ALGORITHM_PARAMS`), ``policy_kwargs`` among them (checked against
-  the algorithm's policy, :data:`COMMON_POLICY_PARAMS` plus its own);
-- nothing else: an unknown key is an error that lists the allowed ones.
-
-:func:`normalize_entry` checks an entry and returns it in canonical form (plain YAML data: names of classes as
-strings, ``train_freq`` as a list, ``callback`` as a list of ``{name: kwargs}``), which is what ``config.yml``
-holds. :func:`algorithm_kwargs` and :func:`build_callbacks` turn a canonical entry into constructor arguments
-and callback objects.
+An entry (one env id of a ``zoo_configs/<algo>.yml`` file, ``docs/usage.md``) holds run keys (:data:`RUN_PARAMS`,
+``callback``) and the algorithm's constructor arguments, ``policy_kwargs`` among them, read from the signatures;
+an unknown key is an error that lists the allowed ones. :func:`normalize_entry` returns an entry in canonical form
+(plain YAML data, what ``config.yml`` holds); :func:`algorithm_kwargs` and :func:`build_callbacks` make objects
+of it.
 """
 
 from __future__ import annotations
