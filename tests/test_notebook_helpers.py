@@ -39,7 +39,9 @@ from sb3_eps.eps.mutations import mutation_directions, network_parameters
 
 def _write_records(path, points) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("".join(json.dumps({"ticks": t, "success_rate": s, "note": "x"}) + "\n" for t, s in points))
+    path.write_text(
+        "".join(json.dumps({"ticks": t, "success_rate": s, "note": "x"}) + "\n" for t, s in points)
+    )
 
 
 def test_evaluation_records_are_read_grouped_and_tabulated(tmp_path) -> None:
@@ -55,7 +57,11 @@ def test_evaluation_records_are_read_grouped_and_tabulated(tmp_path) -> None:
     ]
     assert runs[0].final() == pytest.approx(0.6) and "note" not in runs[0].metrics
     rows = results_table(runs)
-    assert rows[0]["seeds"] == 2 and rows[0]["mean"] == pytest.approx(0.7) and rows[0]["std"] == pytest.approx(0.1)
+    assert (
+        rows[0]["seeds"] == 2
+        and rows[0]["mean"] == pytest.approx(0.7)
+        and rows[0]["std"] == pytest.approx(0.1)
+    )
     assert list(best_covered(runs, "MultiRobotNav-4-v0")) == ["eps_gdq (b)", "gdq (a)"]
     assert list(group_runs(runs, ("algo",))) == ["eps_gdq", "gdq"]
     figure = draw_seed_curves(best_covered(runs, "MultiRobotNav-4-v0"))

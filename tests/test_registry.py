@@ -63,9 +63,7 @@ def test_debug_corridor_ids() -> None:
         envs.make_single_env("Corridor-3-v0")
 
 
-@pytest.mark.parametrize(
-    "call", [envs.make_parallel_env, envs.make_single_env, envs.is_multi_agent]
-)
+@pytest.mark.parametrize("call", [envs.make_parallel_env, envs.make_single_env, envs.is_multi_agent])
 def test_unknown_id_lists_the_known_ids(call) -> None:
     with pytest.raises(ValueError, match="unknown env id 'Nope-v0'") as error:
         call("Nope-v0")
