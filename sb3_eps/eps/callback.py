@@ -49,10 +49,7 @@ class EvolutionCallback(BaseCallback):
     buffer); evaluate every copy greedily for ``n_eval_episodes`` common-random-number episodes in independent
     single-agent worlds; pick the best (Eq. 4) and move the agent network (and its target network, if any) toward it
     by Polyak averaging (Eq. 5). When the unmutated copy 0 wins nothing changes. See ``docs/modules/eps.md``.
-
-    Rounds come only while the tick budget (``max_eps_share``) allows them; a run too short for any round warns once
-    when training starts (raise ``max_eps_share`` or set it None, lower ``n_eval_episodes`` /
-    ``n_reevaluation_episodes``, or train longer).
+    Rounds come only while the tick budget (``max_eps_share``) allows them; a run too short for any warns once.
 
     :param settings: the method's settings (:class:`~sb3_eps.eps.settings.EPSSettings`, every argument documented
         there; :meth:`paper` for Algorithm 1 as published). Default: built from ``settings_kwargs``

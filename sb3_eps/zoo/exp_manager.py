@@ -1,19 +1,12 @@
 """The experiment manager behind ``python -m sb3_eps.train``: config -> envs, model, callbacks -> run folder -> learn.
 
-Everything a run needs is built and checked before anything is written, so a mistake leaves no run folder. The run
-folder follows RL Zoo's layout, ``<folder>/<algo>/<env id>_<run>/`` (:mod:`sb3_eps.zoo.run_folder`): the parameter
-folder ``<env id>/`` (``args.yml``, the options resolved; ``config.yml``, the canonical entry, readable back with
-``-conf``; ``command.txt``), ``progress.csv``, ``monitor.csv``, ``evaluations.npz``, ``best_model.zip``,
-``<env id>.zip`` (the final model), ``rl_model_<timesteps>_steps.zip`` (model snapshots) and ``checkpoint.zip``
-(the training state, while the run is unfinished or with ``--keep-checkpoint``).
-
-``--resume <run folder>`` rebuilds the run from ``args.yml``, ``config.yml`` and the checkpoint and continues to
-the same total; the result equals an uninterrupted run with the same seed (see :mod:`sb3_eps.zoo.checkpoint`).
+Everything a run needs is built and checked before anything is written, so a mistake leaves no run folder (its
+layout: :mod:`sb3_eps.zoo.run_folder`). ``--resume <run folder>`` continues from the checkpoint to the same total;
+the result equals an uninterrupted run with the same seed (:mod:`sb3_eps.zoo.checkpoint`).
 """
 
 from __future__ import annotations
 
-import importlib.util
 import random
 import sys
 import time
@@ -156,7 +149,6 @@ class TrainOptions(NamespaceOptions):
             raise ConfigError(
                 f"--init-from: {self.init_from} is not a file; pass a model .zip (e.g. a run's best_model.zip)"
             )
-        check_optional_features(progress=self.progress, tensorboard=self.tensorboard_log is not None)
 
 
 def check_device(device: str) -> None:
@@ -167,24 +159,6 @@ def check_device(device: str) -> None:
         raise ConfigError(
             f"--device {device!r} is not a torch device (auto, cpu, cuda, cuda:0...): {error}"
         ) from None
-
-
-def check_optional_features(progress: bool = False, tensorboard: bool = False) -> None:
-    """Check, before anything is written, that the packages behind the asked-for features import.
-
-    :raises ConfigError: naming the flag and what to install
-    """
-    wanted = {
-        "--progress": ("tqdm", "rich") if progress else (),
-        "--tensorboard-log": ("tensorboard",) if tensorboard else (),
-    }
-    for flag, modules in wanted.items():
-        missing = [name for name in modules if importlib.util.find_spec(name) is None]
-        if missing:
-            raise ConfigError(
-                f"{flag} needs {' and '.join(missing)}, which this environment lacks (they are part of the base "
-                f"install): pip install 'sb3-eps' or pip install {' '.join(missing)}; or drop {flag}"
-            )
 
 
 # ---------------------------------------------------------------------------------------------- building
