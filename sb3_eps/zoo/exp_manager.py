@@ -7,6 +7,7 @@ the result equals an uninterrupted run with the same seed (:mod:`sb3_eps.zoo.che
 
 from __future__ import annotations
 
+import importlib.util
 import random
 import sys
 import time
@@ -149,6 +150,7 @@ class TrainOptions(NamespaceOptions):
             raise ConfigError(
                 f"--init-from: {self.init_from} is not a file; pass a model .zip (e.g. a run's best_model.zip)"
             )
+        check_optional_features(progress=self.progress, tensorboard=self.tensorboard_log is not None)
 
 
 def check_device(device: str) -> None:
@@ -159,6 +161,24 @@ def check_device(device: str) -> None:
         raise ConfigError(
             f"--device {device!r} is not a torch device (auto, cpu, cuda, cuda:0...): {error}"
         ) from None
+
+
+def check_optional_features(progress: bool = False, tensorboard: bool = False) -> None:
+    """Check, before anything is written, that the packages behind the asked-for features import.
+
+    :raises ConfigError: naming the flag and what to install
+    """
+    wanted = {
+        "--progress": ("tqdm", "rich") if progress else (),
+        "--tensorboard-log": ("tensorboard",) if tensorboard else (),
+    }
+    for flag, modules in wanted.items():
+        missing = [name for name in modules if importlib.util.find_spec(name) is None]
+        if missing:
+            raise ConfigError(
+                f"{flag} needs {' and '.join(missing)}, which this environment lacks (they are part of the base "
+                f"install): pip install 'sb3-eps' or pip install {' '.join(missing)}; or drop {flag}"
+            )
 
 
 # ---------------------------------------------------------------------------------------------- building
