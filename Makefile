@@ -51,7 +51,7 @@ soak: install
 
 # Re-run the notebooks at their full budget, outputs written back (about 10 minutes on 2 cores); commit them.
 notebooks: install
-	$(PY) -m sb3_eps.notebook --budget full notebooks/*.ipynb
+	$(PY) -m research.notebook --budget full notebooks/*.ipynb
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build dist *.egg-info

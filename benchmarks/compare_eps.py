@@ -28,10 +28,14 @@ from __future__ import annotations
 
 import argparse
 import pathlib
+import sys
+from pathlib import Path
 
 import numpy as np
 
-from sb3_eps.zoo.plotting import EvaluationRun, read_evaluation_run
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # research/ sits beside the package
+
+from research.results import EvaluationRun, read_evaluation_run
 
 
 def read_runs(folder: pathlib.Path) -> dict[int, EvaluationRun]:
@@ -189,7 +193,9 @@ def main() -> None:
     parser.add_argument("eps", type=pathlib.Path, help="records of EPS-<algo> (ticks include EPS ticks)")
     parser.add_argument("--budget", type=int, required=True, help="total ticks compared")
     parser.add_argument("--target-ticks", type=int, default=100_000)
-    parser.add_argument("--eval-every", type=int, default=10_000, help="the evaluation spacing of the runs, in ticks")
+    parser.add_argument(
+        "--eval-every", type=int, default=10_000, help="the evaluation spacing of the runs, in ticks"
+    )
     parser.add_argument("--plot", type=pathlib.Path, default=None, help="draw both (mean +/- std over seeds)")
     args = parser.parse_args()
     print(report(args.base, args.eps, args.budget, args.target_ticks, args.eval_every))
@@ -198,7 +204,9 @@ def main() -> None:
 
         curves = record_curves([args.base, args.eps])
         episodes = {
-            int(n) for folder in (args.base, args.eps) for run in read_runs(folder).values()
+            int(n)
+            for folder in (args.base, args.eps)
+            for run in read_runs(folder).values()
             for n in run.metrics.get("n_episodes", [])
         }
         counts = "/".join(str(n) for n in sorted(episodes)) or "?"

@@ -34,9 +34,15 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.utils import set_random_seed
 
-import envs
+import envs  # noqa: F401
 from sb3_eps import make_vec_env
-from sb3_eps.eps import EvolutionCallback, PopulationForward, mutate_population, output_sensitivity
+from sb3_eps.eps import (
+    EvolutionCallback,
+    PopulationForward,
+    eps_env_id_for,
+    mutate_population,
+    output_sensitivity,
+)
 from sb3_eps.eps.mutations import network_parameters
 from sb3_eps.gdq import GDQ
 
@@ -66,7 +72,7 @@ def set_global_rng_state(state: tuple[Any, Any, Any]) -> None:
 
 def overhead(args: argparse.Namespace) -> tuple[GDQ, EvolutionCallback]:
     """Part 1: train GDQ, EPS-GDQ and EPS-GDQ with alpha = 0 in rotating slices; compare wall and CPU times."""
-    eval_env_id = envs.eps_env_id_for(args.env)
+    eval_env_id = eps_env_id_for(args.env)
     runs: list[tuple[str, GDQ, EvolutionCallback | None]] = [
         ("GDQ", make_model(args.env, args.n_envs, args.seed), None),
         (
@@ -153,7 +159,7 @@ def round_seconds(model: GDQ, args: argparse.Namespace) -> None:
             # period 1 tick: a round at every rollout end, i.e. rounds_per_config rounds. Algorithm 1's settings
             # (population 10, 2 episodes, no budget, no reevaluation) keep the rounds comparable with the table.
             callback = EvolutionCallback.paper(
-                eval_env_id=envs.eps_env_id_for(args.env),
+                eval_env_id=eps_env_id_for(args.env),
                 period=1,
                 period_unit="ticks",
                 seed=args.seed,

@@ -30,9 +30,10 @@ from typing import Any
 import numpy as np
 import torch as th
 
-import envs
+import envs  # noqa: F401
 from sb3_eps import GDQ, make_vec_env
 from sb3_eps.common.evaluation import evaluate_team
+from sb3_eps.eps import eps_env_id_for
 from sb3_eps.eps.evaluation import InProcessEnvPool, evaluate_population
 from sb3_eps.eps.mutations import (
     calibrate_scale,
@@ -47,7 +48,7 @@ from sb3_eps.eps.mutations import (
 )
 
 TRAIN_ENV = "MultiRobotNav-4-v0"
-EPS_ENV = envs.eps_env_id_for(TRAIN_ENV)
+EPS_ENV = eps_env_id_for(TRAIN_ENV)
 
 
 def visited_observations(model: GDQ, n_ticks: int, seed: int) -> th.Tensor:

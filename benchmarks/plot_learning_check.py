@@ -18,8 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # research/ sits beside the package
 
-from research.results import draw_seed_curves
-from sb3_eps.zoo.plotting import EvaluationRun, read_evaluation_run
+from research.results import EvaluationRun, draw_seed_curves, read_evaluation_run
 
 
 def read_group(pattern: str) -> list[EvaluationRun]:

@@ -22,9 +22,13 @@ import argparse
 import glob
 import math
 import statistics
+import sys
 from dataclasses import dataclass
+from pathlib import Path
 
-from sb3_eps.zoo.plotting import read_evaluation_run
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # research/ sits beside the package
+
+from research.results import read_evaluation_run
 
 
 @dataclass
@@ -111,7 +115,9 @@ def report(spreads: list[Spread], at: int, threshold: float, report_seeds: list[
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--group", action="append", required=True, help="LABEL=GLOB; a label repeated pools")
     parser.add_argument("--at", type=int, required=True, help="the tick whose evaluation is read")
     parser.add_argument("--threshold", type=float, required=True, help="the target, in percent")

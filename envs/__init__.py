@@ -5,11 +5,8 @@ once this package is imported), single-agent ids gymnasium envs (:func:`make_sin
 ``gymnasium.make(env_id)``). Constructors are imported
 lazily, so importing ``envs`` neither loads PyBullet nor mpe2.
 
-Each multi-agent id has a single-agent counterpart for Evolutionary Policy Search (:func:`eps_env_id_for`): the
-robots' EPS world for every ``MultiRobotNav*`` id, and the single-agent Cooperative Navigation for the MPE id.
-
 ``Corridor-{n}-v0`` (n = 1 to 4, :data:`DEBUG_ENV_IDS`) are tiny multi-agent sanity worlds with a known optimum
-(:mod:`envs.debug`); they are not tasks of the paper and have no EPS counterpart.
+(:mod:`envs.debug`); they are not tasks of the paper.
 
 A user package adds its own worlds with :func:`register` (or, for a multi-agent world, PettingZoo's own
 ``pettingzoo.register("parallel", env_id, entry_point)``: such ids build through ``pettingzoo.make``); the command
@@ -36,27 +33,23 @@ class EnvSpec:
 
     :param entry_point: ``"module:callable"`` of the constructor
     :param fixed_kwargs: constructor arguments that the id itself fixes (a caller may not change them)
-    :param eps_env_id: the single-agent id EPS evaluates in
     """
 
     entry_point: str | Callable[..., Any]
     fixed_kwargs: dict[str, Any] = field(default_factory=dict)
-    eps_env_id: str | None = None
 
 
 _MULTI_AGENT_SPECS: dict[str, EnvSpec] = {
     **{
         f"MultiRobotNav-{n}-v0": EnvSpec(
-            "envs.turtlebot3:MultiRobotNavEnv", {"n_robots": n, "scenario": "arena"}, "SingleRobotNav-v0"
+            "envs.turtlebot3:MultiRobotNavEnv", {"n_robots": n, "scenario": "arena"}
         )
         for n in (2, 4, 8, 12)
     },
     "MultiRobotNavUnseen-4-v0": EnvSpec(
-        "envs.turtlebot3:MultiRobotNavEnv", {"n_robots": 4, "scenario": "unseen"}, "SingleRobotNav-v0"
+        "envs.turtlebot3:MultiRobotNavEnv", {"n_robots": 4, "scenario": "unseen"}
     ),
-    "CooperativeNavigation-v0": EnvSpec(
-        "envs.mpe.cooperative_navigation:CooperativeNavigationEnv", {}, "CooperativeNavigationSingle-v0"
-    ),
+    "CooperativeNavigation-v0": EnvSpec("envs.mpe.cooperative_navigation:CooperativeNavigationEnv"),
 }
 
 _DEBUG_SPECS: dict[str, EnvSpec] = {
@@ -93,7 +86,6 @@ def register(
     entry_point: str | Callable[..., Any],
     *,
     multi_agent: bool = True,
-    eps_env_id: str | None = None,
     fixed_kwargs: dict[str, Any] | None = None,
 ) -> None:
     """Register a world of one's own under an env id, for ``make_vec_env``, the configs and the command lines.
@@ -105,15 +97,16 @@ def register(
     :param entry_point: ``"module:callable"`` or the callable that builds the env (a PettingZoo ParallelEnv when
         ``multi_agent``, else a gymnasium env)
     :param multi_agent: whether the id builds a PettingZoo ParallelEnv
-    :param eps_env_id: the single-agent id EPS evaluates in (multi-agent ids; None: EPS cannot run on it)
     :param fixed_kwargs: constructor arguments the id fixes
     :raises ValueError: when the id is taken by another world
     """
-    spec = EnvSpec(entry_point, dict(fixed_kwargs or {}), eps_env_id)
+    spec = EnvSpec(entry_point, dict(fixed_kwargs or {}))
     table = _MULTI_AGENT_SPECS if multi_agent else _SINGLE_AGENT_SPECS
     known = _PARALLEL_SPECS.get(env_id) or _SINGLE_AGENT_SPECS.get(env_id)
     if known is not None and (known != spec or env_id not in table):
-        raise ValueError(f"env id {env_id!r} is registered already (as {known.entry_point!r}); pick another id")
+        raise ValueError(
+            f"env id {env_id!r} is registered already (as {known.entry_point!r}); pick another id"
+        )
     table[env_id] = spec
     if multi_agent:
         _PARALLEL_SPECS[env_id] = spec
@@ -174,22 +167,11 @@ def make_single_env(env_id: str, **kwargs: Any) -> gymnasium.Env:
     return _build(env_id, kwargs)
 
 
-def eps_env_id_for(env_id: str) -> str:
-    """The single-agent id in which EPS evaluates the policies trained on ``env_id``.
-
-    :param env_id: a registered id; a single-agent id maps to itself
-    :return: the single-agent counterpart
-    :raises ValueError: when the id is unknown or a debug id (which has no counterpart)
-    """
-    spec = _spec(env_id)
-    if env_id in _DEBUG_SPECS:
-        raise ValueError(f"{env_id!r} is a debug world without a single-agent EPS counterpart")
-    return spec.eps_env_id if spec.eps_env_id is not None else env_id
-
-
 def _spec(env_id: str) -> EnvSpec:
     spec = _PARALLEL_SPECS.get(env_id) or _SINGLE_AGENT_SPECS.get(env_id)
-    if spec is None and env_id in pettingzoo.parallel_registry:  # registered with pettingzoo.register directly
+    if (
+        spec is None and env_id in pettingzoo.parallel_registry
+    ):  # registered with pettingzoo.register directly
         spec = EnvSpec(functools.partial(pettingzoo.make, "parallel", env_id))
         _PARALLEL_SPECS[env_id] = spec
     if spec is None:
@@ -241,7 +223,6 @@ __all__ = [
     "MULTI_AGENT_ENV_IDS",
     "SINGLE_AGENT_ENV_IDS",
     "EnvSpec",
-    "eps_env_id_for",
     "is_multi_agent",
     "is_registered",
     "make_parallel_env",

@@ -15,9 +15,11 @@ Example::
 from __future__ import annotations
 
 import csv
+import json
 import math
 from collections import defaultdict
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +27,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from sb3_eps.common.utils import format_table
-from sb3_eps.zoo.plotting import RECORD_FILE, EvaluationRun, read_evaluation_run
+from sb3_eps.zoo.plotting import RECORD_FILE
 
 __all__ = [
     "RECORD_FILE",
@@ -39,6 +41,63 @@ __all__ = [
     "read_progress",
     "results_table",
 ]
+
+
+@dataclass
+class EvaluationRun:
+    """The greedy evaluations of one seed of one configuration.
+
+    :param path: the JSON-lines file
+    :param group: the configuration's name (the file's folder below the searched root)
+    :param algo: algorithm name (``gdq``, ``eps_gdq``...)
+    :param env_id: env id
+    :param seed: the seed
+    :param ticks: ``(n,)`` ticks at each evaluation (EPS records count the EPS ticks too)
+    :param metrics: ``{name: (n,) values}`` of every numeric field of the records (``success_rate``...)
+    """
+
+    path: Path
+    group: str
+    algo: str
+    env_id: str
+    seed: int
+    ticks: np.ndarray
+    metrics: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def final(self, key: str = "success_rate") -> float:
+        """:return: the last evaluation's value of ``key`` (NaN without evaluations)."""
+        values = self.metrics.get(key, np.zeros(0))
+        return float(values[-1]) if len(values) else math.nan
+
+
+def read_evaluation_run(path: str | Path, group: str | None = None) -> EvaluationRun:
+    """Read one ``<algo>_<env id>_seed<k>.jsonl`` file.
+
+    :param path: the file
+    :param group: the configuration's name; None: the file's folder name
+    :raises ValueError: when the file name does not follow the pattern or a record has no ``ticks``
+    """
+    path = Path(path)
+    match = RECORD_FILE.match(path.name)
+    if match is None:
+        raise ValueError(f"{path.name}: not an evaluation record name (<algo>_<env id>_seed<k>.jsonl)")
+    records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    if any("ticks" not in record for record in records):
+        raise ValueError(f"{path}: every record needs 'ticks'")
+    numeric = sorted(
+        {key for record in records for key, value in record.items() if isinstance(value, int | float)}
+        - {"ticks"}
+    )
+    metrics = {key: np.array([float(record.get(key, math.nan)) for record in records]) for key in numeric}
+    return EvaluationRun(
+        path=path,
+        group=group if group is not None else path.parent.name,
+        algo=match["algo"],
+        env_id=match["env_id"],
+        seed=int(match["seed"]),
+        ticks=np.array([int(record["ticks"]) for record in records], dtype=np.int64),
+        metrics=metrics,
+    )
 
 
 def find_evaluation_runs(root: str | Path, pattern: str = "**/*_seed*.jsonl") -> list[EvaluationRun]:
@@ -189,7 +248,13 @@ def draw_seed_curves(
         for x, y in curves:
             axis.plot(x, y, color=color, alpha=0.3, linewidth=1)
         x_mean, y_mean = _mean_curve(curves)
-        axis.plot(x_mean, y_mean, color=color, linewidth=2.5, label=f"{label} ({len(curves)} seed{'s' if len(curves) > 1 else ''})")
+        axis.plot(
+            x_mean,
+            y_mean,
+            color=color,
+            linewidth=2.5,
+            label=f"{label} ({len(curves)} seed{'s' if len(curves) > 1 else ''})",
+        )
     axis.set_xlabel(xlabel)
     axis.set_ylabel(ylabel or (f"{key} (%)" if percent else key))
     if title:

@@ -3,42 +3,14 @@
 Examples::
 
     python -m sb3_eps.grid --algos gdq qmix --envs MultiRobotNav-2-v0 MultiRobotNav-4-v0 --seeds 0 1 2 -f logs/grid
-    python -m sb3_eps.grid --grid my_grid.yml                       # the grid in a YAML file
+    python -m sb3_eps.grid --grid my_grid.yml                       # the grid in a YAML file (keys: GRID_KEYS)
     python -m sb3_eps.grid --grid my_grid.yml --backend ray --address auto --shared-folder /mnt/shared/grid
 
-Every run is an ordinary ``python -m sb3_eps.train`` run in its own process, in the run folder
-``<folder>/<algo>/<env id>_seed<seed>/`` (RL Zoo's layout, named by the seed), with its output in
-``<folder>/<algo>/<env id>_seed<seed>.log``; so every run folder of the grid is gathered in one log folder that
-``python -m sb3_eps.plot`` reads as it is. Running the same grid again skips the runs that finished, resumes the
-interrupted ones from their checkpoints (``--resume``), starts the missing ones, and starts again a run that
-stopped before its first checkpoint (its folder is moved aside to ``<name>.incomplete-<n>``). A summary of every
-run is written to ``<folder>/grid.yml``.
-
-Backends:
-
-- ``local`` (default): a pool of ``--n-jobs`` runs side by side (default: one per core, ``--cpus-per-run``
-  cores each). SIGINT / SIGTERM stop the grid: running runs write their checkpoint and stop, pending runs are
-  not started; run the grid again to continue.
-- ``ray``: one Ray task per run on an existing cluster (``--address``, e.g. ``auto`` on a cluster node, or
-  ``ray://head:10001``; none: a local Ray instance), each reserving ``--cpus-per-run`` CPUs. With
-  ``--shared-folder`` (a folder every node mounts at the same path) the tasks write their run folders there; a
-  task lost with its node is retried by Ray (``--max-retries``) and resumes from the run's last checkpoint.
-  Without it, a task trains in a temporary folder on its node and sends the finished run folder back, which the
-  grid unpacks into ``-f``. Needs ``pip install sb3-eps[ray]``.
-
-Grid file (YAML)::
-
-    algos: [gdq, qmix]
-    envs: [MultiRobotNav-2-v0]          # default: every env entry of each algorithm's config file
-    seeds: [0, 1, 2]                    # or a count: 3 -> 0, 1, 2
-    n_timesteps: 200000                 # optional: -n of every run (default: the configs')
-    conf_file: my_configs/gdq.yml       # optional: -conf of every run (default: zoo_configs/<algo>.yml)
-    hyperparams: ["learning_rate:1e-4"] # optional: --hyperparams of every run
-    train_args: ["--eval-freq", "20000", "--vec-env", "subproc"]  # optional: other flags of sb3_eps.train
-    cpus_per_run: 1
-
-Flags given on the command line override the file's keys. A mistake in the grid is one line on stderr and exit
-status 2, before any run starts; the grid exits 1 when a run failed.
+Every run is a ``python -m sb3_eps.train`` process with its folder in ``<folder>/<algo>/<env id>_seed<seed>/``.
+Running the grid again skips the finished runs, resumes the interrupted ones and starts the others again; a
+summary is written to ``<folder>/grid.yml``. The file's keys, the backends and what a lost run does:
+``docs/usage.md``, "Scaling out". A mistake is one line and exit status 2 before any run starts; the grid exits 1
+when a run failed.
 """
 
 from __future__ import annotations

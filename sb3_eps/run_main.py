@@ -1,12 +1,7 @@
-"""The README's main job (``make run``): train EPS-GDQ on ``MultiRobotNav-4-v0`` and plot its learning curve.
-
-It trains with the shipped default config (``zoo_configs/eps_gdq.yml``, entry ``MultiRobotNav-4-v0``: the package
-defaults of GDQ and of the EvolutionCallback, ``docs/results/baselines.md``) for 800,000 timesteps =
-200,000 ticks of the 4-robot worlds (the paper's GDQ reaches about 88 % success after 175k steps), with team
-evaluations every 100,000 timesteps; then writes the learning curve, and the greedy evaluations beside the committed
-5-seed curves of GDQ and EPS-GDQ (:data:`REFERENCES`), and prints where the run, the pictures and the TensorBoard
-logs are. The README gives its measured duration. SIGINT / SIGTERM stop it with
-a checkpoint; ``python -m sb3_eps.train --resume <run folder>`` continues it. Without EPS installed it trains GDQ.
+"""The README's main job (``make run``): train EPS-GDQ on ``MultiRobotNav-4-v0`` with ``zoo_configs/eps_gdq.yml``
+for 800,000 timesteps (200,000 ticks), then draw its learning curve and its greedy evaluations beside the committed
+5-seed curves of GDQ and EPS-GDQ (:data:`REFERENCES`) and print where everything is. SIGINT / SIGTERM stop it with a
+checkpoint; ``python -m sb3_eps.train --resume <run folder>`` continues it.
 """
 
 from __future__ import annotations
@@ -27,20 +22,16 @@ BUDGET = 800_000
 EVAL_FREQ = 100_000
 EVAL_EPISODES = 20
 SAVE_FREQ = 100_000
-# Committed greedy evaluations of the package defaults on the same world (100 episodes every 10k ticks, seeds 0-4,
-# benchmarks/learning_check.py; docs/results/eps.md), drawn beside the run so that a newcomer sees what EPS did.
+#: Committed greedy evaluations of the package defaults on the same world (docs/results/eps.md).
 REFERENCES = {
-    "GDQ, seeds 0-4": "docs/results/baselines/gdq4_lambda_report",  # the package defaults since 2026-12-01
-    "EPS-GDQ, seeds 0-4": "docs/results/eps/eps_gdq4_lambda",  # with them, schedules ending with the budget
+    "GDQ, seeds 0-4": "docs/results/baselines/gdq4_lambda_report",
+    "EPS-GDQ, seeds 0-4": "docs/results/eps/eps_gdq4_lambda",
 }
 
 
 def reference_curves(root: Path | None = None) -> list[RunCurve]:
-    """The committed reference curves of :data:`REFERENCES` found under ``root`` (default: the repository).
-
-    :return: one curve per seed, grouped by the reference's label; none when the records are not there (an
-        installed package without the repository's ``docs/``)
-    """
+    """:return: the curves of :data:`REFERENCES` under ``root`` (default: the repository), one per seed; none
+    where the records are not there (an installed package)."""
     from sb3_eps.zoo.plotting import record_curves
 
     root = Path(__file__).resolve().parents[1] if root is None else root

@@ -18,9 +18,11 @@ from torch import nn
 import envs
 from sb3_eps import make_vec_env
 from sb3_eps.eps import (
+    EPS_WORLDS,
     EvolutionCallback,
     InProcessEnvPool,
     SubprocessEnvPool,
+    eps_env_id_for,
     evaluate_population,
     mutate_population,
     output_sensitivity,
@@ -72,6 +74,22 @@ def small_network() -> nn.Module:
 
 
 # ---------------------------------------------------------------------- the math
+def test_eps_evaluates_in_the_single_agent_world_of_the_training_world(monkeypatch) -> None:
+    for env_id in envs.MULTI_AGENT_ENV_IDS:
+        expected = (
+            "CooperativeNavigationSingle-v0" if env_id == "CooperativeNavigation-v0" else "SingleRobotNav-v0"
+        )
+        assert eps_env_id_for(env_id) == expected
+    for env_id in envs.SINGLE_AGENT_ENV_IDS:
+        assert eps_env_id_for(env_id) == env_id
+    with pytest.raises(ValueError, match="EPS has no single-agent world for 'Corridor-2-v0'"):
+        eps_env_id_for("Corridor-2-v0")
+    with pytest.raises(ValueError, match="unknown env id 'Nope-v0'"):
+        eps_env_id_for("Nope-v0")
+    monkeypatch.setitem(EPS_WORLDS, "Corridor-2-v0", "SingleRobotNav-v0")  # a plug-in names its world
+    assert eps_env_id_for("Corridor-2-v0") == "SingleRobotNav-v0"
+
+
 def test_sensitivity_equals_a_per_sample_autograd_loop() -> None:
     network = small_network()
     observations = th.randn(7, 3, generator=th.Generator().manual_seed(1))
@@ -385,7 +403,7 @@ def test_it_runs_with_gdq_on_the_robot_worlds() -> None:
     model = tiny_model(GDQ, env_id="MultiRobotNav-2-v0", n_envs=1, train_freq=4)
     # The default EPS (calibrated, outcome fitness, reevaluation), without the tick budget.
     callback = EvolutionCallback(
-        eval_env_id=envs.eps_env_id_for("MultiRobotNav-2-v0"),
+        eval_env_id=eps_env_id_for("MultiRobotNav-2-v0"),
         population_size=2,
         period=40,
         n_eval_episodes=1,

@@ -21,6 +21,7 @@ from research.eps_inspection import (
     sensitivity_by_layer,
     step_by_layer,
 )
+from research.notebook import Animation, filmstrip, gif_bytes, show_picture
 from research.results import (
     best_covered,
     draw_seed_curves,
@@ -34,12 +35,13 @@ from sb3_eps.common.evaluation import record_frames
 from sb3_eps.common.utils import format_table
 from sb3_eps.eps.evaluation import PopulationResult
 from sb3_eps.eps.mutations import mutation_directions, network_parameters
-from sb3_eps.notebook import Animation, filmstrip, gif_bytes, show_picture
 
 
 def _write_records(path, points) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("".join(json.dumps({"ticks": t, "success_rate": s, "note": "x"}) + "\n" for t, s in points))
+    path.write_text(
+        "".join(json.dumps({"ticks": t, "success_rate": s, "note": "x"}) + "\n" for t, s in points)
+    )
 
 
 def test_evaluation_records_are_read_grouped_and_tabulated(tmp_path) -> None:
@@ -55,7 +57,11 @@ def test_evaluation_records_are_read_grouped_and_tabulated(tmp_path) -> None:
     ]
     assert runs[0].final() == pytest.approx(0.6) and "note" not in runs[0].metrics
     rows = results_table(runs)
-    assert rows[0]["seeds"] == 2 and rows[0]["mean"] == pytest.approx(0.7) and rows[0]["std"] == pytest.approx(0.1)
+    assert (
+        rows[0]["seeds"] == 2
+        and rows[0]["mean"] == pytest.approx(0.7)
+        and rows[0]["std"] == pytest.approx(0.1)
+    )
     assert list(best_covered(runs, "MultiRobotNav-4-v0")) == ["eps_gdq (b)", "gdq (a)"]
     assert list(group_runs(runs, ("algo",))) == ["eps_gdq", "gdq"]
     figure = draw_seed_curves(best_covered(runs, "MultiRobotNav-4-v0"))

@@ -1,6 +1,6 @@
 """The notebooks run end to end at their small budget, headless, and each draws at least one picture.
 
-:func:`sb3_eps.notebook.execute_notebook` runs them as ``make notebooks`` does at full budget: a kernel of this
+:func:`research.notebook.execute_notebook` runs them as ``make notebooks`` does at full budget: a kernel of this
 interpreter (not whatever ``python3`` kernel the machine has), this checkout first on ``PYTHONPATH``, the budget
 ``small`` in ``SB3_EPS_NOTEBOOK_BUDGET`` and a temporary ``SB3_EPS_NOTEBOOK_OUTPUT`` for the files they write.
 """
@@ -12,7 +12,7 @@ from pathlib import Path
 import nbformat
 import pytest
 
-from sb3_eps.notebook import BUDGET_VARIABLE, execute_notebook
+from research.notebook import BUDGET_VARIABLE, execute_notebook
 
 ROOT = Path(__file__).resolve().parents[1]
 NOTEBOOKS = sorted((ROOT / "notebooks").glob("*.ipynb"))

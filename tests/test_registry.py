@@ -56,18 +56,6 @@ def test_single_agent_ids_are_gymnasium_ids(env_id: str) -> None:
         env.close()
 
 
-def test_eps_counterparts() -> None:
-    for env_id in envs.MULTI_AGENT_ENV_IDS:
-        expected = (
-            "CooperativeNavigationSingle-v0" if env_id == "CooperativeNavigation-v0" else "SingleRobotNav-v0"
-        )
-        assert envs.eps_env_id_for(env_id) == expected
-    for env_id in envs.SINGLE_AGENT_ENV_IDS:
-        assert envs.eps_env_id_for(env_id) == env_id
-    with pytest.raises(ValueError, match="debug world without a single-agent EPS counterpart"):
-        envs.eps_env_id_for("Corridor-2-v0")
-
-
 def test_debug_corridor_ids() -> None:
     env = envs.make_parallel_env("Corridor-3-v0")
     assert len(env.possible_agents) == 3
@@ -75,9 +63,7 @@ def test_debug_corridor_ids() -> None:
         envs.make_single_env("Corridor-3-v0")
 
 
-@pytest.mark.parametrize(
-    "call", [envs.make_parallel_env, envs.make_single_env, envs.eps_env_id_for, envs.is_multi_agent]
-)
+@pytest.mark.parametrize("call", [envs.make_parallel_env, envs.make_single_env, envs.is_multi_agent])
 def test_unknown_id_lists_the_known_ids(call) -> None:
     with pytest.raises(ValueError, match="unknown env id 'Nope-v0'") as error:
         call("Nope-v0")

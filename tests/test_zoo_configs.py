@@ -10,6 +10,7 @@ import yaml
 
 import envs
 from sb3_eps.common.policies import DEFAULT_NET_ARCH, DEFAULT_STREAM_ARCH, MultiAgentQPolicy
+from sb3_eps.eps import eps_env_id_for
 from sb3_eps.zoo.config import (
     DEFAULT_KEY,
     ResolvedConfig,
@@ -71,7 +72,7 @@ def test_every_entry_builds_its_model(algo, env_id) -> None:
         callbacks = build_callbacks(config.entry, env_id, 0, str(path))
         assert [name for name, _ in callbacks] == ([EVOLUTION_CALLBACK] if ALGORITHMS[algo].eps else [])
         for _, callback in callbacks:
-            assert callback.settings.eval_env_id == envs.eps_env_id_for(env_id)
+            assert callback.settings.eval_env_id == eps_env_id_for(env_id)
     finally:
         env.close()
 
@@ -89,7 +90,9 @@ def test_a_resolved_entry_holds_every_constructor_default(algo) -> None:
         default = signature[name].default
         if name not in set_by_file and default is not None:
             value = algorithm_kwargs(entry)[name]
-            assert value == default or (callable(default) and value(0.5) == default(0.5)), name  # lin_x: a schedule
+            assert value == default or (callable(default) and value(0.5) == default(0.5)), (
+                name
+            )  # lin_x: a schedule
     policy_kwargs = entry["policy_kwargs"]
     set_policy = set_by_file.get("policy_kwargs", {})  # a tuned entry may size its networks
     assert policy_kwargs["net_arch"] == set_policy.get("net_arch", DEFAULT_NET_ARCH)
@@ -97,7 +100,11 @@ def test_a_resolved_entry_holds_every_constructor_default(algo) -> None:
     assert policy_kwargs["activation_fn"] == "nn.ReLU" and policy_kwargs["optimizer_class"] == "th.optim.Adam"
     assert policy_kwargs["agent_target"] is spec.algorithm_class.default_agent_target
     defaults = package_defaults(spec)["policy_kwargs"]
-    assert all(policy_kwargs[key] == value for key, value in defaults.items() if key not in set_by_file.get("policy_kwargs", {}))
+    assert all(
+        policy_kwargs[key] == value
+        for key, value in defaults.items()
+        if key not in set_by_file.get("policy_kwargs", {})
+    )
     if spec.eps:  # the EPS arguments the files list are the callback's defaults
         parameters = callback_parameters(callback_class(EVOLUTION_CALLBACK))
         (item,) = written[DEFAULT_KEY]["callback"]
@@ -217,7 +224,12 @@ def test_weight_average_tau_in_a_config(tmp_path) -> None:
     assert package_defaults(algorithm_spec("qmix"))["advantage_learning"] == 0.0
     gdq_path = tmp_path / "gdq.yml"
     gdq_path.write_text("default:\n  n_timesteps: 100\n  policy_kwargs: {weight_average_tau: null}\n")
-    assert resolve_config("gdq", "MultiRobotNav-4-v0", conf_file=gdq_path).entry["policy_kwargs"]["weight_average_tau"] is None
+    assert (
+        resolve_config("gdq", "MultiRobotNav-4-v0", conf_file=gdq_path).entry["policy_kwargs"][
+            "weight_average_tau"
+        ]
+        is None
+    )
     path = tmp_path / "vdn.yml"
     for value, expected in (("0.0005", 0.0005), ("null", None)):
         path.write_text(f"default:\n  n_timesteps: 100\n  policy_kwargs: {{weight_average_tau: {value}}}\n")

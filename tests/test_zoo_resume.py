@@ -234,5 +234,9 @@ def test_resume_of_a_run_sharing_experience_equals_the_uninterrupted_run(tmp_pat
     run = stop_and_resume(sharing, tmp_path / "interrupted", signal.SIGTERM, "dummy")
     assert_equal_runs(run, expected)
     rounds, expected_rounds = (read_round_log(folder / "eps_rounds.jsonl") for folder in (run, expected))
-    assert [record["shared_rows"] for record in rounds] == [record["shared_rows"] for record in expected_rounds]
-    assert sum(record["shared_rows"] for record in rounds) == sum(record["ticks_spent"] for record in rounds) > 0
+    assert [record["shared_rows"] for record in rounds] == [
+        record["shared_rows"] for record in expected_rounds
+    ]
+    assert (
+        sum(record["shared_rows"] for record in rounds) == sum(record["ticks_spent"] for record in rounds) > 0
+    )

@@ -11,7 +11,8 @@ import torch as th
 import yaml
 from stable_baselines3.common.save_util import load_from_zip_file
 
-from sb3_eps import benchmark, evaluate, plot, train
+from research import benchmark
+from sb3_eps import evaluate, plot, train
 from sb3_eps.zoo.config import load_config_entries
 from sb3_eps.zoo.errors import ConfigError
 from sb3_eps.zoo.run_folder import read_monitor
@@ -75,7 +76,9 @@ def test_run_folder_follows_the_zoo_layout(run_dir) -> None:
     assert sb3_keys | {"eval/success_rate", "eval/std_reward", "time/ticks"} <= set(progress)
     assert not {"eval/team_return", "eval/length", "rollout/team_return"} & set(progress)
     rows = np.isfinite(progress["eval/mean_reward"])
-    assert rows.sum() == 3 and np.allclose(progress["eval/mean_reward"][rows], evaluations["results"].mean(axis=1))
+    assert rows.sum() == 3 and np.allclose(
+        progress["eval/mean_reward"][rows], evaluations["results"].mean(axis=1)
+    )
     assert np.allclose(progress["eval/mean_ep_length"][rows], evaluations["ep_lengths"].mean(axis=1))
 
 
@@ -95,7 +98,9 @@ def test_numbered_model_snapshots_on_save_freq(run_dir, tmp_path, capsys) -> Non
     assert json.loads(output.read_text())["model"].endswith("rl_model_504_steps.zip")
     assert evaluate.main(["--run", str(run_dir), "-n", "2", "--n-envs", "1", "--load-last-checkpoint"]) == 0
     assert (run_dir / "eval_CooperativeNavigation-v0_last.json").is_file()
-    with pytest.raises(ConfigError, match=r"no rl_model_7_steps.zip \(its snapshots are at timesteps \[504, 1002\]\)"):
+    with pytest.raises(
+        ConfigError, match=r"no rl_model_7_steps.zip \(its snapshots are at timesteps \[504, 1002\]\)"
+    ):
         evaluate.main(["--run", str(run_dir), "--load-checkpoint", "7"])
 
 
@@ -138,7 +143,9 @@ def test_rl_zoo_plot_scripts_read_the_log_folder(run_dir, tmp_path, monkeypatch)
             (curve,) = pickle.load(file)[ENV_ID].values()
         evaluations = np.load(run_dir / "evaluations.npz")
         assert list(curve["timesteps"]) == list(evaluations["timesteps"])
-        assert np.allclose(curve["mean"], evaluations[ours].mean(axis=1))  # one run: the mean over its episodes
+        assert np.allclose(
+            curve["mean"], evaluations[ours].mean(axis=1)
+        )  # one run: the mean over its episodes
         plt.close("all")
     monkeypatch.setattr("sys.argv", ["plot_train", "-a", "gdq", "-e", ENV_ID, "-f", str(folder), "-w", "2"])
     plot_train()

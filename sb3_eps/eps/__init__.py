@@ -21,9 +21,10 @@ from sb3_eps.eps.mutations import (
 )
 from sb3_eps.eps.round import sample_visited_observations
 from sb3_eps.eps.round_log import RoundLog, read_round_log
-from sb3_eps.eps.settings import PAPER_SETTINGS, EPSSettings
+from sb3_eps.eps.settings import EPS_WORLDS, PAPER_SETTINGS, EPSSettings, eps_env_id_for
 
 __all__ = [
+    "EPS_WORLDS",
     "PAPER_SETTINGS",
     "EPSSettings",
     "EvaluationFailed",
@@ -34,6 +35,7 @@ __all__ = [
     "RoundLog",
     "SubprocessEnvPool",
     "calibrate_scale",
+    "eps_env_id_for",
     "evaluate_population",
     "mutate_population",
     "output_sensitivity",

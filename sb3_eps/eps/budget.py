@@ -65,14 +65,19 @@ class RoundBudget:
         done = [record for record in history if not record.get("skipped")]
         last = done[-1] if done else {}
         played = np.concatenate(
-            [np.ravel(last.get("episode_lengths", [])), np.ravel(last.get("reevaluation", {}).get("episode_lengths", []))]
+            [
+                np.ravel(last.get("episode_lengths", [])),
+                np.ravel(last.get("reevaluation", {}).get("episode_lengths", [])),
+            ]
         ).astype(float)
         played = played[played > 0]  # disqualified individuals' unplayed episodes
         if not played.size:
             return 0.5 * n_played * self.episode_limit
         return float(played.mean()) * n_played
 
-    def why_no_round(self, eps_ticks: int, start_ticks: int, end_ticks: int, history: list[dict[str, Any]]) -> str | None:
+    def why_no_round(
+        self, eps_ticks: int, start_ticks: int, end_ticks: int, history: list[dict[str, Any]]
+    ) -> str | None:
         """:return: why no round can play between ``start_ticks`` and ``end_ticks`` training ticks (None when one
         can): the tick budget never covers a round's expected cost, or a period in ticks is longer than the run."""
         settings = self.settings

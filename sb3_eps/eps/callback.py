@@ -49,10 +49,7 @@ class EvolutionCallback(BaseCallback):
     buffer); evaluate every copy greedily for ``n_eval_episodes`` common-random-number episodes in independent
     single-agent worlds; pick the best (Eq. 4) and move the agent network (and its target network, if any) toward it
     by Polyak averaging (Eq. 5). When the unmutated copy 0 wins nothing changes. See ``docs/modules/eps.md``.
-
-    Rounds come only while the tick budget (``max_eps_share``) allows them; a run too short for any round warns once
-    when training starts (raise ``max_eps_share`` or set it None, lower ``n_eval_episodes`` /
-    ``n_reevaluation_episodes``, or train longer).
+    Rounds come only while the tick budget (``max_eps_share``) allows them; a run too short for any warns once.
 
     :param settings: the method's settings (:class:`~sb3_eps.eps.settings.EPSSettings`, every argument documented
         there; :meth:`paper` for Algorithm 1 as published). Default: built from ``settings_kwargs``
@@ -66,9 +63,13 @@ class EvolutionCallback(BaseCallback):
     def __init__(self, settings: EPSSettings | None = None, verbose: int = 0, **settings_kwargs: Any) -> None:
         super().__init__(verbose=verbose)
         if not isinstance(settings, EPSSettings | None):
-            raise TypeError(f"settings must be an EPSSettings or None, got {settings!r} (the world is eval_env_id=...)")
+            raise TypeError(
+                f"settings must be an EPSSettings or None, got {settings!r} (the world is eval_env_id=...)"
+            )
         if settings is not None and settings_kwargs:
-            raise ValueError("give EvolutionCallback either settings or keyword arguments of EPSSettings, not both")
+            raise ValueError(
+                "give EvolutionCallback either settings or keyword arguments of EPSSettings, not both"
+            )
         self.settings = settings if settings is not None else EPSSettings(**settings_kwargs)
         self.budget = RoundBudget(self.settings)
         self.records = RoundRecords(verbose)
@@ -147,7 +148,10 @@ class EvolutionCallback(BaseCallback):
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore :meth:`state_dict` (before or after ``init_callback``)."""
-        self.records.n_rounds, self.records.n_skipped_rounds = int(state["n_rounds"]), int(state["n_skipped_rounds"])
+        self.records.n_rounds, self.records.n_skipped_rounds = (
+            int(state["n_rounds"]),
+            int(state["n_skipped_rounds"]),
+        )
         self.records.eps_time = float(state["eps_time"])
         self.records.history = copy.deepcopy(state["history"])
         self.budget.last_round_mark = state["last_round_mark"]
@@ -179,7 +183,9 @@ class EvolutionCallback(BaseCallback):
             rng = np.random.default_rng(seed)
             generator = th.Generator(device=next(q_net.parameters()).device)
             generator.manual_seed(int(rng.integers(2**62)))
-            self.round = EPSRound(self.settings, self.model, evolved_parameter_names(q_net, frozen), rng, generator)
+            self.round = EPSRound(
+                self.settings, self.model, evolved_parameter_names(q_net, frozen), rng, generator
+            )
             self.round.eps_ticks = self._eps_ticks
         if self._state is not None:
             self._restore_round()
@@ -197,7 +203,9 @@ class EvolutionCallback(BaseCallback):
         reason = self.budget.why_no_round(self.eps_ticks, start, end, self.history)
         if reason is not None:
             self._warned_no_round = True
-            warnings.warn(f"EvolutionCallback will play no EPS round in this run: {reason}", UserWarning, stacklevel=2)
+            warnings.warn(
+                f"EvolutionCallback will play no EPS round in this run: {reason}", UserWarning, stacklevel=2
+            )
 
     def _on_step(self) -> bool:
         return True
@@ -241,7 +249,9 @@ class EvolutionCallback(BaseCallback):
 
     def _skip_round(self, error: EvaluationFailed, wall_time: float, record: dict[str, Any]) -> None:
         self.records.skipped(str(error), wall_time, record.get("round_ticks", 0), self._counters())
-        warnings.warn(f"EPS round skipped, restarting the evaluation workers: {error}", RuntimeWarning, stacklevel=2)
+        warnings.warn(
+            f"EPS round skipped, restarting the evaluation workers: {error}", RuntimeWarning, stacklevel=2
+        )
         self.logger.record("eps/skipped_rounds", self.n_skipped_rounds)
         self._close_pool()
         self._start_pool()
@@ -254,7 +264,12 @@ class EvolutionCallback(BaseCallback):
         settings = self.settings
         # The workers get the architecture only (a CPU copy); each round sends them the weights.
         template = copy.deepcopy(self.model.policy.q_net).to("cpu")
-        arguments = (settings.eval_env_id, settings.eval_env_kwargs, settings.n_individuals, settings.n_eval_episodes)
+        arguments = (
+            settings.eval_env_id,
+            settings.eval_env_kwargs,
+            settings.n_individuals,
+            settings.n_eval_episodes,
+        )
         # A worker evaluates whole individuals, so more workers than individuals would idle.
         n_workers = (os.cpu_count() or 1) if settings.n_workers is None else settings.n_workers
         n_workers = min(n_workers, settings.n_individuals)
@@ -325,7 +340,7 @@ class EvolutionCallback(BaseCallback):
                     raise ValueError(
                         f"the {kind} of eval_env_id {self.settings.eval_env_id!r} ({ours}) differs from the model's "
                         f"({theirs}): pick the evaluation world that matches the training env "
-                        "(envs.eps_env_id_for(training env id))"
+                        "(sb3_eps.eps.eps_env_id_for(training env id))"
                     )
             problem = sharing_problem(self.model, env) if self.settings.share_experience else None
             if problem is not None:

@@ -49,94 +49,89 @@ DEFAULT_EVAL_ENV_KWARGS: dict[str, dict[str, Any]] = {
     "SingleRobotNav-v0": {"scenario": "eps_pillars", "max_episode_steps": 400},
 }
 
+#: The single-agent world EPS evaluates in, by training env id or by its family (the id up to its first "-"). A
+#: plug-in's world adds its own entry (``EPS_WORLDS["LineWorld-2-v0"] = "LineWorldSingle-v0"``).
+EPS_WORLDS: dict[str, str] = {
+    "MultiRobotNav": "SingleRobotNav-v0",
+    "MultiRobotNavUnseen": "SingleRobotNav-v0",
+    "CooperativeNavigation": "CooperativeNavigationSingle-v0",
+}
+
+
+def eps_env_id_for(env_id: str) -> str:
+    """The single-agent id in which EPS evaluates the policies trained on ``env_id`` (:data:`EPS_WORLDS`).
+
+    :param env_id: a registered id; a single-agent id maps to itself
+    :raises ValueError: when the id is unknown or EPS has no world for it
+    """
+    import envs
+
+    if not envs.is_multi_agent(env_id):
+        return env_id
+    eps_env_id = EPS_WORLDS.get(env_id) or EPS_WORLDS.get(env_id.split("-")[0])
+    if eps_env_id is None:
+        raise ValueError(
+            f"EPS has no single-agent world for {env_id!r}: pass eval_env_id, or name one in "
+            f"sb3_eps.eps.settings.EPS_WORLDS"
+        )
+    return eps_env_id
+
 
 @dataclass
 class EPSSettings:
-    """What one EPS run does (see ``docs/modules/eps.md``; the defaults' evidence is ``docs/results/eps_probes.md``).
+    """What one EPS run does (``docs/modules/eps.md``; the defaults' evidence: ``docs/results/eps_probes.md``).
 
-    :meth:`paper` is Algorithm 1 as published (:data:`PAPER_SETTINGS`: fixed noise scale, every weight mutated, mean
-    return as fitness, any gain accepted, a round every 100 episodes, the bars world). The defaults change what the
-    measurements showed to go wrong: the mutation size is calibrated each round to change ``target_flip_share`` of
-    the greedy actions on visited states; the value stream is neither mutated nor crossed over; fitness ranks
-    reaching the target above the shaped return and waiting above crashing; the winner must beat copy 0 again on
-    fresh episodes; alpha decays to 0 by the end of training; rounds come by ticks and only while EPS has spent at
-    most ``max_eps_share`` of the training ticks; the evaluation world is the training arena's room with pillars.
+    :meth:`paper` is Algorithm 1 as published (:data:`PAPER_SETTINGS`). The defaults change what the measurements
+    showed to go wrong: a calibrated mutation size, a frozen value stream, an outcome fitness, a reevaluated winner,
+    a decaying alpha, a tick budget and the arena's room with pillars as the evaluation world.
 
-    :param eval_env_id: the evaluation world: single-agent (``"SingleRobotNav-v0"`` for the robots,
-        ``"CooperativeNavigationSingle-v0"`` for Cooperative Navigation; see ``envs.eps_env_id_for``), or a
-        multi-agent id (a team world, e.g. ``"MultiRobotNav-4-v0"``: every robot acts with the individual's
-        weights, as in training, and fitness sees robot-robot collisions; an episode's ticks are world ticks, the
-        unit of the training ticks). Its (per-agent) observation and action spaces must equal the model's.
-    :param population_size: ``m``, the number of mutated copies; ``m + 1`` individuals are evaluated. Default 5
-        (paper: 10, the author's earlier evolutionary work)
-    :param period: the least number of ``period_unit`` between two rounds (``e_s`` of Algorithm 1). Default 10,000
-        ticks; the budget ``max_eps_share`` usually spaces the rounds further
-    :param period_unit: ``"ticks"`` (simulator steps of one world, summed over the worlds: ``model.ticks``) or
-        ``"episodes"`` (world episodes, the paper's epochs). A round starts at the first rollout end after ``period``
-        units since the previous round (and within the budget)
-    :param sigma: the noise scale ``G ~ N(0, sigma)``. With ``target_flip_share`` it is only the calibration's first
-        guess (later rounds start from the previous round's scale). Default None: 0.001 for ``mutation="safe"``,
-        0.03 for ``"gaussian"``
-    :param alpha: share of the best individual in the crossover, Eq. 5, in [0, 1]. Default 0.3 (the paper found
-        alpha >= 0.4 harmful), decaying under ``alpha_schedule``
-    :param alpha_schedule: ``"linear"`` (default): ``alpha`` times the share of training still to come
-        (``model._current_progress_remaining``), so crossovers fade out before the final evaluations;
-        ``"constant"``: always ``alpha``
-    :param n_eval_episodes: common-random-number episodes per individual. Default 4 (paper settings: 2)
+    :param eval_env_id: the evaluation world: single-agent (:func:`eps_env_id_for`), or a multi-agent id where every
+        robot acts with the individual's weights and fitness sees robot-robot collisions. Its per-agent spaces must
+        equal the model's
+    :param population_size: ``m``, the mutated copies; ``m + 1`` individuals are evaluated (paper: 10)
+    :param period: the least number of ``period_unit`` between two rounds (``e_s`` of Algorithm 1)
+    :param period_unit: ``"ticks"`` (world ticks summed over the worlds: ``model.ticks``) or ``"episodes"`` (the
+        paper's epochs); a round starts at the first rollout end after ``period`` units (and within the budget)
+    :param sigma: the noise scale ``G ~ N(0, sigma)``, or the calibration's first guess with ``target_flip_share``;
+        None: :data:`DEFAULT_SIGMA` of the mutation
+    :param alpha: share of the best individual in the crossover, Eq. 5, in [0, 1] (the paper found >= 0.4 harmful)
+    :param alpha_schedule: ``"linear"``: ``alpha`` times the share of training still to come; ``"constant"``
+    :param n_eval_episodes: common-random-number episodes per individual (paper: 2)
     :param mutation: ``"safe"`` (Eq. 6-normalised noise, the paper's operator) or ``"gaussian"`` (plain noise)
-    :param target_flip_share: calibrate the noise scale each round so that the mutants change on average this share
-        of the greedy actions on the visited observations of the sensitivity batch
-        (:func:`~sb3_eps.eps.mutations.calibrate_scale`); None keeps the fixed ``sigma``. Default 0.1
-    :param frozen_groups: parameter groups (module or parameter names of ``q_net``) neither mutated nor crossed
-        over. Default None: the value stream of a dueling network (``["value_stream"]``), nothing for other networks;
-        ``[]`` evolves every weight (paper)
-    :param fitness: ``"outcome"`` (default: mean of +1 reached / 0 timed out / -1 failed per episode, plus 0.01 x
-        the mean return) or ``"return"`` (the paper's mean return); see
-        :func:`~sb3_eps.eps.evaluation.population_fitness`
-    :param min_gain: the winner's fitness must exceed copy 0's by more than this, in the selection and in the
-        reevaluation. Default 0.05: with ``fitness="outcome"`` more than the return's tie-break can give (0.01 x a
-        few units of return), so at least one episode must end better on balance; 0 accepts any gain (paper)
-    :param n_reevaluation_episodes: before a crossover, play copy 0 and the winner again on this many fresh
-        common-random-number episodes (rounded up to a multiple of ``n_eval_episodes``) and cross over only if the
-        winner beats copy 0 by more than ``min_gain`` there too; the ticks count as EPS ticks. Against the winner's
-        curse: the best of ``m + 1`` noisy scores wins by chance. Default 8; 0: no reevaluation (paper)
-    :param max_eps_share: a round starts only if the EPS ticks so far plus the expected cost of the round stay
-        within this share of the training ticks (default 0.1; None: no budget). The expected cost is every episode a
-        round may play (selection, reevaluation, team checks) at the previous round's mean episode length, or before
-        the first round half of the most the round can cost. A run too short for one round within the budget warns
-        once: raise ``max_eps_share`` (or set None), lower ``n_eval_episodes`` / ``n_reevaluation_episodes``, or
-        train longer
-    :param sensitivity_batch_size: ``|b|``, visited observations (alive agents' entries) sampled from the replay
-        buffer for Eq. 6, the calibration and the diagnostics. Default 128
-    :param sensitivity_floor: lower bound on the sensitivity ``omega`` (a sensitivity of exactly 0 counts as 1).
-        Default 0.01, as in Lehman et al.'s reference implementation
-    :param max_step: per-weight clip on the safe mutation's step. Default 0.2, Lehman et al.'s value;
-        ``float("inf")`` disables it. Not applied to ``mutation="gaussian"``
-    :param n_team_check_episodes: greedy episodes of the multi-robot training env (``model.get_env().env_id``)
-        played before and after every crossover, with the same seeds, to see what the crossover did to the team;
-        their ticks count as EPS ticks. Default 0: no check
-    :param diagnostics_path: JSON-lines file of the per-round records (``history``). Default None: ``eps_rounds.jsonl``
-        in the logger's folder when it has one (the run folder of ``python -m sb3_eps.train``, or SB3's
-        ``tensorboard_log`` run folder), else no file; ``""`` writes none
-    :param n_workers: evaluation worker processes; 0 evaluates in the main process. Default None: one per CPU core
-        (at most one per individual)
-    :param eval_timeout: seconds a whole evaluation round may take before its workers count as hung; the round is
-        then skipped and the workers restarted. Default 120
-    :param batched_forward: one ``vmap``-ed ``functional_call`` per tick for a block of individuals (default True)
-    :param per_robot: normalise mutant ``i`` by the sensitivity computed on robot ``i % n_agents``'s own visited
-        observations (paper III-B's "individual experiences"). Needs ``mutation="safe"``
-    :param eval_env_kwargs: constructor arguments of the evaluation env. Default None: the world of
-        :data:`DEFAULT_EVAL_ENV_KWARGS` (robot-sized pillars for ``SingleRobotNav-v0``); ``{}``: the env's own
-        defaults (the bars world, paper)
+    :param target_flip_share: calibrate the noise scale each round so that the mutants change this share of the
+        greedy actions on visited observations (:func:`~sb3_eps.eps.mutations.calibrate_scale`); None: fixed ``sigma``
+    :param frozen_groups: parameter groups of ``q_net`` neither mutated nor crossed over; None: a dueling network's
+        ``["value_stream"]``; ``[]``: every weight (paper)
+    :param fitness: ``"outcome"`` (+1 reached / 0 timed out / -1 failed per episode, plus 0.01 x the return) or
+        ``"return"`` (paper); :func:`~sb3_eps.eps.evaluation.population_fitness`
+    :param min_gain: the winner's fitness must exceed copy 0's by more than this, in the selection and the
+        reevaluation (0.05 is more than the outcome fitness's tie-break can give; paper: 0)
+    :param n_reevaluation_episodes: play copy 0 and the winner again on this many fresh episodes (a multiple of
+        ``n_eval_episodes``) and cross over only if the winner still wins by ``min_gain``: against the winner's
+        curse. 0: no reevaluation (paper)
+    :param max_eps_share: a round starts only if the EPS ticks so far plus its expected cost stay within this share
+        of the training ticks; None: no budget. A run too short for one round warns once
+        (:class:`~sb3_eps.eps.budget.RoundBudget`)
+    :param sensitivity_batch_size: ``|b|``, visited observations sampled from the replay buffer for Eq. 6
+    :param sensitivity_floor: lower bound on the sensitivity ``omega`` (Lehman et al.'s reference implementation)
+    :param max_step: per-weight clip on the safe mutation's step (Lehman et al.); ``float("inf")`` disables it
+    :param n_team_check_episodes: greedy episodes of the training world played before and after every crossover
+        with the same seeds (counted as EPS ticks); 0: no check
+    :param diagnostics_path: JSON-lines file of the per-round records; None: ``eps_rounds.jsonl`` in the logger's
+        folder when it has one; ``""``: no file
+    :param n_workers: evaluation worker processes; 0: the main process; None: one per core (at most one per
+        individual)
+    :param eval_timeout: seconds an evaluation round may take before its workers count as hung (the round is
+        skipped, the workers restarted)
+    :param batched_forward: one ``vmap``-ed ``functional_call`` per tick for a block of individuals
+    :param per_robot: normalise mutant ``i`` by robot ``i % n_agents``'s own sensitivity (paper III-B); needs
+        ``mutation="safe"``
+    :param eval_env_kwargs: constructor arguments of the evaluation env; None: :data:`DEFAULT_EVAL_ENV_KWARGS`;
+        ``{}``: the env's own defaults (the bars world, paper)
     :param worker_start_method: multiprocessing start method of the workers; None: the package's default
-        (:func:`~sb3_eps.common.subproc_vec_env.default_start_method`)
-    :param seed: seed of the noise, the buffer sampling and the evaluation episodes; None: derived from the
-        model's seed (a seeded model gives a reproducible EPS), or random when the model has none
-    :param share_experience: write every tick of every evaluation episode (all individuals, the reevaluation
-        episodes too) into the model's replay buffer, as a training world's tick is written (Evolutionary RL,
-        Khadka & Tumer, NeurIPS 2018: the population's transitions feed the RL agent's replay buffer). Needs a team
-        world whose agents are the training worlds' (same agent count, spaces and global-state size) and one of
-        this package's algorithms. Default False
+    :param seed: seed of the noise, the buffer sampling and the evaluation episodes; None: from the model's seed
+    :param share_experience: write every tick of every evaluation episode into the model's replay buffer
+        (Evolutionary RL, Khadka & Tumer, NeurIPS 2018); needs a team world with the training world's agents
     """
 
     eval_env_id: str = "SingleRobotNav-v0"
@@ -198,10 +193,9 @@ class EPSSettings:
     def most_episodes_per_round(self) -> int:
         """Every episode a round may play: selection, reevaluation (both individuals) and team checks."""
         per_batch = self.n_eval_episodes
-        return (self.n_individuals + 2 * self.n_reevaluation_batches) * per_batch + 2 * self.n_team_check_episodes
-
-
-FIELDS = tuple(field.name for field in dataclasses.fields(EPSSettings))
+        return (
+            self.n_individuals + 2 * self.n_reevaluation_batches
+        ) * per_batch + 2 * self.n_team_check_episodes
 
 
 def _check(settings: EPSSettings) -> None:
@@ -219,16 +213,20 @@ def _check(settings: EPSSettings) -> None:
     ):
         if not isinstance(values[name], int) or values[name] < low:
             raise ValueError(f"{name}{meaning} must be an int >= {low}, got {values[name]!r}")
-    if values["period_unit"] not in PERIOD_UNITS:
-        raise ValueError(f"period_unit must be one of {PERIOD_UNITS}, got {values['period_unit']!r}")
+    for name, choices in (
+        ("period_unit", PERIOD_UNITS),
+        ("mutation", MUTATIONS),
+        ("alpha_schedule", ALPHA_SCHEDULES),
+        ("fitness", FITNESS_KINDS),
+    ):
+        if values[name] not in choices:
+            raise ValueError(f"unknown {name} {values[name]!r}; use one of {choices}")
     if values["sigma"] is not None and not values["sigma"] > 0:
         raise ValueError(f"sigma (noise scale) must be > 0, got {values['sigma']!r}")
     if not 0.0 <= values["alpha"] <= 1.0:
         raise ValueError(
             f"alpha (crossover share of the best individual, Eq. 5) must be in [0, 1], got {values['alpha']!r}"
         )
-    if values["mutation"] not in MUTATIONS:
-        raise ValueError(f"unknown mutation {values['mutation']!r}; use one of {MUTATIONS}")
     if not values["sensitivity_floor"] > 0:
         raise ValueError(f"sensitivity_floor must be > 0, got {values['sensitivity_floor']!r}")
     if not values["max_step"] > 0:
@@ -240,20 +238,18 @@ def _check(settings: EPSSettings) -> None:
         raise ValueError(f"eval_timeout must be > 0 seconds, got {values['eval_timeout']!r}")
     if values["per_robot"] and values["mutation"] != "safe":
         raise ValueError("per_robot=True chooses each mutant's sensitivity: it needs mutation='safe'")
-    if values["alpha_schedule"] not in ALPHA_SCHEDULES:
-        raise ValueError(f"alpha_schedule must be one of {ALPHA_SCHEDULES}, got {values['alpha_schedule']!r}")
     share = values["target_flip_share"]
     if share is not None and not 0.0 < share < 1.0:
         raise ValueError(
             f"target_flip_share (share of greedy actions a mutant changes) must be in (0, 1) or None, got {share!r}"
         )
     groups = values["frozen_groups"]
-    if groups is not None and (isinstance(groups, str) or not all(isinstance(group, str) for group in groups)):
+    if groups is not None and (
+        isinstance(groups, str) or not all(isinstance(group, str) for group in groups)
+    ):
         raise ValueError(
             f"frozen_groups must be a list of parameter-group names (e.g. ['value_stream']) or None, got {groups!r}"
         )
-    if values["fitness"] not in FITNESS_KINDS:
-        raise ValueError(f"unknown fitness {values['fitness']!r}; use one of {FITNESS_KINDS}")
     if not np.isfinite(values["min_gain"]) or values["min_gain"] < 0:
         raise ValueError(f"min_gain must be a finite number >= 0, got {values['min_gain']!r}")
     max_share = values["max_eps_share"]

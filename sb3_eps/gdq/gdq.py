@@ -183,7 +183,9 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             _init_setup_model=_init_setup_model,
         )
 
-    def _diagnostics(self, inputs: th.Tensor, terms: TDTerms, batch: JointReplayBufferSamples) -> dict[str, float]:
+    def _diagnostics(
+        self, inputs: th.Tensor, terms: TDTerms, batch: JointReplayBufferSamples
+    ) -> dict[str, float]:
         """What explains GDQ's learning (docs/results/gdq_target.md): the gain ``g_i = dV_G/dv_i`` of the
         global head, the greedy action's margin ``A(s, a*) - A(s, a_2nd)``, and the spread of the agents' values."""
         gain = input_gain(self.policy.global_value_net, inputs)

@@ -34,7 +34,12 @@ class QMixer(nn.Module):
     """
 
     def __init__(
-        self, n_agents: int, state_dim: int, embed_dim: int = 32, hypernet_hidden_dim: int = 64, init: str = "random"
+        self,
+        n_agents: int,
+        state_dim: int,
+        embed_dim: int = 32,
+        hypernet_hidden_dim: int = 64,
+        init: str = "random",
     ) -> None:
         super().__init__()
         if state_dim < 1:
@@ -43,7 +48,9 @@ class QMixer(nn.Module):
             raise ValueError(f"mixer_init must be one of {MIXER_INITS}, got {init!r}")
         self.n_agents, self.state_dim, self.embed_dim = n_agents, state_dim, embed_dim
         self.hyper_w1 = nn.Sequential(
-            nn.Linear(state_dim, hypernet_hidden_dim), nn.ReLU(), nn.Linear(hypernet_hidden_dim, n_agents * embed_dim)
+            nn.Linear(state_dim, hypernet_hidden_dim),
+            nn.ReLU(),
+            nn.Linear(hypernet_hidden_dim, n_agents * embed_dim),
         )
         self.hyper_b1 = nn.Linear(state_dim, embed_dim)
         self.hyper_w2 = nn.Sequential(
@@ -136,7 +143,11 @@ class QMIXPolicy(MultiAgentQPolicy):
     ):
         if mixer_init not in MIXER_INITS:
             raise ValueError(f"mixer_init must be one of {MIXER_INITS}, got {mixer_init!r}")
-        if not (isinstance(mixer_lr_scale, float | int) and not isinstance(mixer_lr_scale, bool) and mixer_lr_scale > 0):
+        if not (
+            isinstance(mixer_lr_scale, float | int)
+            and not isinstance(mixer_lr_scale, bool)
+            and mixer_lr_scale > 0
+        ):
             raise ValueError(f"mixer_lr_scale must be a number > 0, got {mixer_lr_scale!r}")
         self.mixing_embed_dim = mixing_embed_dim
         self.hypernet_hidden_dim = hypernet_hidden_dim
@@ -158,7 +169,11 @@ class QMIXPolicy(MultiAgentQPolicy):
 
     def _make_mixer(self) -> nn.Module:
         return QMixer(
-            self.n_agents, self.state_dim, self.mixing_embed_dim, self.hypernet_hidden_dim, init=self.mixer_init
+            self.n_agents,
+            self.state_dim,
+            self.mixing_embed_dim,
+            self.hypernet_hidden_dim,
+            init=self.mixer_init,
         )
 
     def _build_joint_modules(self) -> None:
@@ -190,7 +205,9 @@ class VDNPolicy(QMIXPolicy):
         ``None`` takes the greedy actions from the online network.
     """
 
-    def __init__(self, *args: Any, weight_average_tau: float | None = VDN_WEIGHT_AVERAGE_TAU, **kwargs: Any) -> None:
+    def __init__(
+        self, *args: Any, weight_average_tau: float | None = VDN_WEIGHT_AVERAGE_TAU, **kwargs: Any
+    ) -> None:
         super().__init__(*args, weight_average_tau=weight_average_tau, **kwargs)
 
     def _make_mixer(self) -> nn.Module:

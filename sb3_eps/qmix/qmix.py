@@ -16,34 +16,28 @@ from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.common.utils import input_gain, td_target
 from sb3_eps.qmix.policies import QMIXPolicy, VDNPolicy, apply_lr_scales
 
-#: QMIX's and VDN's default learning rate: 3e-4 decaying linearly to 0 over the budget (RL Zoo's ``lin_3e-4``), as
-#: GDQ's: the greedy policy stops churning as the budget ends (docs/results/qmix_vdn.md).
+#: QMIX's and VDN's default learning rate: 3e-4 decaying linearly to 0 over the budget (docs/results/qmix_vdn.md).
 DEFAULT_LEARNING_RATE = LinearSchedule(3e-4, 0.0, 1.0)
 
 #: VDN's default ``advantage_learning`` (held-out seeds 200-205, docs/results/qmix_vdn.md; QMIX's is 0).
 DEFAULT_VDN_ADVANTAGE_LEARNING = 0.5
+
 
 class QMIX(MultiAgentOffPolicyAlgorithm):
     """QMIX: the team's ``Q_tot = mixer(Q_1(s_1, a_1), ..., Q_n(s_n, a_n); s)`` is trained by TD on the team
     reward, ``y = r_team + gamma^k (1 - done) mixer_target(Q_i'(s'_i, a*_i); s')``; agents act greedily on
     their own ``Q_i`` (monotonicity makes that the joint arg max). Agents that are not acting (a robot that
     arrived) enter the mixer with ``Q = 0``. Needs the env's global state (``state()``).
-    ``policy_kwargs=dict(mixing_embed_dim=32, hypernet_hidden_dim=64, mixer_init="sum", mixer_lr_scale=0.1)`` (the
-    defaults) size the mixer, start it as VDN's sum and let it learn at a tenth of the agents' rate
-    (:class:`~sb3_eps.qmix.policies.QMIXPolicy`; with one rate its gain ran away on the robot worlds).
-
-    At a time-limit truncation the agents still driving enter the target mixer with their ``Q_i'(s'_i, a*_i)``: a time
-    limit is not a terminal state (SB3's ``handle_timeout_termination``; IQL's per-agent targets do the same).
-    (Entering as ``Q = 0``, a truncated window's target would be the mixer's state path alone,
-    ``mixer'(0, ..., 0; s')``, a value no agent is trained towards; ``docs/results/qmix_vdn.md``.) Arguments are those
-    of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`, with the learning rate decaying linearly from
-    3e-4 to 0 over the budget by default, and one of QMIX's own:
+    The mixer's size, initialisation and learning rate are ``policy_kwargs``
+    (:class:`~sb3_eps.qmix.policies.QMIXPolicy`). At a time-limit truncation the agents still driving enter the
+    target mixer with their ``Q_i'(s'_i, a*_i)``: a time limit is not a terminal state (SB3's
+    ``handle_timeout_termination``). Arguments are those of
+    :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm` (the learning rate decays from 3e-4 to 0 by
+    default, ``docs/results/qmix_vdn.md``), and:
 
     :param advantage_learning: ``alpha`` of advantage learning (Bellemare et al., "Increasing the Action Gap", AAAI
-        2016) on the team's target: it is lowered by ``alpha (mixer'(max_b Q_i'(s_i, b); s) - mixer'(Q_i'(s_i, a_i);
-        s))``, the gap between the joint greedy action and the joint action taken (the mixer is monotonic, so the
-        joint greedy action is every agent's own; with VDN's sum it is the sum of the agents' gaps). The agent target
-        network reads both. QMIX's default 0 is the plain target; VDN's default is 0.5 (``docs/results/qmix_vdn.md``)
+        2016): the team's target is lowered by ``alpha (mixer'(max_b Q_i'(s_i, b); s) - mixer'(Q_i'(s_i, a_i); s))``,
+        the gap between the joint greedy action and the joint action taken, read from the agent target network
     """
 
     policy: QMIXPolicy
@@ -51,8 +45,6 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     requires_fixed_n_agents: ClassVar[bool] = True
     uses_global_state: ClassVar[bool] = True
 
-    # QMIX's own default: the learning rate (lin_3e-4, as GDQ's; docs/results/qmix_vdn.md); its own argument
-    # advantage_learning is off (not screened; QMIX meets its target).
     def __init__(
         self,
         policy: str | type[MultiAgentQPolicy],
@@ -129,7 +121,9 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
         super()._update_learning_rate(optimizers)
         apply_lr_scales(self.policy.optimizer)  # the mixer's own rate (policy_kwargs mixer_lr_scale)
 
-    def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
+    def _compute_loss(
+        self, batch: JointReplayBufferSamples
+    ) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         terms = self._td_terms(batch)
         q_total = self.policy.mixer(terms.q_taken * batch.alive, batch.states)
         with th.no_grad():

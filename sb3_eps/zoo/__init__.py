@@ -1,4 +1,4 @@
-"""RL-Zoo-style configs and command lines: train, tune, evaluate, plot, benchmark (``docs/usage.md``).
+"""RL-Zoo-style configs and command lines: train, tune, evaluate, plot (``docs/usage.md``).
 
 - :mod:`sb3_eps.zoo.config` / :mod:`sb3_eps.zoo.schema`: safe loading and checking of ``zoo_configs/*.yml``;
 - :mod:`sb3_eps.zoo.exp_manager`: run folders, training, checkpoints and ``--resume``;

@@ -1,15 +1,7 @@
-"""The callbacks of a training run: team monitor, team evaluation, checkpoints with signal handling.
-
-- :class:`TeamMonitor` writes one CSV row per world episode (``monitor.csv``), with the ticks of training and of
-  EPS at its end: the data of the learning curves.
-- :class:`TeamEvalCallback` evaluates the greedy policy on separate evaluation worlds every ``eval_freq``
-  timesteps (team success, collision, return, length), writes ``evaluations.npz`` and ``best_model.zip``.
-- :class:`TrainingStateCallback` writes a checkpoint (:mod:`sb3_eps.zoo.checkpoint`) every ``save_freq`` timesteps
-  (with a model snapshot ``rl_model_<timesteps>_steps.zip``, as RL Zoo's) and when SIGINT / SIGTERM arrive, at the
-  next rollout start; after a signal it stops training by raising :class:`TrainingInterrupted`. When resuming it
-  restores the callbacks' states and the random states once every callback is initialised. (It was called
-  ``CheckpointCallback``, the name of SB3's model-only callback: the old name is a deprecated alias.)
-"""
+"""The callbacks of a training run: :class:`TeamMonitor` (``monitor.csv``, the learning curves),
+:class:`TeamEvalCallback` (greedy team evaluations, ``evaluations.npz``, ``best_model.zip``),
+:class:`TickBudgetCallback` (training plus EPS within one budget) and :class:`TrainingStateCallback` (checkpoints,
+also on SIGINT / SIGTERM)."""
 
 from __future__ import annotations
 
@@ -59,13 +51,15 @@ def team_score(summary: dict[str, Any]) -> tuple[float, float]:
 
 
 def final_against_best(records: dict[str, list[Any]], run_dir: str | Path, drop: float = 0.1) -> str | None:
-    """One line comparing a run's last evaluation with its best (by :func:`team_score`), or None without
-    evaluations. When the last success rate is ``drop`` or more below the best, the line says that learning fell
-    after its best evaluation and how to evaluate ``best_model.zip`` instead (``--load-best``)."""
+    """One line comparing a run's last evaluation with its best (:func:`team_score`), or None without evaluations;
+    a warning that names ``best_model.zip`` when the last success rate is ``drop`` or more below the best."""
     if not records.get("timesteps"):
         return None
     summaries = [
-        {"success_rate": float(np.nanmean(successes)) if len(successes) else 0.0, "team_return_mean": float(np.mean(results))}
+        {
+            "success_rate": float(np.nanmean(successes)) if len(successes) else 0.0,
+            "team_return_mean": float(np.mean(results)),
+        }
         for successes, results in zip(records["successes"], records["results"], strict=True)
     ]
     best = max(range(len(summaries)), key=lambda index: team_score(summaries[index]))
@@ -84,11 +78,9 @@ def final_against_best(records: dict[str, list[Any]], run_dir: str | Path, drop:
 
 # ---------------------------------------------------------------------------------------------- monitor
 class TeamMonitor(BaseCallback):
-    """One CSV row per world (team) episode: ``r`` team return, ``l`` ticks, ``t`` seconds, ``ticks`` / ``eps_ticks``
-    at its end (``ticks`` = the model's ticks, all worlds together), ``world`` and the env's team metrics.
-
-    The first line is a ``#`` comment with a JSON header (``t_start`` as SB3's ``Monitor`` writes it, env id, agents,
-    worlds, algorithm), so SB3's ``load_results`` reads the file.
+    """One CSV row per world (team) episode: ``r`` team return, ``l`` ticks, ``t`` seconds, the model's ``ticks`` and
+    ``eps_ticks`` at its end, ``world`` and the env's team metrics, under a ``#`` JSON header as SB3's ``Monitor``
+    writes it (so SB3's ``load_results`` reads the file).
 
     :param path: the CSV file; an existing one is continued (after :meth:`truncate_after` when resuming)
     :param header: what the first line records
@@ -100,7 +92,6 @@ class TeamMonitor(BaseCallback):
     ) -> None:
         super().__init__()
         self.path = Path(path)
-        # t_start (seconds since the epoch) as SB3's Monitor writes it: SB3's load_results and RL Zoo's plots need it.
         self.header = {"t_start": time.time(), **header}
         self.eps_callbacks = list(eps_callbacks)
         self.columns: list[str] | None = None
@@ -170,13 +161,9 @@ def _is_scalar(value: Any) -> bool:
 
 # ---------------------------------------------------------------------------------------------- evaluation
 class TeamEvalCallback(BaseCallback):
-    """Greedy team evaluation on separate evaluation worlds every ``eval_freq`` timesteps.
-
-    Each evaluation plays the same seeded episodes (common random numbers across evaluations), counts episodes
-    per world (team), logs SB3's ``EvalCallback`` keys ``eval/mean_reward`` (mean team return) and
-    ``eval/mean_ep_length`` (ticks), then ``eval/std_reward``, ``eval/success_rate``, ``eval/collision_rate``,
-    ``eval/ticks``, ``eval/eps_ticks``; appends to ``evaluations.npz`` and saves ``best_model.zip`` when the
-    success rate improves (team return breaks ties).
+    """Greedy team evaluation on separate evaluation worlds every ``eval_freq`` timesteps: the same seeded episodes
+    each time, SB3's ``EvalCallback`` keys per world episode plus ``eval/success_rate``, ``eval/collision_rate``,
+    ``eval/ticks`` and ``eval/eps_ticks``; ``best_model.zip`` when :func:`team_score` improves.
 
     :param eval_env: the evaluation worlds (not the training ones)
     :param eval_freq: timesteps (agent-steps) between evaluations; 0 disables
@@ -184,9 +171,8 @@ class TeamEvalCallback(BaseCallback):
     :param seed: seed of the evaluation worlds
     :param folder: where ``evaluations.npz`` and ``best_model.zip`` go (None: nowhere)
     :param eps_callbacks: callbacks whose ``eps_ticks`` are recorded with each evaluation
-    :param count_eps_ticks: evaluate every ``eval_freq`` timesteps of training plus EPS, an EPS tick counting as
-        one timestep per agent of a world (the x axis of the EPS comparisons; a tuning trial of EPS); default: of
-        training alone
+    :param count_eps_ticks: count ``eval_freq`` in timesteps of training plus EPS (an EPS tick is one timestep per
+        agent of a world), not of training alone
     :param on_evaluation: called with each evaluation's summary; returning False stops training (pruning)
     :param verbose: 1 prints one line per evaluation
     """
@@ -296,20 +282,13 @@ class TeamEvalCallback(BaseCallback):
 
 class TickBudgetCallback(BaseCallback):
     """Ends ``learn()`` once training and EPS together reach ``budget`` timesteps, an EPS tick counting as one
-    timestep per agent of a world: the equal-ticks budget of the EPS comparisons (the paper's x axis), used by
-    the tuning trials of EPS and by ``benchmarks/learning_check.py`` so that a setting's EPS ticks are paid from its
+    timestep per agent of a world (the equal-ticks budget of the EPS comparisons): EPS's ticks are paid from
     training.
-
-    The schedules end with the budget: the model's ``_total_timesteps``, which SB3's ``_current_progress_remaining``
-    counts down to, becomes ``budget`` minus the EPS timesteps spent so far. So a decaying learning rate (GDQ's
-    ``lin_3e-4``), the exploration schedule, the PER exponent's annealing to 1 and EPS's ``alpha_schedule`` reach
-    their end when training stops, as in a run without EPS. Without this an EPS-GDQ run on 4 robots stopped at about
-    93 % of its schedule, with a learning rate of about 2e-5 where GDQ's had decayed to 0.
 
     :param budget: timesteps (agent-steps) of training plus EPS, counted from 0 (``model.num_timesteps``)
     :param eps_callbacks: callbacks whose ``eps_ticks`` count
-    :param schedules_follow: shrink the training budget of the schedules as EPS spends ticks (default True);
-        False leaves them over the whole budget, as in the records made before 2026-12-01
+    :param schedules_follow: end the schedules (learning rate, exploration, PER's beta, EPS's alpha) with the
+        budget, by lowering the model's ``_total_timesteps`` as EPS spends ticks; False: over the whole budget
     """
 
     def __init__(
@@ -340,23 +319,19 @@ def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
 
 # ---------------------------------------------------------------------------------------------- checkpoints
 class TrainingStateCallback(BaseCallback):
-    """Writes the full training state every ``save_freq`` timesteps and when a signal asks to stop; with
-    ``snapshot_dir``, each periodic checkpoint also writes the model alone, ``rl_model_<timesteps>_steps.zip``, as
-    RL Zoo's (SB3's ``CheckpointCallback``'s) numbered snapshots, which ``Algorithm.load`` opens.
-
-    Checkpoints are taken at rollout starts only (between two iterations of ``learn``), where every piece of
-    state can be restored exactly. After SIGINT / SIGTERM (see :func:`stop_on_signals`) the next rollout start
-    writes a checkpoint and raises :class:`TrainingInterrupted`.
+    """Writes the full training state every ``save_freq`` timesteps, at rollout starts (where every piece of state
+    can be restored exactly), and after SIGINT / SIGTERM (:func:`stop_on_signals`), then raises
+    :class:`TrainingInterrupted`.
 
     :param path: the checkpoint file
     :param save_freq: timesteps between checkpoints; 0 saves only on a signal
     :param total_timesteps: the run's total, recorded in the checkpoint
     :param stateful_callbacks: name -> callback whose state goes into the checkpoint
     :param restore: when resuming: ``{"callbacks": states, "rng": states, "next_save": int}``, applied at the
-        start of training (after every callback's initialisation, which may draw random numbers or reset
-        counters)
+        start of training, after every callback's initialisation
     :param verbose: 1 prints a line per checkpoint
-    :param snapshot_dir: where the numbered model snapshots go (None: none)
+    :param snapshot_dir: where each periodic checkpoint also writes the model alone (RL Zoo's
+        ``rl_model_<timesteps>_steps.zip``); None: nowhere
     """
 
     def __init__(
@@ -384,7 +359,7 @@ class TrainingStateCallback(BaseCallback):
         if self.restore is None:
             return
         for name, state in self.restore["callbacks"].items():
-            set_callback_state(self.stateful_callbacks[name], state)
+            self.stateful_callbacks[name].load_state_dict(state)  # type: ignore[attr-defined]
         self.next_save = self.restore["next_save"]
         set_rng_states(self.restore["rng"])
         self.restore = None
@@ -399,15 +374,15 @@ class TrainingStateCallback(BaseCallback):
         if self.save_freq > 0:
             self.next_save = (self.num_timesteps // self.save_freq + 1) * self.save_freq
         if self.save() and due and self.snapshot_dir is not None:
-            save_model_atomic(self.model, self.snapshot_dir / run_folder.snapshot_name(self.model.num_timesteps))
+            save_model_atomic(
+                self.model, self.snapshot_dir / run_folder.snapshot_name(self.model.num_timesteps)
+            )
         if self.stop_requested:
             raise TrainingInterrupted(self.stop_requested)
 
     def save(self, complete: bool = False) -> bool:
-        """Write the checkpoint now (only valid between two iterations of ``learn``, or after it).
-
-        A checkpoint is refused (with a warning; the previous one stays) when the model's weights are not finite,
-        and when the file cannot be written (a full disk): training goes on, the next one is tried as usual.
+        """Write the checkpoint now (between two iterations of ``learn``, or after it); refused with a warning, the
+        previous one kept, when the weights are not finite or the file cannot be written.
 
         :return: whether a checkpoint was written
         """
@@ -420,7 +395,7 @@ class TrainingStateCallback(BaseCallback):
                 stacklevel=2,
             )
             return False
-        states = {name: callback_state(callback) for name, callback in self.stateful_callbacks.items()}
+        states = {name: callback.state_dict() for name, callback in self.stateful_callbacks.items()}  # type: ignore[attr-defined]
         meta = {
             "num_timesteps": int(self.model.num_timesteps),
             "ticks": int(self.model.ticks),  # type: ignore[attr-defined]
@@ -473,27 +448,10 @@ def stop_on_signals(callback: TrainingStateCallback) -> Iterator[None]:
             signal.signal(sig, old)
 
 
-# ---------------------------------------------------------------------------------------------- callback states
-def callback_state(callback: BaseCallback) -> Any:
-    """:return: the resumable state of a callback: its ``state_dict()`` (``EvolutionCallback`` has one)."""
-    if not hasattr(callback, "state_dict"):
-        raise ValueError(f"{type(callback).__name__} has no state_dict(): it cannot be checkpointed")
-    return callback.state_dict()
-
-
-def set_callback_state(callback: BaseCallback, state: Any) -> None:
-    """Restore what :func:`callback_state` returned, after the callback's ``init_callback``. ``EvolutionCallback``'s
-    ``load_state_dict`` also takes the attribute dictionary that checkpoints held before it had a ``state_dict``."""
-    if not hasattr(callback, "load_state_dict"):
-        raise ValueError(f"{type(callback).__name__} has no load_state_dict(): it cannot be resumed")
-    callback.load_state_dict(state)
-
-
 # ---------------------------------------------------------------------------------------------- logs
 class ResumableCSVOutputFormat(CSVOutputFormat):
-    """SB3's CSV log that continues an existing file: rows logged after ``max_timesteps`` (after the checkpoint
-    being resumed) are dropped, the others kept, and new rows appended. SB3's own constructor starts the file and
-    the kept rows go back through SB3's own ``write`` (no private field is set by hand).
+    """SB3's CSV log that continues an existing file: the rows logged after ``max_timesteps`` (after the checkpoint
+    being resumed) are dropped, the others written again through SB3's own ``write``.
 
     :param filename: the CSV file
     :param max_timesteps: keep rows whose ``time/total_timesteps`` is at most this; None starts a new file

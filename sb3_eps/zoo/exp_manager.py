@@ -1,14 +1,8 @@
 """The experiment manager behind ``python -m sb3_eps.train``: config -> envs, model, callbacks -> run folder -> learn.
 
-Everything a run needs is built and checked before anything is written, so a mistake leaves no run folder. The run
-folder follows RL Zoo's layout, ``<folder>/<algo>/<env id>_<run>/`` (:mod:`sb3_eps.zoo.run_folder`): the parameter
-folder ``<env id>/`` (``args.yml``, the options resolved; ``config.yml``, the canonical entry, readable back with
-``-conf``; ``command.txt``), ``progress.csv``, ``monitor.csv``, ``evaluations.npz``, ``best_model.zip``,
-``<env id>.zip`` (the final model), ``rl_model_<timesteps>_steps.zip`` (model snapshots) and ``checkpoint.zip``
-(the training state, while the run is unfinished or with ``--keep-checkpoint``).
-
-``--resume <run folder>`` rebuilds the run from ``args.yml``, ``config.yml`` and the checkpoint and continues to
-the same total; the result equals an uninterrupted run with the same seed (see :mod:`sb3_eps.zoo.checkpoint`).
+Everything a run needs is built and checked before anything is written, so a mistake leaves no run folder (its
+layout: :mod:`sb3_eps.zoo.run_folder`). ``--resume <run folder>`` continues from the checkpoint to the same total;
+the result equals an uninterrupted run with the same seed (:mod:`sb3_eps.zoo.checkpoint`).
 """
 
 from __future__ import annotations
@@ -31,12 +25,11 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList, Progr
 from stable_baselines3.common.logger import HumanOutputFormat, KVWriter, Logger, TensorBoardOutputFormat
 from stable_baselines3.common.save_util import load_from_zip_file
 
-import envs
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.subproc_vec_env import VecEnvWorkerError, overlap_layout
 from sb3_eps.common.utils import describe_space
 from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env, vec_env_mode
-from sb3_eps.eps import EvolutionCallback
+from sb3_eps.eps import EvolutionCallback, eps_env_id_for
 from sb3_eps.eps.evaluation import agent_space, make_eval_env
 from sb3_eps.version import __version__
 from sb3_eps.zoo import run_folder
@@ -46,7 +39,6 @@ from sb3_eps.zoo.callbacks import (
     TeamMonitor,
     TrainingInterrupted,
     TrainingStateCallback,
-    callback_state,
     final_against_best,
     stop_on_signals,
 )
@@ -121,7 +113,9 @@ class TrainOptions(NamespaceOptions):
         if not isinstance(record, dict):
             raise ConfigError(f"{source} is not a mapping of options: not a run folder of sb3_eps.train")
         options = cls(**{key: value for key, value in record.items() if key in cls.__dataclass_fields__})
-        for key, hint in typing.get_type_hints(cls).items():  # the fields' own annotations say what each holds
+        for key, hint in typing.get_type_hints(
+            cls
+        ).items():  # the fields' own annotations say what each holds
             value = getattr(options, key)
             members = typing.get_args(hint) if isinstance(hint, types.UnionType) else (hint,)
             kinds = tuple(typing.get_origin(kind) or kind for kind in members)
@@ -230,7 +224,9 @@ def build_env(
         mode = vec_env_mode(vec_env or config.entry.get("vec_env"))
         vec_env_kwargs = None
         if mode == "subproc" and n_envs is None and config.entry.get("overlap_training"):
-            vec_env_kwargs = overlap_layout(n_worlds)  # the training worlds: the main process learns beside them
+            vec_env_kwargs = overlap_layout(
+                n_worlds
+            )  # the training worlds: the main process learns beside them
         return make_vec_env(
             env_id, n_envs=n_worlds, seed=seed, env_kwargs=env_kwargs_of(config), vec_env_cls=mode,
             vec_env_kwargs=vec_env_kwargs,
@@ -283,7 +279,7 @@ def check_callback_worlds(
                     raise ConfigError(
                         f"{source}: callback {name}: eval_env_id {eval_env_id} has {kind} {describe_space(theirs)}, "
                         f"the training world {env.env_id} {describe_space(ours)}; use eval_env_id "
-                        f"{envs.eps_env_id_for(str(env.env_id))} (or leave it out: it defaults to the matching world)"
+                        f"{eps_env_id_for(str(env.env_id))} (or leave it out: it defaults to the matching world)"
                     )
         finally:
             eval_env.close()
@@ -364,13 +360,6 @@ def prepare_run(
                 check_spaces(model, eval_env, eval_env_id, "the model", "--eval-env: ")
         user_callbacks = build_callbacks(config.entry, config.env_id, options.verbose, config.source)
         check_callback_worlds(user_callbacks, env, config.source)
-        for name, callback in user_callbacks:
-            try:
-                callback_state(callback)
-            except ValueError as error:
-                raise ConfigError(
-                    f"{config.source}: callback {name} cannot be checkpointed: {error}"
-                ) from None
     except BaseException:
         env.close()
         if eval_env is not None:
@@ -433,7 +422,9 @@ def train(options: TrainOptions, extra_callbacks: Sequence[BaseCallback] = ()) -
         write_text_atomic(params / run_folder.ARGS_NAME, yaml.safe_dump(options_record, sort_keys=False))
         header = f"resolved from {prepared.config.source}\nrerun: python -m sb3_eps.train --algo {options.algo} -conf <this file> ..."
         write_text_atomic(params / run_folder.CONFIG_NAME, entry_yaml(env_id, prepared.config.entry, header))
-        write_text_atomic(params / run_folder.COMMAND_NAME, (options.command or run_folder.command_line()) + "\n")
+        write_text_atomic(
+            params / run_folder.COMMAND_NAME, (options.command or run_folder.command_line()) + "\n"
+        )
         return _run(prepared, run_dir, restore=None, extra_callbacks=extra_callbacks)
     finally:
         prepared.close()
@@ -448,12 +439,16 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
     :raises ConfigError: when the folder holds no resumable run
     """
     run_dir = run_folder.run_dir_of(run_dir)
-    args_path, config_path = (run_folder.run_file(run_dir, name) for name in (run_folder.ARGS_NAME, run_folder.CONFIG_NAME))
+    args_path, config_path = (
+        run_folder.run_file(run_dir, name) for name in (run_folder.ARGS_NAME, run_folder.CONFIG_NAME)
+    )
     for path in (args_path, config_path):
         if not path.is_file():
             raise ConfigError(f"--resume: {run_dir} is not a run folder of sb3_eps.train (no {path.name})")
     options = TrainOptions.from_record(load_yaml(args_path), f"--resume: {args_path}")
-    import_gym_packages([], options.gym_packages)  # the run's plug-ins, before its algorithm and world are named
+    import_gym_packages(
+        [], options.gym_packages
+    )  # the run's plug-ins, before its algorithm and world are named
     spec = algorithm_spec(options.algo)
     check_env_id(options.env, f"--resume: {args_path}: env")
     options.init_from = None  # the warm-start weights are in the checkpoint already
@@ -554,7 +549,13 @@ def _run(
         callbacks.append(callback)
         stateful[f"{index}:{name}"] = callback
     checkpoint = TrainingStateCallback(
-        run_dir / CHECKPOINT_NAME, options.save_freq, total, stateful, restore, options.verbose, snapshot_dir=run_dir
+        run_dir / CHECKPOINT_NAME,
+        options.save_freq,
+        total,
+        stateful,
+        restore,
+        options.verbose,
+        snapshot_dir=run_dir,
     )
     if options.progress:
         callbacks.append(ProgressBarCallback())

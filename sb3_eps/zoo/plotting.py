@@ -1,22 +1,17 @@
 """Learning curves and aggregate metrics from run folders (``python -m sb3_eps.plot``).
 
-Curves follow the paper's Fig. 4: per run, the team return (and success rate) of the training episodes smoothed
-over the last ``window`` (100) episodes, against the ticks simulated so far *including* the ticks of EPS
-evaluation; runs are grouped by algorithm (and env id) and drawn as mean +/- std over seeds, on the range all
-seeds of a group reached. Aggregates are the final scores of the runs (mean of the last ``window`` episodes)
-summarised per algorithm by mean, median and interquartile mean (IQM) with stratified-bootstrap 95 % confidence
-intervals (Agarwal et al., NeurIPS 2021: rliable's definitions, computed here alone, so that every install gives the
-same intervals and tasks may have different numbers of runs).
+Curves follow the paper's Fig. 4: smoothed training episodes against the ticks including EPS's, mean +/- std over
+seeds. Aggregates: mean, median and IQM of the runs' final scores with stratified-bootstrap 95 % confidence
+intervals (Agarwal et al., NeurIPS 2021), computed here (``docs/usage.md``).
 """
 
 from __future__ import annotations
 
 import json
-import math
 import re
 from collections import defaultdict
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -282,72 +277,15 @@ def evaluation_curves(run_dirs: list[Path]) -> list[RunCurve]:
 #: ``<algo>_<env id>_seed<k>.jsonl``: algorithm names are lower case with underscores (``eps_gdq``), env ids have
 #: no underscore and end in ``-v<N>``.
 RECORD_FILE = re.compile(r"^(?P<algo>[a-z][a-z_]*?)_(?P<env_id>[A-Za-z0-9-]+-v\d+)_seed(?P<seed>\d+)\.jsonl$")
-
-
-@dataclass
-class EvaluationRun:
-    """The greedy evaluations of one seed of one configuration.
-
-    :param path: the JSON-lines file
-    :param group: the configuration's name (the file's folder below the searched root)
-    :param algo: algorithm name (``gdq``, ``eps_gdq``...)
-    :param env_id: env id
-    :param seed: the seed
-    :param ticks: ``(n,)`` ticks at each evaluation (EPS records count the EPS ticks too)
-    :param metrics: ``{name: (n,) values}`` of every numeric field of the records (``success_rate``...)
-    """
-
-    path: Path
-    group: str
-    algo: str
-    env_id: str
-    seed: int
-    ticks: np.ndarray
-    metrics: dict[str, np.ndarray] = field(default_factory=dict)
-
-    def final(self, key: str = "success_rate") -> float:
-        """:return: the last evaluation's value of ``key`` (NaN without evaluations)."""
-        values = self.metrics.get(key, np.zeros(0))
-        return float(values[-1]) if len(values) else math.nan
-
-
-def read_evaluation_run(path: str | Path, group: str | None = None) -> EvaluationRun:
-    """Read one ``<algo>_<env id>_seed<k>.jsonl`` file.
-
-    :param path: the file
-    :param group: the configuration's name; None: the file's folder name
-    :raises ValueError: when the file name does not follow the pattern or a record has no ``ticks``
-    """
-    path = Path(path)
-    match = RECORD_FILE.match(path.name)
-    if match is None:
-        raise ValueError(f"{path.name}: not an evaluation record name (<algo>_<env id>_seed<k>.jsonl)")
-    records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-    if any("ticks" not in record for record in records):
-        raise ValueError(f"{path}: every record needs 'ticks'")
-    numeric = sorted(
-        {key for record in records for key, value in record.items() if isinstance(value, int | float)}
-        - {"ticks"}
-    )
-    metrics = {key: np.array([float(record.get(key, math.nan)) for record in records]) for key in numeric}
-    return EvaluationRun(
-        path=path,
-        group=group if group is not None else path.parent.name,
-        algo=match["algo"],
-        env_id=match["env_id"],
-        seed=int(match["seed"]),
-        ticks=np.array([int(record["ticks"]) for record in records], dtype=np.int64),
-        metrics=metrics,
-    )
+#: The fields of a record that the curves draw.
+RECORD_COLUMNS = ("ticks", "team_return_mean", "success_rate")
 
 
 def record_curves(paths: list[str | Path], label: str | None = None) -> list[RunCurve]:
-    """Greedy-evaluation records of ``benchmarks/learning_check.py`` (:func:`read_evaluation_run`)
-    as curves, one per file, to draw them with :func:`plot_learning_curves` beside run folders.
+    """Greedy-evaluation records (``<algo>_<env id>_seed<k>.jsonl`` of ``benchmarks/learning_check.py``, whose
+    ``ticks`` count the EPS ticks too) as curves, one per file, to draw beside run folders.
 
-    ``paths`` are ``<algo>_<env id>_seed<k>.jsonl`` files or folders (searched for ``*.jsonl`` directly inside);
-    a record's ``ticks`` already count the EPS ticks.
-
+    :param paths: such files, or folders searched for ``*.jsonl`` directly inside
     :param label: the group name of every curve (default: the algorithm of the file name, e.g. ``eps_gdq``)
     :raises ConfigError: when a path does not exist or a file is not such a record
     """
@@ -358,10 +296,14 @@ def record_curves(paths: list[str | Path], label: str | None = None) -> list[Run
         files.extend(sorted(path.glob("*.jsonl")) if path.is_dir() else [path])
     curves = []
     for file in files:
+        match = RECORD_FILE.match(file.name)
         try:
-            run = read_evaluation_run(file)
-            values = {"r": run.metrics["team_return_mean"], "success": run.metrics["success_rate"]}
+            records = [json.loads(line) for line in file.read_text().splitlines() if line.strip()]
+            columns = {key: np.array([float(record[key]) for record in records]) for key in RECORD_COLUMNS}
         except (ValueError, KeyError, TypeError) as error:
             raise ConfigError(f"{file}: not an evaluation record ({error})") from error
-        curves.append(RunCurve(file, label or run.algo, run.env_id, run.ticks.astype(float), values))
+        if match is None:
+            raise ConfigError(f"{file}: not an evaluation record (<algo>_<env id>_seed<k>.jsonl)")
+        values = {"r": columns["team_return_mean"], "success": columns["success_rate"]}
+        curves.append(RunCurve(file, label or match["algo"], match["env_id"], columns["ticks"], values))
     return curves

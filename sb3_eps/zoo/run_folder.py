@@ -9,8 +9,7 @@ read one (without the training stack, so that plotting and evaluation need none 
   ``rl_model_<timesteps>_steps.zip`` (a model snapshot at every ``--save-freq``, as RL Zoo's), ``checkpoint.zip``
   (the full training state while the run is unfinished), ``final_vs_best.txt``, ``eps_rounds.jsonl``.
 
-Run folders written before the parameter folder existed hold ``args.yml`` and ``config.yml`` at their root; every
-reader here finds either.
+Every reader here also finds ``args.yml`` and ``config.yml`` at a run folder's root.
 """
 
 from __future__ import annotations

@@ -1,16 +1,10 @@
 """The schema of a config entry: which keys exist, what each may hold, and how an entry becomes objects.
 
-An entry (one env id of a ``zoo_configs/<algo>.yml`` file, see ``docs/usage.md``) has three kinds of keys:
-
-- run keys: ``tuned``, ``notes``, ``n_timesteps``, ``policy``, ``n_envs``, ``vec_env``, ``env_kwargs``, ``callback``;
-- the algorithm's constructor arguments (:data:`ALGORITHM_PARAMS`), ``policy_kwargs`` among them (checked against
-  the algorithm's policy, :data:`COMMON_POLICY_PARAMS` plus its own);
-- nothing else: an unknown key is an error that lists the allowed ones.
-
-:func:`normalize_entry` checks an entry and returns it in canonical form (plain YAML data: names of classes as
-strings, ``train_freq`` as a list, ``callback`` as a list of ``{name: kwargs}``), which is what ``config.yml``
-holds. :func:`algorithm_kwargs` and :func:`build_callbacks` turn a canonical entry into constructor arguments
-and callback objects.
+An entry (one env id of a ``zoo_configs/<algo>.yml`` file, ``docs/usage.md``) holds run keys (:data:`RUN_PARAMS`,
+``callback``) and the algorithm's constructor arguments, ``policy_kwargs`` among them, read from the signatures;
+an unknown key is an error that lists the allowed ones. :func:`normalize_entry` returns an entry in canonical form
+(plain YAML data, what ``config.yml`` holds); :func:`algorithm_kwargs` and :func:`build_callbacks` make objects
+of it.
 """
 
 from __future__ import annotations
@@ -35,7 +29,7 @@ from torch import nn
 from sb3_eps.common import buffers
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.eps import EvolutionCallback
+from sb3_eps.eps import EvolutionCallback, eps_env_id_for
 from sb3_eps.gdq import GDQ
 from sb3_eps.iql import IQL
 from sb3_eps.qmix import QMIX, VDN
@@ -108,7 +102,8 @@ class Param:
             "choice": f"one of {allowed(self.choices)}",
             "schedule": f"a number{bounds} or a linear schedule 'lin_<initial value>' (e.g. lin_1e-3)",
             "train_freq": "an int >= 1 or a list [int >= 1, 'step' or 'episode']",
-            "int_list": f"a list of ints{bounds}" + (f" or one of {allowed(self.choices)}" if self.choices else ""),
+            "int_list": f"a list of ints{bounds}"
+            + (f" or one of {allowed(self.choices)}" if self.choices else ""),
             "list": "a list",
             "any": "plain data (numbers, strings, lists, mappings)",
             "mapping": "a mapping of names to values (or a 'dict(...)' string)",
@@ -160,7 +155,15 @@ RUN_PARAMS: dict[str, Param] = {
 CALLBACK_KEY = "callback"
 POLICY_KWARGS_KEY = "policy_kwargs"
 #: Constructor arguments that come from the command line, never from a config.
-COMMAND_LINE_ARGUMENTS = ("policy", "env", "tensorboard_log", "verbose", "seed", "device", "_init_setup_model")
+COMMAND_LINE_ARGUMENTS = (
+    "policy",
+    "env",
+    "tensorboard_log",
+    "verbose",
+    "seed",
+    "device",
+    "_init_setup_model",
+)
 #: Policy constructor arguments the algorithm sets itself.
 _POLICY_INTERNALS = (
     "observation_space", "action_space", "lr_schedule", "n_agents", "state_dim", "features_extractor_class",
@@ -319,12 +322,18 @@ def register_algorithm(
         )
     known = ALGORITHMS.get(name)
     if known is not None and known.algorithm_class is not algorithm_class:
-        raise ValueError(f"algorithm name {name!r} is taken by {known.algorithm_class.__name__}; pick another")
-    own = params_from_signature(algorithm_class.__init__, (*ALGORITHM_PARAMS, *COMMAND_LINE_ARGUMENTS, POLICY_KWARGS_KEY))
+        raise ValueError(
+            f"algorithm name {name!r} is taken by {known.algorithm_class.__name__}; pick another"
+        )
+    own = params_from_signature(
+        algorithm_class.__init__, (*ALGORITHM_PARAMS, *COMMAND_LINE_ARGUMENTS, POLICY_KWARGS_KEY)
+    )
     policy_class = algorithm_class.policy_aliases["MlpPolicy"]
     policy_params = dict(COMMON_POLICY_PARAMS)
     if "__init__" in vars(policy_class):  # a policy that only inherits its constructor adds no keys (VDN's)
-        policy_params.update(params_from_signature(policy_class.__init__, (*_POLICY_INTERNALS, *COMMON_POLICY_PARAMS)))
+        policy_params.update(
+            params_from_signature(policy_class.__init__, (*_POLICY_INTERNALS, *COMMON_POLICY_PARAMS))
+        )
     spec = AlgorithmSpec(name, algorithm_class, policy_params, eps, label or algorithm_class.__name__, own)
     ALGORITHMS[name] = spec
     return spec
@@ -565,7 +574,9 @@ _CHECKERS: dict[str, Callable[[Any, Param], Any]] = {
     "train_freq": _check_train_freq,
     "int_list": _check_int_list,
     "mapping": _check_mapping,
-    "list": lambda value, param: list(value) if isinstance(value, list | tuple) and _is_plain_data(value) else _INVALID,
+    "list": lambda value, param: (
+        list(value) if isinstance(value, list | tuple) and _is_plain_data(value) else _INVALID
+    ),
     "any": lambda value, param: value if _is_plain_data(value) else _INVALID,
     "activation": _check_name(ACTIVATIONS),
     "optimizer": _check_name(OPTIMIZERS),
@@ -701,7 +712,9 @@ def _config_value(value: Any) -> Any:
     are their config names (``nn.ReLU``, ``th.optim.Adam``, ``JointReplayBuffer``)."""
     if isinstance(value, LinearSchedule):
         if value.end != 0.0 or value.end_fraction != 1.0:
-            raise ValueError(f"a default {value!r} has no config form: only lin_<x> (x -> 0 over training) has")
+            raise ValueError(
+                f"a default {value!r} has no config form: only lin_<x> (x -> 0 over training) has"
+            )
         return f"lin_{value.start}"
     if isinstance(value, type):
         names = {cls: name for name, cls in {**ACTIVATIONS, **OPTIMIZERS}.items()}
@@ -749,19 +762,17 @@ def build_callbacks(
 ) -> list[tuple[str, BaseCallback]]:
     """Make the callbacks of a canonical entry.
 
-    ``EvolutionCallback`` gets ``eval_env_id=envs.eps_env_id_for(env_id)`` unless the entry sets it.
+    ``EvolutionCallback`` gets ``eval_env_id=eps_env_id_for(env_id)`` unless the entry sets it.
 
     :return: ``(canonical name, callback)`` pairs
     :raises ConfigError: when a constructor refuses its arguments
     """
-    import envs
-
     callbacks = []
     for item in entry.get(CALLBACK_KEY, []):
         name, kwargs = next(iter(item.items()))
         kwargs = dict(kwargs)
         if name == EVOLUTION_CALLBACK:
-            kwargs.setdefault("eval_env_id", envs.eps_env_id_for(env_id))
+            kwargs.setdefault("eval_env_id", eps_env_id_for(env_id))
             kwargs.setdefault("verbose", verbose)
         try:
             callbacks.append((name, callback_class(name, where)(**kwargs)))
@@ -771,7 +782,12 @@ def build_callbacks(
 
 
 # The package's own algorithms, registered as a plug-in's would be (their config keys read from the signatures).
-for _name, _class, _label in (("iql", IQL, "IL"), ("gdq", GDQ, "GDQ"), ("qmix", QMIX, "QMIX"), ("vdn", VDN, "VDN")):
+for _name, _class, _label in (
+    ("iql", IQL, "IL"),
+    ("gdq", GDQ, "GDQ"),
+    ("qmix", QMIX, "QMIX"),
+    ("vdn", VDN, "VDN"),
+):
     register_algorithm(_name, _class, label=_label)
 for _name, _class, _label in (("eps_iql", IQL, "EPS-IL"), ("eps_gdq", GDQ, "EPS-GDQ")):
     register_algorithm(_name, _class, label=_label, eps=True)

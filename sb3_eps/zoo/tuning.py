@@ -97,7 +97,9 @@ def sample_hyperparams(
     """
     if eps_only and not spec.eps:
         raise ConfigError("--eps-only searches the EPS arguments: use it with an eps_* algorithm")
-    space = next((SEARCH_SPACES[cls] for cls in spec.algorithm_class.__mro__ if cls in SEARCH_SPACES), sample_common)
+    space = next(
+        (SEARCH_SPACES[cls] for cls in spec.algorithm_class.__mro__ if cls in SEARCH_SPACES), sample_common
+    )
     params = {} if eps_only else space(trial, spec, n_timesteps)
     if spec.eps:
         params[CALLBACK_KEY] = [{EVOLUTION_CALLBACK: sample_eps(trial, env_id)}]
@@ -105,12 +107,8 @@ def sample_hyperparams(
 
 
 def sample_eps(trial: Any, env_id: str | None = None) -> dict[str, Any]:
-    """The ``EvolutionCallback`` arguments of a trial, around its defaults (``docs/modules/eps.md``): the calibrated
-    mutation's share of changed greedy actions, alpha (< 0.4: the paper found alpha >= 0.4 harmful) and its schedule,
-    rounds every 5-20k ticks within an EPS share of 5-20 % of the training ticks, the population, the episodes per
-    individual, the reevaluation and its margin; with ``env_id``, the evaluation world: the default single-robot one,
-    or the training team world with experience sharing. The mutation operator, fitness and frozen value stream
-    come from the base entry."""
+    """The ``EvolutionCallback`` arguments of a trial, around its defaults (``docs/modules/eps.md``; alpha < 0.4,
+    which the paper found harmful above); with ``env_id``, also the training team world with experience sharing."""
     arguments: dict[str, Any] = {
         "target_flip_share": trial.suggest_categorical("eps_target_flip_share", [0.02, 0.05, 0.1, 0.2]),
         "alpha": trial.suggest_float("eps_alpha", 0.05, 0.39),
@@ -129,9 +127,7 @@ def sample_eps(trial: Any, env_id: str | None = None) -> dict[str, Any]:
 
 
 def sample_common(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str, Any]:
-    """The search space of algorithms without their own: learning rate, batch and buffer sizes, gamma, tau,
-    n-step, training frequency, gradient steps, learning starts (at most a quarter of the budget), exploration,
-    PER, network size and activation; QMIX's mixer sizes. Wide, as RL Zoo's DQN space."""
+    """The search space of algorithms without their own, wide as RL Zoo's DQN space (QMIX's mixer sizes too)."""
     params: dict[str, Any] = {
         "learning_rate": trial.suggest_float("learning_rate", 1e-5, 3e-3, log=True),
         "batch_size": trial.suggest_categorical("batch_size", [32, 64, 128, 256]),
@@ -163,18 +159,12 @@ def sample_common(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str
 
 
 def sample_gdq(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str, Any]:
-    """GDQ's search space: around what the measurements of ``docs/results/gdq_tuning.md`` left open.
-
-    Not searched, because the measurements settled them: the mean team reward, the agent target network with
-    ``v'`` read from it, one gradient step per vector-env step. ``global_bootstrap`` stays near the package
-    default's 0.1 (GDQ-lambda; the paper's 1 cost 28 points on 4 robots, 0.5 cost 7, on held-out seeds), and
-    ``n_steps`` spans the short and long returns that GDQ-lambda learned with (3 and 30 tied there). The learning
-    rate decays linearly to 0 (``lin_<x>``), which ended every measured run higher than a constant one. The
-    studies committed before 2026-12-01 searched the paper's target (``global_bootstrap=1``) with ``n_steps``
-    20-60, where 3-step returns had left GDQ at 0-10 %.
-    """
+    """GDQ's search space: what ``docs/results/gdq_tuning.md`` left open (``global_bootstrap`` near 0.1, short and
+    long returns, decaying learning rates); what it settled stays at the package defaults."""
     params: dict[str, Any] = {
-        "learning_rate": trial.suggest_categorical("learning_rate", ["lin_1e-4", "lin_3e-4", "lin_6e-4", "lin_1e-3"]),
+        "learning_rate": trial.suggest_categorical(
+            "learning_rate", ["lin_1e-4", "lin_3e-4", "lin_6e-4", "lin_1e-3"]
+        ),
         "global_bootstrap": trial.suggest_categorical("global_bootstrap", [0.05, 0.1, 0.2]),
         "n_steps": trial.suggest_categorical("n_steps", [3, 5, 10, 30]),
         "batch_size": trial.suggest_categorical("batch_size", [64, 128, 256]),
@@ -189,7 +179,9 @@ def sample_gdq(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str, A
     params["learning_starts"] = min(learning_starts, max(n_timesteps // 4, 1))
     params[POLICY_KWARGS_KEY] = {
         "net_arch": _NET_ARCHS[trial.suggest_categorical("net_arch", list(_NET_ARCHS))],
-        "global_net_arch": _GLOBAL_NET_ARCHS[trial.suggest_categorical("global_net_arch", ["small", "medium"])],
+        "global_net_arch": _GLOBAL_NET_ARCHS[
+            trial.suggest_categorical("global_net_arch", ["small", "medium"])
+        ],
     }
     return params
 
@@ -272,9 +264,7 @@ def make_pruner(name: str, n_startup_trials: int, n_evaluations: int) -> Any:
 
 def make_storage(url: str | None, folder: Path) -> Any:
     """The study's storage: ``url`` (``sqlite:///file.db``, ``postgresql://...``, or a plain ``*.db`` path),
-    by default a SQLite file in the tuning folder. SQLite connections wait up to a minute for a lock, so threads
-    and processes sharing the file take turns.
-    """
+    by default a SQLite file in the tuning folder, whose connections wait up to a minute for a lock."""
     optuna = _import_optuna()
     if url is None:
         url = f"sqlite:///{(folder / STUDY_DB_NAME).resolve()}"
@@ -319,14 +309,15 @@ class _Objective:
             for index in range(self.tuning.n_seeds_per_trial)
         ]
         scores = [objective_score(summary, self.options.eval_episodes) for summary in summaries]
-        # What each seed spent (an EPS trial's budget counts both) and, with EPS, how often it acted: a trial whose
-        # rounds never cross over is its base algorithm evaluated a few ticks earlier.
+        # What each seed spent and, with EPS, how often it acted.
         for key in ("ticks", "eps_ticks", "eps_rounds", "eps_crossovers"):
             if all(key in summary for summary in summaries):
                 trial.set_user_attr(key, [int(summary[key]) for summary in summaries])
         for key in ("success_rate", "collision_rate", "team_return_mean", "length_mean"):
             if all(key in summary for summary in summaries):
-                trial.set_user_attr(key, float(sum(float(summary[key]) for summary in summaries) / len(summaries)))
+                trial.set_user_attr(
+                    key, float(sum(float(summary[key]) for summary in summaries) / len(summaries))
+                )
         if len(scores) > 1:
             trial.set_user_attr("seed_scores", scores)
         return float(sum(scores) / len(scores))
@@ -353,9 +344,10 @@ class _Objective:
         try:
             model = build_model(config, env, seed, self.options.device, verbose=0)
             model.set_logger(Logger(folder=None, output_formats=[]))
-            user_callbacks = [callback for _, callback in build_callbacks(config.entry, config.env_id, 0, config.source)]
-            # EPS pays its evaluation ticks from the trial's budget, and the evaluations fall at points of training
-            # plus EPS: a setting is scored at the ticks it used, as in the EPS comparisons.
+            user_callbacks = [
+                callback for _, callback in build_callbacks(config.entry, config.env_id, 0, config.source)
+            ]
+            # EPS pays its ticks from the trial's budget: a setting is scored at the ticks it used.
             eps_callbacks = [callback for callback in user_callbacks if hasattr(callback, "eps_ticks")]
             evaluation = TeamEvalCallback(
                 eval_env, max(n_timesteps // self.tuning.n_evaluations, 1), self.options.eval_episodes,
@@ -375,7 +367,9 @@ class _Objective:
                 summary = {
                     **summary,
                     "eps_rounds": sum(int(getattr(callback, "n_rounds", 0)) for callback in eps_callbacks),
-                    "eps_crossovers": sum(int(getattr(callback, "n_crossovers", 0)) for callback in eps_callbacks),
+                    "eps_crossovers": sum(
+                        int(getattr(callback, "n_crossovers", 0)) for callback in eps_callbacks
+                    ),
                 }
         finally:
             env.close()
@@ -396,7 +390,9 @@ def tune(options: TrainOptions, tuning: TuningOptions) -> Path:
     hyperparams = [*options.hyperparams, *(f"env_kwargs.{item}" for item in options.env_kwargs)]
     config = resolve_config(options.algo, options.env, options.conf_file, hyperparams, options.n_timesteps)
     if tuning.eps_only and not config.spec.eps:
-        raise ConfigError(f"--eps-only searches the EPS arguments: {options.algo} has none; use eps_{options.algo}")
+        raise ConfigError(
+            f"--eps-only searches the EPS arguments: {options.algo} has none; use eps_{options.algo}"
+        )
     if options.eval_freq <= 0:
         options.eval_freq = 1  # evaluation is the objective: it cannot be turned off here
     prepare_run(options, config).close()  # builds everything once: mistakes surface before any file exists
@@ -448,7 +444,14 @@ def write_trials_csv(study: Any, path: Path) -> None:
     with temporary.open("w", newline="") as file:
         writer = csv.writer(file)
         writer.writerow(
-            ["number", "state", "value", "duration_s", *PER_SEED_COLUMNS, *(f"params_{name}" for name in param_names)]
+            [
+                "number",
+                "state",
+                "value",
+                "duration_s",
+                *PER_SEED_COLUMNS,
+                *(f"params_{name}" for name in param_names),
+            ]
         )
         for trial in trials:
             duration = trial.duration.total_seconds() if trial.duration is not None else ""
@@ -476,13 +479,14 @@ def write_results(
     best = study.best_trial
     entry = merge_overrides(config.entry, best.user_attrs["hyperparams"], config.spec)
     success = best.user_attrs.get("success_rate")
+    first, last = int(options.seed), int(options.seed) + n_seeds - 1  # type: ignore[arg-type]
     entry = {
         "tuned": True,
         "notes": (
             f"optuna study {study.study_name}, trial {best.number}: score {best.value:.4f}"
             + (f" (success {100 * success:.0f} %)" if success is not None else "")
             + f", {entry['n_timesteps']} timesteps, "
-            + (f"seed {options.seed}" if n_seeds == 1 else f"seeds {options.seed}-{options.seed + n_seeds - 1}")  # type: ignore[operator]
+            + (f"seed {first}" if n_seeds == 1 else f"seeds {first}-{last}")
             + f", {time.strftime('%Y-%m-%d')}"
         ),
         **{key: value for key, value in entry.items() if key not in ("tuned", "notes")},

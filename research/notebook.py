@@ -186,7 +186,7 @@ def execute_notebook(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m sb3_eps.notebook [--budget full] NOTEBOOK...``: execute notebooks and write them back with their
+    """``python -m research.notebook [--budget full] NOTEBOOK...``: execute notebooks and write them back with their
     outputs (``make notebooks`` re-runs all of them at their full budget).
 
     :return: the exit status
@@ -196,7 +196,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     import nbformat
 
-    parser = argparse.ArgumentParser(prog="python -m sb3_eps.notebook", description=main.__doc__)
+    parser = argparse.ArgumentParser(prog="python -m research.notebook", description=main.__doc__)
     parser.add_argument("notebooks", nargs="+", help=".ipynb files, executed in place")
     parser.add_argument("--budget", choices=BUDGETS, default="full")
     parser.add_argument("--output", default=None, help="the folder the notebooks write into")

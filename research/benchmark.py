@@ -1,8 +1,8 @@
-"""``python -m sb3_eps.benchmark``: evaluate every finished run in a log folder and write a Markdown table.
+"""``python -m research.benchmark``: evaluate every finished run in a log folder and write a Markdown table.
 
 Example (paper Table II: the 4-robot models on the unseen world)::
 
-    python -m sb3_eps.benchmark -f logs --env MultiRobotNav-4-v0 --eval-env MultiRobotNavUnseen-4-v0 -n 100
+    python -m research.benchmark -f logs --env MultiRobotNav-4-v0 --eval-env MultiRobotNavUnseen-4-v0 -n 100
 
 One row per (algorithm, training env, evaluation env): success %, collision %, team return and episode length,
 each the mean +/- std over the runs (seeds) of the runs' greedy means. Written to ``-o`` (default
@@ -24,13 +24,13 @@ from sb3_eps.zoo.cli import OneLineArgumentParser, positive_int
 from sb3_eps.zoo.errors import run_command
 from sb3_eps.zoo.schema import ALGORITHMS
 
-PROG = "python -m sb3_eps.benchmark"
+PROG = "python -m research.benchmark"
 _COLUMNS = (("success_rate", "success %", 100.0), ("collision_rate", "collision %", 100.0),
             ("team_return_mean", "team return", 1.0), ("length_mean", "length (ticks)", 1.0))  # fmt: skip
 
 
 def make_parser() -> argparse.ArgumentParser:
-    """:return: the parser of ``python -m sb3_eps.benchmark``."""
+    """:return: the parser of ``python -m research.benchmark``."""
     parser = OneLineArgumentParser(
         prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
