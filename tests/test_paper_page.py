@@ -1,0 +1,81 @@
+"""research/paper_page.py: the quick pipeline runs and renders a page; the committed page is what its records render."""
+
+from __future__ import annotations
+
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # research/ sits beside the package
+
+from research import paper_page  # noqa: E402
+
+
+def test_the_committed_page_and_status_are_what_the_records_render() -> None:
+    changed = paper_page.render(paper_page.RUNS, paper_page.PAGE, ROOT / "README.md", check=True)
+    assert changed == [], f"re-render with `python research/paper_page.py render`: {changed}"
+    assert (paper_page.RESULTS / "paper" / paper_page.FIGURE_NAME).is_file()
+    assert len((ROOT / "README.md").read_text().splitlines()) <= 130
+
+
+def _copy_pages(tmp_path: Path) -> tuple[Path, Path]:
+    page = tmp_path / "docs" / "results" / "README.md"
+    (page.parent / "paper").mkdir(parents=True)
+    shutil.copy(paper_page.PAGE, page)
+    shutil.copy(paper_page.RESULTS / "paper" / paper_page.FIGURE_NAME, page.parent / "paper")
+    shutil.copy(ROOT / "README.md", tmp_path / "README.md")
+    return page, tmp_path / "README.md"
+
+
+def test_a_hand_edit_of_the_page_or_the_status_fails_the_check(tmp_path: Path) -> None:
+    page, readme = _copy_pages(tmp_path)
+    assert paper_page.render(paper_page.RUNS, page, readme, check=True) == []
+    page.write_text(page.read_text().replace("92.4 +/- 3.7 %", "95.0 +/- 3.7 %"))
+    readme.write_text(
+        readme.read_text().replace("| Table II]", "| Table II ]").replace("not reproduced", "reproduced")
+    )
+    assert paper_page.render(paper_page.RUNS, page, readme, check=True) == [str(page), str(readme)]
+
+
+def test_success_verdicts_at_the_tolerance() -> None:
+    assert paper_page.success_verdict(None, 0.9) == paper_page.NOT_RUN
+    assert paper_page.success_verdict(0.85, 0.9) == "reproduced"
+    assert paper_page.success_verdict(0.84, 0.9) == "not reproduced"
+    assert paper_page.success_verdict(0.96, 0.9) == "better here"
+
+
+def test_the_stage_snapshot_is_the_first_to_reach_its_success(tmp_path: Path) -> None:
+    timesteps = np.array([100, 200, 300, 400])
+    successes = np.array([[0.0, 0.0], [0.5, 1.0], [1.0, 1.0], [1.0, 1.0]])
+    np.savez(tmp_path / "evaluations.npz", timesteps=timesteps, ticks=timesteps, eps_ticks=timesteps * 0,
+             successes=successes, results=successes * 10)  # fmt: skip
+    for steps in (100, 200, 400):  # no snapshot at 300
+        (tmp_path / f"rl_model_{steps}_steps.zip").touch()
+    assert paper_page.pick_snapshot(tmp_path, 0.5)["ticks"] == 200
+    picked = paper_page.pick_snapshot(tmp_path, 0.95)
+    assert picked["ticks"] == 400 and picked["path"].endswith("rl_model_400_steps.zip")
+    assert paper_page.pick_snapshot(tmp_path, 1.01) is None
+
+
+@pytest.mark.timeout(300)
+def test_the_quick_pipeline_runs_every_item_and_renders_its_page(tmp_path: Path) -> None:
+    page = tmp_path / "page" / "README.md"
+    page.parent.mkdir()
+    status = paper_page.main(
+        ["run", "--quick", "-f", str(tmp_path / "runs"), "--page", str(page), "--readme", ""]
+    )
+    assert status == 0
+    text = page.read_text()
+    table1 = text.split("## Table I")[1].split("## Fig. 4")[0]
+    assert table1.count("(1 run of this command)") == 4 and "not run yet" not in table1
+    fig4 = text.split("## Fig. 4")[1].split("## Table II")[0]
+    assert fig4.count("`fig4_n4/") == 4
+    table2 = text.split("## Table II")[1].split("## Table III")[0]
+    assert "fig4_n4/qmix/*/eval_MultiRobotNavUnseen-4-v0.json" in table2
+    table3 = text.split("## Table III")[1].split("## The package")[0]
+    assert "| 50 % |" in table3 and "`stage50/gdq/` (1 run of this command)" in table3
+    assert (page.parent / "paper" / paper_page.FIGURE_NAME).is_file()
