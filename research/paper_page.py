@@ -395,23 +395,38 @@ def _training(cell: Cell | None, key: str, scale: float = 100.0, unit: str = " %
     return _spread(np.array([seed.training.get(key, math.nan) for seed in cell.seeds]), scale, unit)
 
 
+PaperPair = tuple[tuple[float, float], tuple[float, float]]
+
+
+def _paper_row(
+    label: str, paper: PaperPair, ours_reward: str, ours_collision: str, cell: Cell | None, verdict: str
+) -> list[str]:
+    """A row of Table I or II: the paper's reward and collisions (mean +/- std) beside ours, success, verdict."""
+    (reward, reward_std), (collision, collision_std) = paper
+    seeds = str(len(cell.seeds)) if cell else "0"
+    success = _spread(cell.final("success")) if cell else "-"
+    paper_reward, paper_collision = f"{reward} +/- {reward_std}", f"{collision} +/- {collision_std} %"
+    return [
+        label,
+        paper_reward,
+        ours_reward,
+        paper_collision,
+        ours_collision,
+        success,
+        seeds,
+        verdict,
+        _source(cell),
+    ]
+
+
 def section_table1(findings: Findings) -> list[str]:
     rows = []
     for algo in TABLE1_ALGOS:
         cell = findings.table1[algo]
-        (reward, reward_std), (collision, collision_std) = PAPER_TABLE1[algo]
+        ours_reward, ours_collision = _training(cell, "r", 1.0, ""), _training(cell, "collision")
+        verdict = table1_verdict(findings, algo)
         rows.append(
-            [
-                label_of(algo).replace("IQL", "IL"),
-                f"{reward} +/- {reward_std}",
-                _training(cell, "r", 1.0, ""),
-                f"{collision} +/- {collision_std} %",
-                _training(cell, "collision"),
-                _spread(cell.final("success")) if cell else "-",
-                str(len(cell.seeds)) if cell else "0",
-                table1_verdict(findings, algo),
-                _source(cell),
-            ]
+            _paper_row(label_of(algo), PAPER_TABLE1[algo], ours_reward, ours_collision, cell, verdict)
         )
     lines = ["## Table I: MPE Cooperative Navigation", ""]
     lines += [
@@ -448,6 +463,8 @@ def section_fig4(findings: Findings, figure: str | None) -> list[str]:
         "comparable; n = 8, 12: QMIX does not learn, EPS-GDQ ahead of GDQ). Ours: greedy team success (every robot",
         "at its target), mean over seeds, at the paper's point (its steps read as ticks: every robot acts once per",
         f"tick); reproduced within {round(100 * TOLERANCE)} points, better here above that.",
+        "EPS-GDQ's committed runs ([EPS](eps.md)) trained GDQ with its former defaults (prioritized replay), and the",
+        "8- and 12-robot curves of [baselines](baselines.md) too, so they are not read here.",
         "",
     ]
     if figure:
@@ -507,19 +524,11 @@ def section_table2(findings: Findings) -> list[str]:
     rows = []
     for algo in TABLE2_ALGOS:
         cell = findings.table2[algo]
-        (reward, reward_std), (collision, collision_std) = PAPER_TABLE2[algo]
+        ours_reward = _spread(cell.final("team_return"), 1.0, "") if cell else "-"
+        ours_collision = _spread(cell.final("collision")) if cell else "-"
+        verdict = table2_verdict(cell, algo)
         rows.append(
-            [
-                label_of(algo),
-                f"{reward} +/- {reward_std}",
-                _spread(cell.final("team_return"), 1.0, "") if cell else "-",
-                f"{collision} +/- {collision_std} %",
-                _spread(cell.final("collision")) if cell else "-",
-                _spread(cell.final("success")) if cell else "-",
-                str(len(cell.seeds)) if cell else "0",
-                table2_verdict(cell, algo),
-                _source(cell),
-            ]
+            _paper_row(label_of(algo), PAPER_TABLE2[algo], ours_reward, ours_collision, cell, verdict)
         )
     lines = ["## Table II: the unseen room (4 robots)", ""]
     lines += [
@@ -661,22 +670,25 @@ def section_best(findings: Findings) -> list[str]:
     )
 
 
-def wall_time_estimate(findings: Findings) -> tuple[float, list[str]]:
+def wall_time_estimate(findings: Findings) -> tuple[float, float, list[str]]:
     """Hours of the full command on 2 cores (2 runs at a time), from the committed records' measured minutes.
 
     Per world, the ticks per second of the committed records of Fig. 4 and of ``timing`` in ``records.yml`` (their
-    last ``wall_s``); each grid's runs at the median rate, summed and halved. :return: (hours, the grids without a measured rate)
+    last ``wall_s``; they ran on a shared machine, so the rates spread); each grid's runs at the fastest and at the
+    slowest rate, summed and halved. Pre-GDQ counts as one more 4-robot GDQ run per stage and seed.
+
+    :return: (hours at the fastest rates, at the slowest, the grids without a measured rate)
     """
     rates: dict[int, list[float]] = {}
-    for (n, _), cell in findings.fig4.items():
-        for seed in cell.seeds if cell else []:
-            if math.isfinite(seed.wall_s) and seed.wall_s > 0:
-                rates.setdefault(n, []).append(float(seed.ticks[-1]) / seed.wall_s)
+    seeds = [(n, seed) for (n, _), cell in findings.fig4.items() if cell for seed in cell.seeds]
     for source in load_sources().get("timing", []):
-        for path in sorted(RESULTS.glob(source["records"])):
-            seed = read_record_seed(path)
-            rates.setdefault(int(source["env"].split("-")[1]), []).append(float(seed.ticks[-1]) / seed.wall_s)
-    seconds, unmeasured = 0.0, []
+        n = int(source["env"].split("-")[1])
+        seeds += [(n, read_record_seed(path)) for path in sorted(RESULTS.glob(source["records"]))]
+    for n, seed in seeds:
+        if math.isfinite(seed.wall_s) and seed.wall_s > 0:
+            rates.setdefault(n, []).append(float(seed.ticks[-1]) / seed.wall_s)
+    ticks: dict[int, float] = {}
+    unmeasured = []
     for name in ["table1", *(f"fig4_n{n}" for n in FIG4_WORLDS), "pretrain"]:
         grid = yaml.safe_load((SPECS / f"{name}.yml").read_text())
         env = grid["envs"][0]
@@ -684,11 +696,12 @@ def wall_time_estimate(findings: Findings) -> tuple[float, list[str]]:
         if n not in rates:
             unmeasured.append(name)
             continue
-        runs = len(grid["algos"]) * (grid["seeds"] if isinstance(grid["seeds"], int) else len(grid["seeds"]))
-        seconds += runs * grid["n_timesteps"] / n / float(np.median(rates[n]))
-        if name == "fig4_n4":  # Pre-GDQ: one 4-robot GDQ run per stage, as long as Fig. 4's
-            seconds += len(PRETRAIN_STAGES) * grid["n_timesteps"] / n / float(np.median(rates[n]))
-    return seconds / 2 / 3600, unmeasured
+        n_seeds = grid["seeds"] if isinstance(grid["seeds"], int) else len(grid["seeds"])
+        n_runs = len(grid["algos"]) * n_seeds + (len(PRETRAIN_STAGES) * n_seeds if n == 4 else 0)
+        ticks[n] = ticks.get(n, 0.0) + n_runs * grid["n_timesteps"] / n
+    fast = sum(total / max(rates[n]) for n, total in ticks.items())
+    slow = sum(total / min(rates[n]) for n, total in ticks.items())
+    return fast / 2 / 3600, slow / 2 / 3600, unmeasured
 
 
 def verdict_counts(findings: Findings) -> dict[str, dict[str, int]]:
@@ -710,18 +723,19 @@ ANCHORS = {
 }
 WHAT = {
     "Table I": "MPE: IL, EPS-IL, GDQ, EPS-GDQ",
-    "Fig. 4": "2-12 robots: IQL, QMIX, GDQ, EPS-GDQ",
+    "Fig. 4": "2-12 robots: IL, QMIX, GDQ, EPS-GDQ",
     "Table II": "unseen room: QMIX, GDQ, EPS-GDQ",
     "Table III": "Pre-GDQ against EPS-GDQ",
 }
 
 
 def full_command_line(findings: Findings) -> str:
-    hours, unmeasured = wall_time_estimate(findings)
+    fast, slow, unmeasured = wall_time_estimate(findings)
     return (
-        f"Every record: `python research/paper_page.py run`, about {hours:.0f} h on 2 cores (an estimate: each grid's "
-        "runs at the ticks per second the committed records of its world measured, two at a time; "
-        f"{', '.join(unmeasured)} have no measured rate and are not counted; the full command has not been run)."
+        f"Every record: `python research/paper_page.py run`, an estimated {fast:.0f}-{slow:.0f} h on 2 cores (not "
+        "measured: the full command has not been run; each grid's runs at the fastest and the slowest ticks per "
+        "second that the committed records of its world measured, two runs at a time; "
+        f"{', '.join(unmeasured) or 'none'} without a measured rate, not counted)."
     )
 
 
