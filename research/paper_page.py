@@ -42,9 +42,12 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # sb3_eps sits beside research/
 
+from sb3_eps.zoo.cli import OneLineArgumentParser
+from sb3_eps.zoo.errors import ConfigError, RunFailed, run_command
 from sb3_eps.zoo.plotting import RunCurve, label_of, plot_learning_curves
 from sb3_eps.zoo.run_folder import EVALUATIONS_NAME, MONITOR_NAME, read_monitor
 
+PROG = "python research/paper_page.py"
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "docs" / "results"
 SPECS = RESULTS / "paper"
@@ -824,7 +827,7 @@ def render(folder: Path, page: Path, readme: Path | None, check: bool = False) -
         text = readme.read_text()
         begin, end = text.find(README_BEGIN), text.find(README_END)
         if begin < 0 or end < 0:
-            raise ValueError(f"{readme}: no status markers ({README_BEGIN} ... {README_END})")
+            raise ConfigError(f"{readme}: no status markers ({README_BEGIN} ... {README_END})")
         status = render_status(findings, page.relative_to(readme.parent).as_posix())
         texts[readme] = text[:begin] + status + text[end + len(README_END) :]
     changed = [str(path) for path, text in texts.items() if not path.is_file() or path.read_text() != text]
@@ -852,7 +855,9 @@ QUICK_FLAGS = [
 def _python(*args: str) -> None:
     command = [sys.executable, *args]
     print("+", " ".join(command), flush=True)
-    subprocess.run(command, check=True, cwd=ROOT)
+    status = subprocess.run(command, cwd=ROOT).returncode
+    if status != 0:  # the grid has said which run failed; running it again resumes
+        raise RunFailed(f"{' '.join(args)} exited with status {status}; run the same command again to resume")
 
 
 def pick_snapshot(run_dir: Path, success: float) -> dict[str, Any] | None:
@@ -913,8 +918,8 @@ def run_pipeline(folder: Path, quick: bool, grid_flags: Sequence[str]) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python research/paper_page.py",
+    parser = OneLineArgumentParser(
+        prog=PROG,
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -931,6 +936,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--check", action="store_true", help="render: exit 1 when the files differ; write nothing"
     )
     args, grid_flags = parser.parse_known_args(argv)
+    if not args.page.parent.is_dir():
+        raise ConfigError(f"--page {args.page}: its folder does not exist")
     grid_flags = [flag for flag in grid_flags if flag != "--"]
     if args.command == "run":
         run_pipeline(args.folder, args.quick, grid_flags)
@@ -944,4 +951,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_command(PROG, main)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+import subprocess
 import sys
 from pathlib import Path
 
@@ -39,6 +40,19 @@ def test_a_hand_edit_of_the_page_or_the_status_fails_the_check(tmp_path: Path) -
         readme.read_text().replace("| Table II]", "| Table II ]").replace("not reproduced", "reproduced")
     )
     assert paper_page.render(paper_page.RUNS, page, readme, check=True) == [str(page), str(readme)]
+
+
+def test_a_bad_argument_is_one_line_and_status_2(tmp_path: Path) -> None:
+    readme = tmp_path / "README.md"
+    readme.write_text("# no status markers\n")
+    command = [sys.executable, str(ROOT / "research" / "paper_page.py"), "render", "--readme", str(readme)]
+    result = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path)
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == [
+        f"python research/paper_page.py: error: {readme}: no status markers "
+        f"({paper_page.README_BEGIN} ... {paper_page.README_END})"
+    ]
+    assert readme.read_text() == "# no status markers\n"
 
 
 def test_success_verdicts_at_the_tolerance() -> None:
