@@ -60,6 +60,57 @@ def test_success_verdicts_at_the_tolerance() -> None:
     assert paper_page.success_verdict(0.96, 0.9) == "better here"
 
 
+def _cell(
+    successes: list[float], every: int = 50_000, training: dict[str, float] | None = None
+) -> paper_page.Cell:
+    ticks = np.arange(1, len(successes) + 1) * every
+    values = np.array(successes)
+    seed = paper_page.Seed("synthetic", ticks, values, values * 10, 1 - values, training=training or {})
+    return paper_page.Cell([seed], "synthetic")
+
+
+def _findings(**cells: paper_page.Cell) -> paper_page.Findings:
+    fig4 = {
+        (n, algo): cells.get(f"{algo}{n}") for n in paper_page.FIG4_WORLDS for algo in paper_page.FIG4_ALGOS
+    }
+    table1 = {algo: cells.get(f"{algo}_mpe") for algo in paper_page.TABLE1_ALGOS}
+    return paper_page.Findings(table1, fig4, {}, {}, [])
+
+
+def test_fig4_verdicts_read_the_paper_point_or_say_the_runs_end_before_it() -> None:
+    findings = _findings(
+        gdq4=_cell([0.5, 0.8, 0.9]),  # the paper: 88 % at 175k; ours end at 150k, already there
+        qmix4=_cell([0.3, 0.6, 0.7]),  # the paper: 90 % at 110k; ours 60 % at 100k
+        eps_gdq4=_cell([0.5, 0.6]),  # the paper: 90 % at 100k; ours 60 % at 100k
+        qmix8=_cell([0.1, 0.15]),
+        gdq8=_cell([0.5, 0.8]),
+        eps_gdq8=_cell([0.5, 0.7]),
+    )
+    assert paper_page.fig4_verdict(findings, 4, "gdq") == ("90.0 % at 150k", "reproduced")
+    assert paper_page.fig4_verdict(findings, 4, "qmix") == ("60.0 % at 110k", "not reproduced")
+    assert paper_page.fig4_verdict(findings, 4, "eps_gdq") == ("60.0 % at 100k", "not reproduced")
+    assert paper_page.fig4_verdict(findings, 8, "qmix")[1] == "reproduced"  # "does not learn": below 20 %
+    assert paper_page.fig4_verdict(findings, 8, "eps_gdq")[1] == "not reproduced"  # behind GDQ
+    assert paper_page.fig4_verdict(findings, 12, "gdq") == ("-", paper_page.NOT_RUN)
+    short = _findings(qmix4=_cell([0.3, 0.6], every=25_000))  # ends at 50k, below the paper's 90 %
+    assert paper_page.fig4_verdict(short, 4, "qmix") == ("60.0 % at 50k (runs end there)", paper_page.NOT_RUN)
+
+
+def test_table1_verdicts_follow_the_papers_ordering() -> None:
+    findings = _findings(
+        iql_mpe=_cell([0.5], training={"r": -80.0, "collision": 0.30}),
+        eps_iql_mpe=_cell([0.5], training={"r": -75.0, "collision": 0.25}),
+        gdq_mpe=_cell([0.5], training={"r": -70.0, "collision": 0.31}),  # more collisions than IL
+    )
+    verdicts = {algo: paper_page.table1_verdict(findings, algo) for algo in paper_page.TABLE1_ALGOS}
+    assert verdicts == {
+        "iql": "reference",
+        "eps_iql": "reproduced",
+        "gdq": "not reproduced",
+        "eps_gdq": paper_page.NOT_RUN,
+    }
+
+
 def test_the_stage_snapshot_is_the_first_to_reach_its_success(tmp_path: Path) -> None:
     timesteps = np.array([100, 200, 300, 400])
     successes = np.array([[0.0, 0.0], [0.5, 1.0], [1.0, 1.0], [1.0, 1.0]])
