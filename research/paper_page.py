@@ -396,36 +396,35 @@ def _training(cell: Cell | None, key: str, scale: float = 100.0, unit: str = " %
 PaperPair = tuple[tuple[float, float], tuple[float, float]]
 
 
-def _paper_row(
-    label: str, paper: PaperPair, ours_reward: str, ours_collision: str, cell: Cell | None, verdict: str
+def _paper_table(
+    paper: dict[str, PaperPair],
+    cells: dict[str, Cell | None],
+    ours: dict[str, tuple[str, str]],
+    verdicts: dict[str, str],
+    ours_reward: str,
 ) -> list[str]:
-    """A row of Table I or II: the paper's reward and collisions (mean +/- std) beside ours, success, verdict."""
-    (reward, reward_std), (collision, collision_std) = paper
-    seeds = str(len(cell.seeds)) if cell else "0"
-    success = _spread(cell.final("success")) if cell else "-"
-    paper_reward, paper_collision = f"{reward} +/- {reward_std}", f"{collision} +/- {collision_std} %"
-    return [
-        label,
-        paper_reward,
-        ours_reward,
-        paper_collision,
-        ours_collision,
-        success,
-        seeds,
-        verdict,
-        _source(cell),
-    ]
+    """Table I or II: per algorithm the paper's reward and collisions (mean +/- std) beside ours, success, verdict.
+
+    :param ours: per algorithm, our reward and collision cells; :param ours_reward: the header of our reward column
+    """
+    rows = []
+    for algo, cell in cells.items():
+        (reward, reward_std), (collision, collision_std) = paper[algo]
+        seeds = str(len(cell.seeds)) if cell else "0"
+        success = _spread(cell.final("success")) if cell else "-"
+        rows.append([label_of(algo), f"{reward} +/- {reward_std}", ours[algo][0], f"{collision} +/- {collision_std} %",
+                     ours[algo][1], success, seeds, verdicts[algo], _source(cell)])  # fmt: skip
+    header = ["", "paper: avg. reward", ours_reward, "paper: collision", "ours: collision", "ours: greedy success",
+              "seeds", "verdict", "records"]  # fmt: skip
+    return _table(header, rows)
 
 
 def section_table1(findings: Findings) -> list[str]:
-    rows = []
-    for algo in TABLE1_ALGOS:
-        cell = findings.table1[algo]
-        ours_reward, ours_collision = _training(cell, "r", 1.0, ""), _training(cell, "collision")
-        verdict = table1_verdict(findings, algo)
-        rows.append(
-            _paper_row(label_of(algo), PAPER_TABLE1[algo], ours_reward, ours_collision, cell, verdict)
-        )
+    cells = findings.table1
+    ours = {
+        algo: (_training(cell, "r", 1.0, ""), _training(cell, "collision")) for algo, cell in cells.items()
+    }
+    verdicts = {algo: table1_verdict(findings, algo) for algo in cells}
     lines = ["## Table I: MPE Cooperative Navigation", ""]
     lines += [
         "Over the whole training, as the paper measures: its average reward (its scale; ours is the team return of an",
@@ -434,21 +433,8 @@ def section_table1(findings: Findings) -> list[str]:
         "IL, each EPS variant over its base, in reward and in collisions) holds in our runs.",
         "",
     ]
-    lines += _table(
-        [
-            "",
-            "paper: avg. reward",
-            "ours: avg. team return",
-            "paper: collision",
-            "ours: collision",
-            "ours: greedy success, end",
-            "seeds",
-            "verdict",
-            "records",
-        ],
-        rows,
-    )
-    if any(cell is None for cell in findings.table1.values()):
+    lines += _paper_table(PAPER_TABLE1, cells, ours, verdicts, "ours: avg. team return")
+    if any(cell is None for cell in cells.values()):
         lines += ["", f"Not run yet: {_grid_command('table1', 'table1')}."]
     return lines
 
@@ -521,36 +507,22 @@ def section_fig4(findings: Findings, figure: str | None) -> list[str]:
 
 
 def section_table2(findings: Findings) -> list[str]:
-    rows = []
-    for algo in TABLE2_ALGOS:
-        cell = findings.table2[algo]
-        ours_reward = _spread(cell.final("team_return"), 1.0, "") if cell else "-"
-        ours_collision = _spread(cell.final("collision")) if cell else "-"
-        verdict = table2_verdict(cell, algo)
-        rows.append(
-            _paper_row(label_of(algo), PAPER_TABLE2[algo], ours_reward, ours_collision, cell, verdict)
-        )
+    cells = findings.table2
+    ours = {
+        algo: (_spread(cell.final("team_return"), 1.0, ""), _spread(cell.final("collision")))
+        if cell
+        else ("-", "-")
+        for algo, cell in cells.items()
+    }
+    verdicts = {algo: table2_verdict(cell, algo) for algo, cell in cells.items()}
     lines = ["## Table II: the unseen room (4 robots)", ""]
     lines += [
         "The 4-robot models of Fig. 4 on `MultiRobotNavUnseen-4-v0`, 100 greedy episodes per seed. The paper's reward",
         "is on its own scale, so the verdict compares collisions: reproduced within the paper's mean + 2 std.",
         "",
     ]
-    lines += _table(
-        [
-            "",
-            "paper: avg. reward",
-            "ours: team return",
-            "paper: collision",
-            "ours: collision",
-            "ours: success",
-            "seeds",
-            "verdict",
-            "records",
-        ],
-        rows,
-    )
-    if any(cell is None for cell in findings.table2.values()):
+    lines += _paper_table(PAPER_TABLE2, cells, ours, verdicts, "ours: team return")
+    if any(cell is None for cell in cells.values()):
         lines += [
             "",
             "Not run yet: `python research/paper_page.py run` (after Fig. 4's 4-robot grid it evaluates "
