@@ -82,6 +82,7 @@ def test_fig4_verdicts_read_the_paper_point_or_say_the_runs_end_before_it() -> N
         gdq4=_cell([0.5, 0.8, 0.9]),  # the paper: 88 % at 175k; ours end at 150k, already there
         qmix4=_cell([0.3, 0.6, 0.7]),  # the paper: 90 % at 110k; ours 60 % at 100k
         eps_gdq4=_cell([0.5, 0.6]),  # the paper: 90 % at 100k; ours 60 % at 100k
+        iql4=_cell([0.2, 0.3, 0.4]),
         qmix8=_cell([0.1, 0.15]),
         gdq8=_cell([0.5, 0.8]),
         eps_gdq8=_cell([0.5, 0.7]),
@@ -91,6 +92,10 @@ def test_fig4_verdicts_read_the_paper_point_or_say_the_runs_end_before_it() -> N
     assert paper_page.fig4_verdict(findings, 4, "eps_gdq") == ("60.0 % at 100k", "not reproduced")
     assert paper_page.fig4_verdict(findings, 8, "qmix")[1] == "reproduced"  # "does not learn": below 20 %
     assert paper_page.fig4_verdict(findings, 8, "eps_gdq")[1] == "not reproduced"  # behind GDQ
+    assert paper_page.fig4_verdict(findings, 4, "iql")[1] == "reproduced"  # "lowest of the four"
+    assert (
+        paper_page.fig4_verdict(findings, 8, "gdq")[1] == "no success figure"
+    )  # a reward read from the figure
     assert paper_page.fig4_verdict(findings, 12, "gdq") == ("-", paper_page.NOT_RUN)
     short = _findings(qmix4=_cell([0.3, 0.6], every=25_000))  # ends at 50k, below the paper's 90 %
     assert paper_page.fig4_verdict(short, 4, "qmix") == ("60.0 % at 50k (runs end there)", paper_page.NOT_RUN)
