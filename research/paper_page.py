@@ -42,6 +42,7 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # sb3_eps sits beside research/
 
+from sb3_eps.grid import main as grid_main
 from sb3_eps.zoo.cli import OneLineArgumentParser
 from sb3_eps.zoo.errors import ConfigError, RunFailed, run_command
 from sb3_eps.zoo.plotting import RunCurve, label_of, plot_learning_curves
@@ -835,8 +836,15 @@ def _python(*args: str) -> None:
     command = [sys.executable, *args]
     print("+", " ".join(command), flush=True)
     status = subprocess.run(command, cwd=ROOT).returncode
-    if status != 0:  # the grid has said which run failed; running it again resumes
+    if status != 0:
         raise RunFailed(f"{' '.join(args)} exited with status {status}; run the same command again to resume")
+
+
+def _grid(*args: str) -> None:
+    """``python -m sb3_eps.grid`` in this process (its runs are processes of their own)."""
+    print("+ python -m sb3_eps.grid", " ".join(args), flush=True)
+    if grid_main(list(args)) != 0:  # the grid has said which run failed; running it again resumes
+        raise RunFailed(f"a run of the grid {args[1]} failed; run the same command again to resume")
 
 
 def pick_snapshot(run_dir: Path, success: float) -> dict[str, Any] | None:
@@ -861,7 +869,7 @@ def run_pipeline(folder: Path, quick: bool, grid_flags: Sequence[str]) -> None:
     flags = [*(QUICK_FLAGS if quick else []), *grid_flags]
     worlds = (4,) if quick else FIG4_WORLDS
     for name in ["table1", *(f"fig4_n{n}" for n in worlds), "pretrain"]:
-        _python("-m", "sb3_eps.grid", "--grid", str(SPECS / f"{name}.yml"), "-f", str(folder / name), *flags)
+        _grid("--grid", str(SPECS / f"{name}.yml"), "-f", str(folder / name), *flags)
     evaluations = [
         ["-m", "sb3_eps.evaluate", "--run", str(run_dir), "--eval-env", UNSEEN, "-n", "1" if quick else "100"]
         for algo in TABLE2_ALGOS
@@ -893,7 +901,7 @@ def run_pipeline(folder: Path, quick: bool, grid_flags: Sequence[str]) -> None:
             train_args = f"{QUICK_FLAGS[-1]} --init-from {picked['path']}"
             stage_flags = [*QUICK_FLAGS[:-1], train_args, *grid_flags]
         grid_file = str(stage_folder / "pre_gdq.yml")
-        _python("-m", "sb3_eps.grid", "--grid", grid_file, "-f", str(stage_folder), *stage_flags)
+        _grid("--grid", grid_file, "-f", str(stage_folder), *stage_flags)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -919,6 +927,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise ConfigError(f"--page {args.page}: its folder does not exist")
     grid_flags = [flag for flag in grid_flags if flag != "--"]
     if args.command == "run":
+        # The runs are processes of their own: they import the package beside this script, as this process does.
+        os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
         run_pipeline(args.folder, args.quick, grid_flags)
     elif grid_flags:
         parser.error(f"unknown arguments {grid_flags}")
