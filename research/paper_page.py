@@ -124,6 +124,11 @@ class Cell:
     origin: str
     page: str | None = None
 
+    @property
+    def end(self) -> int:
+        """The ticks every seed reached."""
+        return int(min(seed.ticks[-1] for seed in self.seeds))
+
     def final(self, metric: str) -> np.ndarray:
         return np.array([float(getattr(seed, metric)[-1]) for seed in self.seeds])
 
@@ -321,7 +326,7 @@ def fig4_verdict(findings: Findings, n: int, algo: str) -> tuple[str, str]:
         return "-", NOT_RUN
     if isinstance(claim, tuple):
         success, steps = claim
-        end = int(min(seed.ticks[-1] for seed in cell.seeds))
+        end = cell.end
         ours = cell.at(min(steps, end))
         if end < steps and (ours is None or ours < success - TOLERANCE):
             return f"{_pct(ours)} at {_k(end)} (runs end there)", NOT_RUN
@@ -476,36 +481,20 @@ def section_fig4(findings: Findings, figure: str | None) -> list[str]:
             claim = PAPER_FIG4[(n, algo)]
             paper = f"{_pct(claim[0])} at {_k(claim[1])} (text)" if isinstance(claim, tuple) else claim
             ours, verdict = fig4_verdict(findings, n, algo)
-            end = (
-                f"{_spread(cell.final('success'))} at {_k(int(min(s.ticks[-1] for s in cell.seeds)))}"
-                if cell
-                else "-"
-            )
-            rows.append(
-                [
-                    str(n),
-                    label_of(algo),
-                    paper,
-                    ours,
-                    end,
-                    str(len(cell.seeds)) if cell else "0",
-                    verdict,
-                    _source(cell),
-                ]
-            )
-    lines += _table(
-        [
-            "robots",
-            "algorithm",
-            "paper",
-            "ours at that point",
-            "ours at the end",
-            "seeds",
-            "verdict",
-            "records",
-        ],
-        rows,
-    )
+            end = f"{_spread(cell.final('success'))} at {_k(cell.end)}" if cell else "-"
+            seeds = str(len(cell.seeds)) if cell else "0"
+            rows.append([str(n), label_of(algo), paper, ours, end, seeds, verdict, _source(cell)])
+    header = [
+        "robots",
+        "algorithm",
+        "paper",
+        "ours at that point",
+        "ours at the end",
+        "seeds",
+        "verdict",
+        "records",
+    ]
+    lines += _table(header, rows)
     missing = sorted({n for (n, _), cell in findings.fig4.items() if cell is None})
     if missing:
         lines += [
@@ -565,7 +554,7 @@ def section_table3(findings: Findings) -> list[str]:
         ours_start = f"{_pct(float(start.success[0]))} at {_k(int(start.ticks[0]))}" if start else "-"
         ours_pre = "-"
         if cell:
-            end = min(seed.ticks[-1] for seed in cell.seeds)
+            end = cell.end
             ours_pre = (
                 _pct(cell.at(PAPER_TABLE3_EPS[0] * 1000)) if end >= 100_000 else f"runs end at {_k(end)}"
             )
@@ -630,27 +619,17 @@ def best_rows(findings: Findings) -> list[tuple[str, str, Cell]]:
 def section_best(findings: Findings) -> list[str]:
     rows = []
     for env, label, cell in best_rows(findings):
-        end = int(min(seed.ticks[-1] for seed in cell.seeds))
-        rows.append(
-            [
-                f"`{env}`",
-                label,
-                _spread(cell.final("success")),
-                _spread(cell.final("collision")),
-                f"{_k(end)}" if end else "-",
-                str(len(cell.seeds)),
-                _source(cell),
-            ]
-        )
+        success, collision = _spread(cell.final("success")), _spread(cell.final("collision"))
+        ticks = _k(cell.end) if cell.end else "-"  # an evaluation of finished models has no ticks
+        rows.append([f"`{env}`", label, success, collision, ticks, str(len(cell.seeds)), _source(cell)])
     lines = ["## The package's best per world", ""]
     lines += [
         "The configuration with the highest mean greedy team success at the end among the records above and",
         "the options listed in `docs/results/paper/records.yml`.",
         "",
     ]
-    return lines + _table(
-        ["world", "configuration", "greedy success", "collisions", "ticks", "seeds", "records"], rows
-    )
+    header = ["world", "configuration", "greedy success", "collisions", "ticks", "seeds", "records"]
+    return lines + _table(header, rows)
 
 
 def wall_time_estimate(findings: Findings) -> tuple[float, float, list[str]]:
