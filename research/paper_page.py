@@ -4,7 +4,7 @@ Examples::
 
     python research/paper_page.py run                      # every grid of docs/results/paper/, the unseen room,
                                                            # Pre-GDQ; then renders docs/results/README.md
-    python research/paper_page.py run --quick -f /tmp/paper --page /tmp/paper/README.md --readme ""  # tiny budgets
+    python research/paper_page.py run --quick -f logs/paper --page logs/paper/README.md --readme ""   # tiny budgets
     python research/paper_page.py render                   # re-render the page and README's status from the records
     python research/paper_page.py render --check           # exit 1 when the committed page differs from the records
 
@@ -902,7 +902,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--check", action="store_true", help="render: exit 1 when the files differ; write nothing"
     )
     args, grid_flags = parser.parse_known_args(argv)
-    if not args.page.parent.is_dir():
+    if args.command == "run":
+        args.page.parent.mkdir(parents=True, exist_ok=True)
+    elif not args.page.parent.is_dir():
         raise ConfigError(f"--page {args.page}: its folder does not exist")
     grid_flags = [flag for flag in grid_flags if flag != "--"]
     if args.command == "run":
