@@ -51,7 +51,10 @@ def test_the_q_filter_picks_the_parent_that_values_its_greedy_action_highest(sta
     assert th.equal(teacher, (states[:, 0] < 0).long())
     # A critic that values action 1 above all overrules the parents' own judgement: B's action 2 loses to A's 1.
     critic = hand_made_parent([0.0, 5.0, 0.0], [0.0, 5.0, 0.0])
-    assert th.equal(q_filter(parents, states, critic)[states[:, 0] < 0], th.zeros(int((states[:, 0] < 0).sum()), dtype=th.long))
+    assert th.equal(
+        q_filter(parents, states, critic)[states[:, 0] < 0],
+        th.zeros(int((states[:, 0] < 0).sum()), dtype=th.long),
+    )
 
 
 def test_the_child_matches_each_halfs_better_parent_and_polyak_averaging_does_not(states) -> None:
@@ -72,7 +75,9 @@ def test_the_child_matches_each_halfs_better_parent_and_polyak_averaging_does_no
     for share in agreement_by_half(child, states).values():
         assert share > 0.95
     assert result.agreement > 0.95
-    assert result.teacher_share == pytest.approx([float((states[:, 0] > 0).float().mean()), float((states[:, 0] < 0).float().mean())])
+    assert result.teacher_share == pytest.approx(
+        [float((states[:, 0] > 0).float().mean()), float((states[:, 0] < 0).float().mean())]
+    )
     for parent, weights in zip(parents, before, strict=True):  # the parents are left as they were
         for name, value in network_parameters(parent).items():
             assert th.equal(value, weights[name])
