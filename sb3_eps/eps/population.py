@@ -59,9 +59,11 @@ class ScaledSchedule:
     """A learning-rate schedule times a factor (a PBT perturbation of a schedule); picklable with the model."""
 
     def __init__(self, schedule: Callable[[float], float], factor: float) -> None:
-        if isinstance(schedule, ScaledSchedule):
-            schedule, factor = schedule.schedule, schedule.factor * factor
-        self.schedule, self.factor = schedule, factor
+        if isinstance(schedule, ScaledSchedule):  # one factor, however often it was perturbed
+            factor *= schedule.factor
+            schedule = schedule.schedule
+        self.schedule: Callable[[float], float] = schedule
+        self.factor: float = factor
 
     def __call__(self, progress_remaining: float) -> float:
         return self.factor * float(self.schedule(progress_remaining))
@@ -93,7 +95,8 @@ class PopulationTrainer:
         ``seed + i * n_envs``) or a function of the learner's index that returns its vector env; None only to load
     :param k: learners (>= 2)
     :param n_envs: worlds per learner
-    :param interval: world ticks, all learners together, between two selections
+    :param interval: world ticks, all learners together, between two selections (a selection is due at the end of
+        the first round of turns that reaches it)
     :param turn_ticks: world ticks a learner trains before the next one takes its turn (a SIGTERM is answered at
         the end of a turn)
     :param share_buffer: one replay buffer for all learners (CERL) instead of one each
@@ -140,7 +143,7 @@ class PopulationTrainer:
         **algorithm_kwargs: Any,
     ) -> None:
         self.algorithm_class, self.env = algorithm_class, env
-        self.settings = {
+        self.settings: dict[str, Any] = {
             "k": k,
             "n_envs": n_envs,
             "interval": interval,
@@ -186,6 +189,10 @@ class PopulationTrainer:
     def _make_env(self, index: int) -> VecEnv:
         if callable(self.env):
             return self.env(index)
+        if self.env is None:
+            raise ValueError(
+                "the population has no env: give env= (an env id or a function of the learner's index)"
+            )
         import envs  # noqa: F401  # registers the package's worlds
         from sb3_eps.common.vec_env import make_vec_env
 
@@ -252,7 +259,7 @@ class PopulationTrainer:
             episodes = list(learner.ep_info_buffer or [])[-self.settings["fitness_episodes"] :]
             if episodes and key not in episodes[0]:
                 raise ValueError(
-                    f"fitness='success' needs episodes with a 'success' flag; {learner.env} has none: use 'return'"
+                    "fitness='success' needs episodes with a 'success' flag and this world's have none: use fitness='return'"
                 )
             counts.append(len(episodes))
             enough = len(episodes) >= self.settings["fitness_episodes"]
@@ -303,7 +310,7 @@ class PopulationTrainer:
     def _copy(source: MultiAgentOffPolicyAlgorithm, target: MultiAgentOffPolicyAlgorithm) -> None:
         """Weights, optimizer state (deep copies: the optimizer would keep the source's tensors) and the hyper-
         parameters PBT perturbs; the target's fitness starts afresh from its next episodes."""
-        target.set_parameters(copy.deepcopy(source.get_parameters()), exact_match=True)
+        target.set_parameters(copy.deepcopy(source.get_parameters()), exact_match=True)  # type: ignore[arg-type]
         _set_learning_rate(target, source.learning_rate)
         _set_exploration_final_eps(target, source.exploration_final_eps)
         if target.ep_info_buffer is not None:
