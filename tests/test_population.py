@@ -14,6 +14,7 @@ import pytest
 import torch as th
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
+import envs  # noqa: F401  # registers the worlds
 from sb3_eps import GDQ, make_vec_env
 from sb3_eps.eps.population import PopulationTrainer
 
@@ -135,6 +136,14 @@ def test_fitness_costs_no_extra_ticks_and_comes_from_the_training_episodes() -> 
     for learner, value, count in zip(population.learners, measured, counts, strict=True):
         returns = [episode["r"] for episode in learner.ep_info_buffer][-2:]
         assert count == 2 and value == pytest.approx(np.mean(returns))
+    population.settings["fitness"] = "success"
+    successes, _ = population.fitness()
+    for learner, value in zip(population.learners, successes, strict=True):
+        assert value == np.mean([float(episode["success"]) for episode in learner.ep_info_buffer][-2:])
+    for learner in population.learners:  # a world whose episodes carry no success flag
+        learner.ep_info_buffer.extend([{"r": 1.0, "l": 25}] * 2)
+    with pytest.raises(ValueError, match="use fitness='return'"):
+        population.fitness()
 
 
 def test_save_and_load_round_trip(tmp_path) -> None:

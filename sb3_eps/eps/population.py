@@ -30,6 +30,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.snapshots import rng_states, set_rng_states, snapshot_dumps
+from sb3_eps.eps.callback import VALUE_STREAM
 from sb3_eps.eps.distillation import q_filtered_distillation
 from sb3_eps.eps.mutations import (
     calibrate_scale,
@@ -337,7 +338,7 @@ class PopulationTrainer:
         if observations is None:
             return {"mutation": "none: the replay buffer is empty"}
         theta = network_parameters(q_net)
-        frozen = ["value_stream"] if any(name.startswith("value_stream.") for name in theta) else []
+        frozen = [VALUE_STREAM] if any(name.startswith(f"{VALUE_STREAM}.") for name in theta) else []
         sensitivity = output_sensitivity(q_net, observations)
         directions = mutation_directions(
             theta, 1, self.generator, [sensitivity], SENSITIVITY_FLOOR, evolved_parameter_names(q_net, frozen)
