@@ -82,6 +82,8 @@ def test_selection_copies_the_fittest_over_the_weakest_and_the_copy_is_deep() ->
         assert not th.equal(copied, source)
 
     assert "skipped" in population.select(fitness=[0.5, np.nan, 0.5])  # a tie, a learner sitting out: no copy
+    with pytest.raises(ValueError, match=r"give one fitness per learner \(3\)"):
+        population.select(fitness=[0.5, 0.1])
 
 
 def test_the_perturbation_changes_what_it_says() -> None:
@@ -221,6 +223,7 @@ def test_a_run_stopped_by_sigterm_resumes_exactly(tmp_path) -> None:
         ({"target_flip_share": 1.5}, r"target_flip_share must be in \(0, 1\)"),
         ({"perturb_factors": ()}, r"perturb_factors must be numbers > 0"),
         ({"share_buffer": "yes"}, r"share_buffer must be True or False"),
+        ({"fitness_episodes": 20, "stats_window_size": 10}, r"fitness_episodes \(20\) exceeds the episodes"),
     ],
 )
 def test_bad_settings_are_one_line_errors(settings, message) -> None:

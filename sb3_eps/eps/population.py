@@ -274,6 +274,8 @@ class PopulationTrainer:
         :return: the record (also appended to ``history`` and ``log_path``)
         """
         values, counts = self.fitness() if fitness is None else (np.asarray(fitness, dtype=float), None)
+        if values.shape != (len(self.learners),):
+            raise ValueError(f"give one fitness per learner ({len(self.learners)}), got {list(values)}")
         record: dict[str, Any] = {
             "ticks": self.ticks,
             "learner_ticks": [learner.ticks for learner in self.learners],
@@ -503,6 +505,12 @@ def _check(algorithm_class: Any, settings: dict[str, Any]) -> None:
         raise ValueError(f"share_buffer must be True or False, got {settings['share_buffer']!r}")
     if not 0.0 < settings["target_flip_share"] < 1.0:
         raise ValueError(f"target_flip_share must be in (0, 1), got {settings['target_flip_share']!r}")
+    window = settings["algorithm_kwargs"].get("stats_window_size", 100)
+    if settings["fitness_episodes"] > window:
+        raise ValueError(
+            f"fitness_episodes ({settings['fitness_episodes']}) exceeds the episodes a learner keeps "
+            f"(stats_window_size={window}): lower it or raise stats_window_size"
+        )
     unknown = sorted(set(settings["perturb"]) - set(PERTURBABLE))
     if unknown:
         raise ValueError(f"perturb names {unknown}; the hyper-parameters it can perturb are {PERTURBABLE}")
