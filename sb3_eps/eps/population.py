@@ -292,9 +292,11 @@ class PopulationTrainer:
             fittest, weakest = int(order[0]), int(order[-1])
             record.update(fittest=fittest, weakest=weakest, crossover=self.settings["crossover"])
             second = int(order[1])
-            second_parent = copy.deepcopy(self.learners[second].policy.q_net)  # before the copy overwrites it
+            distill = self.settings["crossover"] == "distill"
+            # The second parent as it is now: with two learners ready it is the weakest, overwritten by the copy.
+            second_parent = copy.deepcopy(self.learners[second].policy.q_net) if distill else None
             self._copy(self.learners[fittest], self.learners[weakest])
-            if self.settings["crossover"] == "distill":
+            if second_parent is not None:
                 record["second"] = second
                 record["distillation"] = self._distill(weakest, fittest, second, second_parent)
             self._perturb(self.learners[weakest], record)
@@ -408,9 +410,8 @@ class PopulationTrainer:
             buffer = io.BytesIO()
             learner.save(buffer)
             members[f"learner_{index}.zip"] = buffer.getvalue()
-        if (
-            include_training_state
-        ):  # one pickle: a shared buffer stays shared, each collector keeps its buffer
+        if include_training_state:
+            # One pickle: a shared buffer stays shared, and each n-step collector keeps pointing at its buffer.
             rollouts = [{**learner.rollout_state(), "env": learner.env} for learner in self.learners]
             members["training.pkl"] = snapshot_dumps(rollouts)
             members["rng.pkl"] = pickle.dumps(rng_states())
