@@ -24,14 +24,10 @@ With ``record`` (EPS's experience sharing) a block also keeps every tick of its 
 from __future__ import annotations
 
 import copy
-import multiprocessing as mp
-import signal
 import time
-import traceback
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
-from multiprocessing.connection import Connection
 from typing import Any
 
 import gymnasium
@@ -41,7 +37,7 @@ from torch import nn
 from torch.func import functional_call, vmap
 
 from sb3_eps.common.parallel_wrappers import TeamAsGymnasium, TeamTick
-from sb3_eps.common.subproc_vec_env import default_start_method
+from sb3_eps.common.workers import Served, WorkerError, WorkerPool
 from sb3_eps.eps.mutations import Parameters, finite_individuals, individual
 
 
@@ -120,7 +116,7 @@ RECORD_MODES = (None, "ticks", "ticks+states")
 PoolAnswer = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[TeamEpisode | None] | None]
 
 
-class EvaluationFailed(RuntimeError):
+class EvaluationFailed(WorkerError):
     """An evaluation worker crashed, raised or did not answer in time; the round cannot be scored."""
 
     record: dict[str, Any] | None = None
@@ -313,35 +309,25 @@ class _Block:
             env.close()
 
 
-def _worker_main(connection: Connection, block_kwargs: dict[str, Any]) -> None:
-    """Worker loop: build a :class:`_Block`, then answer ``evaluate`` / ``close`` messages."""
-    # Ctrl-C goes to the whole process group: let the main process decide and close the workers.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+def _build_served_block(block_kwargs: dict[str, Any]) -> _ServedBlock:
     th.set_num_threads(1)  # the forward passes are tiny; threads would fight over the cores with the envs
-    block: _Block | None = None
-    try:
-        block = _Block(**block_kwargs)
-        connection.send(("ok", None))
-        while True:
-            command, *arguments = connection.recv()
-            if command == "close":
-                break
-            if command != "evaluate":
-                raise ValueError(f"unknown worker command {command!r}")
-            population, seeds, valid = arguments
-            weights = {name: th.from_numpy(array) for name, array in population.items()}
-            connection.send(("ok", block.evaluate(weights, seeds, valid)))
-    except (EOFError, KeyboardInterrupt):  # the main process went away
-        pass
-    except Exception:  # anything an env raises goes back to the main process
-        try:
-            connection.send(("error", traceback.format_exc()))
-        except (BrokenPipeError, OSError):
-            pass
-    finally:
-        if block is not None:
-            block.close()
-        connection.close()
+    return _ServedBlock(_Block(**block_kwargs))
+
+
+class _ServedBlock(Served):
+    """A worker's :class:`_Block`: answers ``evaluate`` with the numpy weights of its individuals."""
+
+    def __init__(self, block: _Block) -> None:
+        self.block = block
+
+    def handle(self, command: str, data: Any) -> Any:
+        if command != "evaluate":
+            return super().handle(command, data)
+        population, seeds, valid = data
+        return self.block.evaluate({name: th.from_numpy(array) for name, array in population.items()}, seeds, valid)
+
+    def close(self) -> None:
+        self.block.close()
 
 
 class EnvPool(ABC):
@@ -422,10 +408,9 @@ class SubprocessEnvPool(EnvPool):
     :param network: architecture template (CPU; copied into the workers)
     :param batched: batched forward pass in the workers
     :param n_workers: number of worker processes (at most ``n_individuals``)
-    :param start_method: multiprocessing start method; None: the worlds' workers' default
-        (:func:`~sb3_eps.common.subproc_vec_env.default_start_method`)
-    :param record: what the workers record of every episode (:data:`RECORD_MODES`): the arrays of a block's
-        episodes come back with its answer, one message per round
+    :param start_method: multiprocessing start method (None: the platform's default,
+        :func:`~sb3_eps.common.workers.default_start_method`)
+    :param record: what the workers record of every episode (:data:`RECORD_MODES`), sent back with their answer
     """
 
     def __init__(
@@ -442,35 +427,28 @@ class SubprocessEnvPool(EnvPool):
     ) -> None:
         if record not in RECORD_MODES:
             raise ValueError(f"record must be one of {RECORD_MODES}, got {record!r}")
-        context: Any = mp.get_context(start_method or default_start_method())
         self.n_individuals, self.n_episodes = n_individuals, n_episodes
         n_blocks = max(1, min(n_workers, n_individuals))
         self.blocks = [block for block in np.array_split(np.arange(n_individuals), n_blocks) if len(block)]
-        self._connections: list[Connection] = []
-        self._processes: list[Any] = []
-        for block in self.blocks:
-            parent_end, child_end = context.Pipe()
-            block_kwargs = {
-                "env_id": env_id,
-                "env_kwargs": env_kwargs,
-                "n_individuals": len(block),
-                "n_episodes": n_episodes,
-                "network": network,
-                "batched": batched,
-                "record": record,
-            }
-            process = context.Process(target=_worker_main, args=(child_end, block_kwargs), daemon=True)
-            process.start()
-            child_end.close()
-            self._connections.append(parent_end)
-            self._processes.append(process)
+        common = {"env_id": env_id, "env_kwargs": env_kwargs, "n_episodes": n_episodes, "network": network}
+        payloads = [
+            {**common, "n_individuals": len(block), "batched": batched, "record": record} for block in self.blocks
+        ]
         # The workers build their envs while the main process goes on training; the first evaluation waits for
-        # their "ready" answers within its own deadline.
+        # their hellos within its own deadline.
+        self._workers = WorkerPool(
+            _build_served_block,
+            payloads,
+            start_method,
+            describe=lambda i: f"evaluation block {i}",
+            error=EvaluationFailed,
+            close_timeout=1.0,
+        )
         self._ready = False
 
     @property
     def pids(self) -> list[int]:
-        return [int(process.pid) for process in self._processes]
+        return [] if self._workers.closed else self._workers.pids
 
     def wait_ready(self, deadline: float) -> None:
         """Wait until every worker has built its envs.
@@ -479,20 +457,17 @@ class SubprocessEnvPool(EnvPool):
         :raises EvaluationFailed: when a worker could not build its envs in time
         """
         if not self._ready:
-            self._gather(deadline)
+            self._workers.gather(range(len(self.blocks)), "building its envs", deadline)
             self._ready = True
 
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
     ) -> PoolAnswer:
         self.wait_ready(deadline)
-        for connection, block in zip(self._connections, self.blocks, strict=True):
+        for i, block in enumerate(self.blocks):
             weights = {name: stacked[block].cpu().numpy() for name, stacked in population.items()}
-            try:
-                connection.send(("evaluate", weights, list(seeds), valid[block]))
-            except (BrokenPipeError, OSError) as error:
-                raise EvaluationFailed(f"an evaluation worker is gone ({error})") from error
-        answers = self._gather(deadline)
+            self._workers.send(i, "evaluate", (weights, list(seeds), valid[block]), "receiving the weights")
+        answers = self._workers.gather(range(len(self.blocks)), "evaluating", deadline)
         returns, lengths, outcomes, valid_parts = (
             np.concatenate([answer[part] for answer in answers]) for part in range(4)
         )
@@ -500,36 +475,7 @@ class SubprocessEnvPool(EnvPool):
         return returns, lengths, outcomes, valid_parts, episodes
 
     def close(self) -> None:
-        for connection in self._connections:
-            try:
-                connection.send(("close",))
-            except (BrokenPipeError, OSError):
-                pass
-        for process in self._processes:
-            process.join(timeout=1.0)
-            if process.is_alive():
-                process.kill()
-                process.join(timeout=1.0)
-        for connection in self._connections:
-            connection.close()
-        self._connections, self._processes = [], []
-
-    def _gather(self, deadline: float) -> list[Any]:
-        answers = []
-        for connection, process in zip(self._connections, self._processes, strict=True):
-            if not connection.poll(max(0.0, deadline - time.monotonic())):
-                raise EvaluationFailed(f"evaluation worker {process.pid} did not answer before the timeout")
-            try:
-                status, payload = connection.recv()
-            except (EOFError, OSError) as error:
-                process.join(timeout=1.0)
-                raise EvaluationFailed(
-                    f"evaluation worker {process.pid} died (exit code {process.exitcode})"
-                ) from error
-            if status != "ok":
-                raise EvaluationFailed(f"evaluation worker {process.pid} raised:\n{payload}")
-            answers.append(payload)
-        return answers
+        self._workers.close()
 
 
 @dataclass
