@@ -1,9 +1,7 @@
-"""Multi-agent off-policy base: rollout into joint rows, per-agent epsilon-greedy, n-step, PER, targets.
+"""Multi-agent off-policy base: set-up, the optimisation step on joint rows, target updates, logging, saving.
 
-An algorithm built on :class:`MultiAgentOffPolicyAlgorithm` adds only its loss (:meth:`_compute_loss`) and,
-where it needs them, its joint modules (in its policy). Everything else is shared: the rollout that turns the
-bridge's per-agent stream into joint rows (dropping non-alive agents), the exploration, the replay buffer,
-the optimisation step, the target-network updates, the team-level logging and saving.
+An algorithm adds only its loss (:meth:`_compute_loss`) and, where it needs them, its joint modules (in its
+policy); collection lives in :mod:`sb3_eps.common.collection`.
 
 Counting: SB3's ``num_timesteps`` (and so ``total_timesteps``, ``learning_starts``) counts agent-steps, as
 SuperSuit makes every agent a sub-env; ``ticks`` counts simulator steps of one world
@@ -87,47 +85,22 @@ def find_multi_agent_env(env: VecEnv) -> Any:
 class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     """Base of the parameter-shared value-based multi-agent algorithms (IQL, GDQ, QMIX, VDN).
 
-    :param policy: policy class or alias (``"MlpPolicy"``)
-    :param env: a vector env from :func:`sb3_eps.make_vec_env` (or None when loading)
-    :param learning_rate: Adam learning rate, constant or schedule
-    :param buffer_size: replay capacity in joint rows (one row = one world's tick, all its agents)
-    :param learning_starts: agent-steps of uniformly random actions before learning starts
-    :param batch_size: joint rows per gradient step
-    :param tau: Polyak coefficient of the target updates (1 = hard copy)
-    :param gamma: discount factor
-    :param train_freq: train every ``train_freq`` vector-env steps (ticks of every world)
-    :param gradient_steps: gradient steps per training call (-1: as many as agent-steps collected)
-    :param replay_buffer_class: a :class:`~sb3_eps.common.buffers.JointReplayBuffer` class or subclass (None: the
-        prioritised one when ``prioritized_replay``, else the uniform one); a given class decides ``prioritized_replay``
-    :param replay_buffer_kwargs: its keyword arguments beyond the ones the algorithm sets (capacity, spaces, agents,
-        device); a prioritised buffer's ``alpha`` defaults to ``prioritized_replay_alpha``
-    :param gradient_steps_per_target_update: gradient steps between two Polyak updates of the target networks (as
-        SB3's SAC counts its ``target_update_interval``; SB3's DQN counts that name in env steps)
-    :param n_steps: n of the n-step returns (1 = one-step TD)
-    :param prioritized_replay: use proportional prioritised replay
-    :param prioritized_replay_alpha: PER priority exponent
-    :param prioritized_replay_beta0: initial PER importance exponent, annealed linearly to 1 over training
+    Parameters as SB3's ``DQN`` where they share a name; ``buffer_size`` and ``batch_size`` count joint rows (one
+    world's tick, all its agents), ``learning_starts`` agent-steps, ``train_freq`` ticks of every world.
+
+    :param replay_buffer_class: a :class:`~sb3_eps.common.buffers.JointReplayBuffer` class (None: the prioritised one
+        when ``prioritized_replay``); ``replay_buffer_kwargs`` are its arguments beyond capacity, spaces and agents
+    :param gradient_steps_per_target_update: gradient steps between two Polyak updates of the target networks
+    :param n_steps: n of the n-step returns
+    :param prioritized_replay: proportional prioritised replay, with exponent ``prioritized_replay_alpha`` and an
+        importance exponent annealed from ``prioritized_replay_beta0`` to 1
     :param double_q: choose the bootstrap action with the online network and value it with the target one
-        (only with an agent target network, ``policy_kwargs=dict(agent_target=True)``; without one the
-        online network both chooses and values)
-    :param exploration_fraction: fraction of training over which epsilon decays linearly
-    :param exploration_initial_eps: initial epsilon
-    :param exploration_final_eps: final epsilon
-    :param max_grad_norm: gradient clipping norm
+        (only with an agent target network)
     :param team_reward_mode: team reward of a tick: ``"sum"`` or ``"mean"`` of the alive agents' rewards
-    :param overlap_training: run the gradient steps due after a collection while its last tick's worlds step
-        (between the env's ``step_async`` and ``step_wait``), so that with worlds in worker processes
-        (``make_vec_env(..., vec_env_cls="subproc")``, best with ``main_worlds=0``) learning and simulation run
-        side by side. The only change to training: a tick's own transition joins the replay buffer after the
-        gradient steps of that tick instead of before them. Same seed, same results with worlds in process or in
-        workers. Needs ``train_freq`` in steps
+    :param overlap_training: run the gradient steps due after a collection while its last tick's worlds step (with
+        worlds in worker processes, learning and simulation run side by side); a tick's own transition then joins
+        the buffer after that tick's gradient steps. Needs ``train_freq`` in steps
     :param stats_window_size: episodes (worlds, not agents) averaged in the rollout logs
-    :param tensorboard_log: TensorBoard log folder (None: no TensorBoard)
-    :param policy_kwargs: keyword arguments of the policy (``net_arch``, ``stream_arch``, ``agent_target``...)
-    :param verbose: 0 silent, 1 info, 2 debug
-    :param seed: random seed
-    :param device: torch device
-    :param _init_setup_model: build the networks now (False when loading)
     """
 
     policy: MultiAgentQPolicy
@@ -306,26 +279,22 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
 
     @property
     def ticks(self) -> int:
-        """Simulator steps of one world so far (agent-steps / agents per world), those of earlier team sizes
-        included."""
+        """Simulator steps of one world so far (agent-steps / agents per world), earlier team sizes included."""
         return self._tick_offset + (self.num_timesteps - self._step_offset) // max(self.n_agents, 1)
 
     def _fixed_team_size(self) -> bool:
-        """Whether the joint modules read exactly ``n_agents`` agents, so the model cannot move to another team
-        size (QMIX's mixer; GDQ's paper head)."""
+        """Whether the joint modules read exactly ``n_agents`` agents (QMIX's mixer; GDQ's paper head)."""
         return self.requires_fixed_n_agents
 
     def _team_size_advice(self) -> str:
-        """:return: what to do instead, for the error of a model that cannot change its team size"""
         return (
             "Use an env with as many agents, or warm-start a new model's agent network from this one "
             "(python -m sb3_eps.train --init-from; decentralised prediction alone works on any env)"
         )
 
     def set_env(self, env: GymEnv, force_reset: bool = True) -> None:
-        """SB3's ``set_env``; an env with another number of agents per world is accepted when the joint modules
-        read any team size (IQL, VDN, GDQ with ``global_head="pooled"``): the networks and the optimizer carry
-        over, the replay buffer starts empty (its rows hold one team), the ticks so far stay counted."""
+        """SB3's ``set_env``; another team size is accepted where the joint modules read any (the replay buffer
+        then starts empty, the ticks so far stay counted)."""
         previous_team = self.n_agents
         self._read_env_layout(env)  # type: ignore[arg-type]
         if self.n_agents != previous_team and getattr(self, "policy", None) is not None:
@@ -369,8 +338,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             )
 
     def _make_replay_buffer(self) -> JointReplayBuffer:
-        """``replay_buffer_class`` (default: by ``prioritized_replay``) with ``replay_buffer_kwargs``; the algorithm
-        sets the capacity, spaces, agents and device. :raises ValueError: for a class that does not store joint rows"""
         default = PrioritizedJointReplayBuffer if self.prioritized_replay else JointReplayBuffer
         buffer_class: Any = self.replay_buffer_class or default
         if not (isinstance(buffer_class, type) and issubclass(buffer_class, JointReplayBuffer)):
@@ -405,8 +372,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfMultiAgentOffPolicyAlgorithm:
-        """SB3's ``learn``; TensorBoard runs are named after the algorithm (``GDQ_1``), as SB3's own algorithms name
-        theirs (``DQN_1``), unless ``tb_log_name`` is given."""
+        """SB3's ``learn``; TensorBoard runs are named after the algorithm (``GDQ_1``) by default."""
         return super().learn(
             total_timesteps,
             callback=callback,
@@ -441,9 +407,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         return total_timesteps, callback
 
     def rollout_state(self) -> dict[str, Any]:
-        """:return: what training needs beyond ``save`` to go on exactly: the replay buffer, the n-step collector with
-        its unfinished windows and the worlds' last global states (a checkpoint pickles them together, so the
-        collector keeps pointing at the buffer)."""
+        """:return: what training needs beyond ``save`` to go on exactly (a checkpoint pickles it as one object)."""
         return {"replay_buffer": self.replay_buffer, "collector": self._collector, "last_state": self._last_state}
 
     def set_rollout_state(self, state: dict[str, Any]) -> None:
@@ -453,8 +417,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self._last_state = state["last_state"]
 
     def _stores_agent_values(self) -> bool:
-        """Whether the replay rows carry the agents' state-values computed at collection time (GDQ's stored
-        ``v`` / ``v'`` option); read before the policy exists, so from the raw ``policy_kwargs``."""
+        """Whether the replay rows carry the agents' state-values computed at collection time."""
         return False
 
     def _global_state(self) -> np.ndarray:
@@ -471,13 +434,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         episode_start: np.ndarray | None = None,
         deterministic: bool = False,
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """Decentralised action selection: each row of ``observation`` is one agent's own observation.
-
-        Exploration draws one epsilon coin PER AGENT (SB3's DQN draws one for the whole batch, so all agents
-        would explore on the same steps).
-        """
-        # deterministic: the greedy network (the weight average when the policy keeps one); otherwise the online
-        # network, as in training, with epsilon-greedy exploration on top.
+        """Decentralised action selection, one row per agent; exploration draws one epsilon coin per agent."""
         actions, state = self.policy.predict(observation, state, episode_start, deterministic=deterministic)
         if deterministic or self.exploration_rate <= 0:
             return actions, state
