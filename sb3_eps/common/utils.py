@@ -10,11 +10,7 @@ import torch as th
 
 
 def check_seed(seed: Any) -> int | None:
-    """:return: ``seed`` as a Python int (or None). NumPy integers are accepted (SB3 and ``np.random`` hand them
-    out); bools are refused (``True`` as a seed is always a mistake).
-
-    :raises ValueError: for anything but None or a non-negative int
-    """
+    """:return: ``seed`` as a Python int (or None); :raises ValueError: for anything but None or an int >= 0."""
     if seed is None:
         return None
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
@@ -32,12 +28,8 @@ def describe_space(space: Any) -> str:
 
 
 def dueling_aggregation(values: th.Tensor, advantages: th.Tensor) -> th.Tensor:
-    """Dueling aggregation, EPS paper Eq. 2: ``Q(s, a) = V(s) + A(s, a) - mean_a' A(s, a')``.
-
-    :param values: state values, shape ``(..., 1)``
-    :param advantages: advantages, shape ``(..., n_actions)``
-    :return: Q-values, shape ``(..., n_actions)``
-    """
+    """Dueling aggregation, EPS paper Eq. 2: ``Q(s, a) = V(s) + A(s, a) - mean_a' A(s, a')``, with ``values``
+    ``(..., 1)`` and ``advantages`` ``(..., n_actions)``."""
     # The check is skipped while tracing (ONNX export), where shapes are symbolic.
     if not th.jit.is_tracing() and (values.shape[-1] != 1 or values.shape[:-1] != advantages.shape[:-1]):
         raise ValueError(f"values {tuple(values.shape)} must be (..., 1) over advantages {tuple(advantages.shape)}")
@@ -45,13 +37,8 @@ def dueling_aggregation(values: th.Tensor, advantages: th.Tensor) -> th.Tensor:
 
 
 def td_target(rewards: th.Tensor, discounts: th.Tensor, dones: th.Tensor, next_values: th.Tensor) -> th.Tensor:
-    """n-step TD target ``y = G + gamma^k * (1 - done) * next_value`` (the n-step return, Sutton & Barto 7.1).
-
-    :param rewards: n-step discounted returns ``G``
-    :param discounts: ``gamma ** k`` with ``k`` the ticks the return spans
-    :param dones: 1 where the episode terminated inside the window (no bootstrap), else 0
-    :param next_values: the bootstrap value of the state after the window
-    """
+    """n-step TD target ``y = G + gamma^k * (1 - done) * next_value`` (Sutton & Barto 7.1): ``rewards`` the n-step
+    returns ``G``, ``discounts`` ``gamma ** k``, ``dones`` 1 where the episode terminated inside the window."""
     if not (rewards.shape == discounts.shape == dones.shape == next_values.shape):
         raise ValueError(
             "td_target needs equal shapes, got "
@@ -88,16 +75,8 @@ def polyak_update_tensors_(
 def epsilon_greedy(
     greedy_actions: np.ndarray, epsilon: float, n_actions: int, rng: np.random.Generator | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Per-agent epsilon-greedy: one independent coin per entry of ``greedy_actions``.
-
-    SB3's DQN draws a single coin for the whole batch, so every agent would explore on the same steps.
-
-    :param greedy_actions: ``(N,)`` greedy actions, one per agent
-    :param epsilon: probability of a uniformly random action
-    :param n_actions: size of the discrete action space
-    :param rng: generator (default: numpy's global one, which SB3 seeds)
-    :return: ``(actions, explore_flags)``
-    """
+    """Per-agent epsilon-greedy: one independent coin per entry of ``greedy_actions`` (SB3's DQN draws one for the
+    batch). ``rng`` None: numpy's global generator, which SB3 seeds. :return: ``(actions, explore_flags)``"""
     draw_uniform = np.random.random if rng is None else rng.random
     draw_integers = np.random.randint if rng is None else rng.integers
     explore = draw_uniform(greedy_actions.shape[0]) < epsilon
@@ -114,13 +93,8 @@ def input_gain(head: Callable[..., th.Tensor], inputs: th.Tensor, *args: Any) ->
 
 
 def format_table(rows: list[dict[str, Any]], columns: list[str] | None = None, precision: int = 3) -> str:
-    """Rows of dicts as a fixed-width text table (for a notebook's or a terminal's plain-text output).
-
-    :param rows: the rows; a missing value prints as an empty cell
-    :param columns: the columns, in order (default: the first row's keys)
-    :param precision: significant digits of floats
-    :return: a header line, a rule and one line per row
-    """
+    """Rows of dicts as a fixed-width text table: a header line, a rule and one line per row (``columns``
+    default to the first row's keys; floats with ``precision`` significant digits)."""
     if not rows:
         return "(no rows)"
     columns = list(columns or rows[0])
