@@ -68,14 +68,9 @@ def default_n_workers(n_worlds: int) -> int:
 
 
 def default_layout(n_worlds: int, cores: int | None = None) -> tuple[int, int]:
-    """The default split of ``n_worlds`` over the main process and workers: :return: ``(main_worlds, n_workers)``.
-
-    With ``C`` cores and at least 2 worlds, the main process steps one block itself while ``C - 1`` workers step
-    the others, side by side (``min(C, n_worlds)`` blocks of sizes differing by at most one; the main process
-    takes the first). The main process would otherwise sit idle waiting for its workers, and a worker fewer is
-    a process fewer to wake on every step (``docs/benchmarks.md``, scale-out). On one core, or with one world,
-    every world goes to one worker.
-    """
+    """The default ``(main_worlds, n_workers)``: on ``C`` cores, the main process steps the first of ``min(C,
+    n_worlds)`` blocks itself while ``C - 1`` workers step the others (``docs/benchmarks.md``, scale-out); on one
+    core, or with one world, every world goes to one worker."""
     cores = available_cores() if cores is None else cores
     steppers = min(cores, n_worlds)
     if steppers < 2:
@@ -84,8 +79,7 @@ def default_layout(n_worlds: int, cores: int | None = None) -> tuple[int, int]:
 
 
 def overlap_layout(n_worlds: int, cores: int | None = None) -> dict[str, int]:
-    """The layout for an algorithm with ``overlap_training``, as ``vec_env_kwargs``: every world in workers, one
-    per core but the main process's (which learns while they step), at most one per world."""
+    """The ``vec_env_kwargs`` for ``overlap_training``: every world in workers, one per core but the main process's."""
     cores = available_cores() if cores is None else cores
     return {"main_worlds": 0, "n_workers": max(1, min(n_worlds, cores - 1))}
 
@@ -93,18 +87,11 @@ def overlap_layout(n_worlds: int, cores: int | None = None) -> dict[str, int]:
 def split_worlds(n_worlds: int, n_workers: int) -> list[range]:
     """:return: the contiguous block of worlds of each worker, sizes differing by at most one."""
     base, extra = divmod(n_worlds, n_workers)
-    blocks, start = [], 0
-    for i in range(n_workers):
-        size = base + (1 if i < extra else 0)
-        blocks.append(range(start, start + size))
-        start += size
-    return blocks
+    return [range(i * base + min(i, extra), (i + 1) * base + min(i + 1, extra)) for i in range(n_workers)]
 
 
 # ---------------------------------------------------------------------------------------------- step messages
-# The step, every tick, goes as raw bytes; everything else (and a step whose actions are not a 1-D int64 array)
-# as a pickle, which starts with pickle's PROTO opcode. Pickling the few small arrays of a step (actions there,
-# observations, rewards, dones and alive flags back) cost more than the rest of the protocol together.
+# The step, every tick, goes as raw bytes (pickling its small arrays cost more than the rest of the protocol).
 _STEP, _STEP_WITH_STATE, _STEP_REPLY = b"s", b"S", b"R"
 _HEADER = 8  # a message's first byte says what it is; arrays start 8-byte aligned
 
@@ -121,10 +108,7 @@ def _unpack_step(message: bytes) -> tuple[np.ndarray, bool]:
 
 
 def _pack_step_reply(reply: tuple[Any, ...]) -> bytes | None:
-    """The reply of :func:`_handle`'s step: its arrays as raw bytes, the rest (infos, reset infos) pickled.
-
-    :return: None where an array holds Python objects (the pickled reply then)
-    """
+    """A step's reply: its arrays as raw bytes, the rest pickled; None where an array holds Python objects."""
     obs, rewards, dones, infos, alive, state, reset_infos = reply
     arrays = [np.ascontiguousarray(array) for array in (obs, rewards, dones, alive)]
     if state is not None:

@@ -47,14 +47,6 @@ def td_target(rewards: th.Tensor, discounts: th.Tensor, dones: th.Tensor, next_v
     return rewards + discounts * (1.0 - dones) * next_values
 
 
-def polyak_update_(target: th.nn.Module, source: th.nn.Module, tau: float) -> None:
-    """In place ``target = tau * source + (1 - tau) * target`` over parameters and buffers."""
-    target_params, params = list(target.parameters()), list(source.parameters())
-    if len(target_params) != len(params):
-        raise ValueError("polyak_update_: target and source have different parameter lists")
-    polyak_update_tensors_(target_params, params, list(target.buffers()), list(source.buffers()), tau)
-
-
 def polyak_update_tensors_(
     target_params: list[th.Tensor],
     params: list[th.Tensor],
@@ -62,8 +54,8 @@ def polyak_update_tensors_(
     buffers: list[th.Tensor],
     tau: float,
 ) -> None:
-    """:func:`polyak_update_` on lists gathered once (the per-step path: module traversal costs more than the update
-    for small networks). Buffers are copied."""
+    """In place ``target = tau * source + (1 - tau) * target`` on parameter lists gathered once (module traversal
+    costs more than the update for small networks); buffers are copied."""
     with th.no_grad():
         if target_params:  # a parameter-free module (VDN's sum mixer) has nothing to move
             # One fused call: target + tau * (source - target).
@@ -90,23 +82,3 @@ def input_gain(head: Callable[..., th.Tensor], inputs: th.Tensor, *args: Any) ->
     probe = inputs.detach().clone().requires_grad_(True)
     with th.enable_grad():
         return th.autograd.grad(head(probe, *args).sum(), probe)[0]
-
-
-def format_table(rows: list[dict[str, Any]], columns: list[str] | None = None, precision: int = 3) -> str:
-    """Rows of dicts as a fixed-width text table: a header line, a rule and one line per row (``columns``
-    default to the first row's keys; floats with ``precision`` significant digits)."""
-    if not rows:
-        return "(no rows)"
-    columns = list(columns or rows[0])
-
-    def cell(value: Any) -> str:
-        if isinstance(value, float):
-            return f"{value:.{precision}g}"
-        return "" if value is None else str(value)
-
-    cells = [[cell(row.get(column)) for column in columns] for row in rows]
-    widths = [max(len(column), *(len(line[i]) for line in cells)) for i, column in enumerate(columns)]
-    lines = ["  ".join(column.ljust(width) for column, width in zip(columns, widths, strict=True))]
-    lines.append("  ".join("-" * width for width in widths))
-    lines += ["  ".join(value.ljust(width) for value, width in zip(line, widths, strict=True)) for line in cells]
-    return "\n".join(line.rstrip() for line in lines)

@@ -1,13 +1,10 @@
-"""Worker processes that answer the main process's commands over pipes: :class:`WorkerPool`.
+"""Worker processes that answer the main process's commands over pipes: :class:`WorkerPool`, for the worlds of
+:class:`~sb3_eps.common.subproc_vec_env.SubprocMultiAgentVecEnv` and EPS's evaluation blocks.
 
-The worlds of :class:`~sb3_eps.common.subproc_vec_env.SubprocMultiAgentVecEnv` and the evaluation blocks of EPS
-(:class:`~sb3_eps.eps.evaluation.SubprocessEnvPool`) both live in one. A worker builds a :class:`Served` object from
-its payload, says hello, then answers every ``(command, data)`` message with ``("ok", reply)`` or ``("error",
-traceback)``; a served object may read and write its hot messages as raw bytes (:meth:`Served.unpack`,
-:meth:`Served.pack`). Any message that is not a pickle travels as raw bytes.
-
-Workers ignore SIGINT and SIGTERM: the main process decides when they stop (after writing its checkpoint), and a
-worker whose main process is gone exits on its own. A worker that dies, hangs or raises becomes one error naming it.
+A worker builds a :class:`Served` object from its payload, says hello, then answers every ``(command, data)`` with
+``("ok", reply)`` or ``("error", traceback)``; hot messages may travel as raw bytes. Workers ignore SIGINT and
+SIGTERM: the main process decides when they stop (after writing its checkpoint); a worker whose main process is gone
+exits. A worker that dies, hangs or raises becomes one error naming it.
 """
 
 from __future__ import annotations
@@ -30,8 +27,8 @@ START_TIMEOUT = 120.0
 CLOSE_TIMEOUT = 10.0
 _PICKLE = b"\x80"  # pickle's PROTO opcode: the first byte of every pickled message
 
-# Pools with running workers. Their workers ignore SIGTERM, so multiprocessing's own exit handler (terminate, then
-# join) would wait for them forever: this handler, registered later and so run first, closes them.
+# Pools with running workers: multiprocessing's exit handler (terminate, then join) would wait forever for workers
+# that ignore SIGTERM; this handler, registered later and so run first, closes them.
 _OPEN: weakref.WeakSet[WorkerPool] = weakref.WeakSet()
 
 
@@ -54,8 +51,7 @@ _yield: Callable[[], Any] = getattr(os, "sched_yield", lambda: None)
 
 
 def poller(remote: Connection) -> Callable[[], Any]:
-    """:return: a cheap "has ``remote`` a message (or is it closed)?" check: a ``poll(2)`` of its file descriptor
-    (about 1 us; ``Connection.poll`` builds a selector on every call, about 10 us)."""
+    """:return: a cheap "has ``remote`` a message?" check (``poll(2)``: ``Connection.poll`` costs ten times more)."""
     if hasattr(select, "poll"):
         fd_poller = select.poll()
         fd_poller.register(remote.fileno(), select.POLLIN)
@@ -64,11 +60,8 @@ def poller(remote: Connection) -> Callable[[], Any]:
 
 
 def spin_wait(ready: Callable[[], Any], spin_s: float) -> bool:
-    """Return when ``ready()`` is true, or after asking it for ``spin_s`` seconds without sleeping (the caller's
-    ``recv`` then sleeps in the kernel). Between two questions the process yields its core.
-
-    :return: whether the message came while polling
-    """
+    """Return when ``ready()`` is true, or after asking it for ``spin_s`` seconds, yielding the core in between;
+    :return: whether the message came while polling."""
     if spin_s <= 0:
         return False
     deadline = time.perf_counter() + spin_s
@@ -83,14 +76,13 @@ class Served:
     """What a worker process holds; a subclass answers commands in :meth:`handle`."""
 
     def hello(self) -> Any:
-        """:return: what the main process learns once the object is built."""
         return None
 
     def handle(self, command: str, data: Any) -> Any:
         raise ValueError(f"unknown command {command!r}")
 
     def unpack(self, message: bytes) -> tuple[str, Any]:
-        """Read a raw-byte command; :return: ``(command, data)``."""
+        """Read a raw-byte command as ``(command, data)``."""
         raise ValueError("this worker takes pickled commands only")
 
     def pack(self, command: str, reply: Any) -> bytes | None:
@@ -98,7 +90,7 @@ class Served:
         return None
 
     def close(self) -> None:
-        """Release what the object holds."""
+        pass
 
 
 def _error_reply(error: BaseException) -> tuple[str, str]:
@@ -157,13 +149,9 @@ class WorkerPool:
     """One worker process per payload, each holding ``build(payload)``; worker ``i`` answers only its own pipe.
 
     :param build: a module-level function (picklable for ``"spawn"``) that makes a worker's :class:`Served`
-    :param payloads: one per worker
-    :param start_method: multiprocessing start method (None: :func:`default_start_method`)
     :param describe: names what worker ``i`` holds, for errors (``"worlds 2-3 of Corridor-2-v0"``)
-    :param error: the exception class raised for a worker that dies, hangs or raises
-    :param hint: added to the message of a worker's death (what the user can do)
+    :param error: the exception class raised for a worker that dies, hangs or raises; ``hint`` ends a death's message
     :param spin_s: seconds a process waiting for a message polls its pipe before it sleeps
-    :param close_timeout: seconds a worker gets to close before it is killed
     :param unpack: reads a reply that a worker sent as raw bytes (:meth:`Served.pack`)
     """
 
@@ -207,7 +195,6 @@ class WorkerPool:
 
     @property
     def pids(self) -> list[int]:
-        """Process id of each worker."""
         return [int(process.pid) for process in self._processes]
 
     def name(self, i: int) -> str:
@@ -231,11 +218,8 @@ class WorkerPool:
             raise self._died(i, doing) from None
 
     def recv(self, i: int, doing: str, timeout: float | None = None) -> Any:
-        """:return: worker ``i``'s reply.
-
-        :param doing: what the worker was doing, for errors (``"stepping its worlds"``)
-        :param timeout: seconds to wait for it (None: as long as it lives)
-        """
+        """:return: worker ``i``'s reply, within ``timeout`` seconds (None: as long as it lives); ``doing`` names
+        what it was doing, for errors."""
         remote = self._remotes[i]
         try:
             if timeout is not None and not remote.poll(timeout):
@@ -252,11 +236,8 @@ class WorkerPool:
         return value
 
     def gather(self, workers: Iterable[int], doing: str, deadline: float | None = None) -> list[Any]:
-        """Receive the reply of each of ``workers``, all of them even when one fails (so no reply stays in a pipe
-        to answer the next command); then raise the first failure.
-
-        :param deadline: ``time.monotonic()`` value after which a worker not yet answered counts as hung
-        """
+        """Receive the reply of each of ``workers``, all of them even when one fails (so no reply stays in a pipe),
+        before ``deadline`` (``time.monotonic()``; None: none); then raise the first failure."""
         replies, failure = [], None
         for i in workers:
             timeout = None if deadline is None else max(0.0, deadline - time.monotonic())
