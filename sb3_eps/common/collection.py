@@ -1,8 +1,6 @@
-"""Collection for :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`: the rollout between two trainings.
-
-It steps the vector env with per-agent epsilon-greedy actions, turns the bridge's per-agent stream into joint rows
-(one per world tick, non-alive agents dropped) through the model's n-step collector, counts episodes per world,
-and, with ``overlap_training``, runs the gradient steps due after the collection while its last tick's worlds step.
+"""Collection of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`: it steps the vector env with
+per-agent epsilon-greedy actions, turns the per-agent stream into joint rows through the model's n-step collector,
+counts episodes per world, and with ``overlap_training`` runs the due gradient steps while the worlds step.
 """
 
 from __future__ import annotations
@@ -47,7 +45,9 @@ def collect_rollouts(
         n_collected_steps += 1
         callback.update_locals(locals())
         if not callback.on_step():
-            return RolloutReturn(n_collected_steps * env.num_envs, n_collected_episodes, continue_training=False)
+            return RolloutReturn(
+                n_collected_steps * env.num_envs, n_collected_episodes, continue_training=False
+            )
         model._update_info_buffer(infos, dones)
         n_ended = store_joint_transition(model, actions, new_obs, rewards, dones, infos)
         model._update_current_progress_remaining(model.num_timesteps, model._total_timesteps)
@@ -98,10 +98,8 @@ def store_joint_transition(
     dones: np.ndarray,
     infos: list[dict[str, Any]],
 ) -> int:
-    """Group the agents' transitions by world and feed them to the model's n-step collector.
-
-    :return: the number of worlds whose episode ended at this step
-    """
+    """Feed the agents' transitions, grouped by world, to the model's n-step collector; :return: the worlds whose
+    episode ended."""
     collector, last_state = model._collector, model._last_state
     assert collector is not None and last_state is not None and model._last_obs is not None
     shape = (model.n_worlds, model.n_agents)
@@ -152,13 +150,17 @@ class _Step(NamedTuple):
     world_ended: np.ndarray  # (n_worlds,): every agent of the world is done
 
 
-def _read_step(new_obs: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]], shape: tuple[int, int]) -> _Step:
+def _read_step(
+    new_obs: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]], shape: tuple[int, int]
+) -> _Step:
     """Read the bridge's flags from a step's infos; patch in the terminal observations SB3 moved to the infos."""
     next_obs = np.array(new_obs, dtype=np.float32, copy=True)
     for index in np.flatnonzero(dones):
         next_obs[index] = infos[index]["terminal_observation"]
     alive = np.fromiter((info.get("alive", True) for info in infos), dtype=bool, count=len(infos))
-    truncated = np.fromiter((info.get("TimeLimit.truncated", False) for info in infos), dtype=bool, count=len(infos))
+    truncated = np.fromiter(
+        (info.get("TimeLimit.truncated", False) for info in infos), dtype=bool, count=len(infos)
+    )
     ended = np.asarray(dones, dtype=bool) & alive
     return _Step(
         next_observations=next_obs,
@@ -169,7 +171,9 @@ def _read_step(new_obs: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any
     )
 
 
-def _non_finite_worlds(observations: np.ndarray, next_observations: np.ndarray, rewards: np.ndarray) -> dict[int, str]:
+def _non_finite_worlds(
+    observations: np.ndarray, next_observations: np.ndarray, rewards: np.ndarray
+) -> dict[int, str]:
     """:return: world -> what was not finite in its tick (``(worlds, agents, ...)`` arrays; empty when all are)."""
     parts = {"observation": observations, "next observation": next_observations, "reward": rewards}
     found: dict[int, str] = {}

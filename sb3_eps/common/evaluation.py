@@ -9,7 +9,14 @@ import numpy as np
 from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env
 
 # Episode keys averaged into the summary when the env reports them.
-_OPTIONAL_KEYS = ("success", "collision", "n_arrived", "distance_travelled", "min_dist_sum", "occupied_landmarks")
+_OPTIONAL_KEYS = (
+    "success",
+    "collision",
+    "n_arrived",
+    "distance_travelled",
+    "min_dist_sum",
+    "occupied_landmarks",
+)
 
 
 def evaluate_team(
@@ -37,7 +44,9 @@ def evaluate_team(
     if not owned and seed is not None:
         venv.seed(seed)
     n_worlds, n_agents = venv.n_worlds, venv.n_agents
-    quotas = [n_eval_episodes // n_worlds + (1 if w < n_eval_episodes % n_worlds else 0) for w in range(n_worlds)]
+    quotas = [
+        n_eval_episodes // n_worlds + (1 if w < n_eval_episodes % n_worlds else 0) for w in range(n_worlds)
+    ]
     counts = [0] * n_worlds
     episodes: list[dict[str, Any]] = []
     try:

@@ -1,11 +1,8 @@
 """Multi-agent off-policy base: set-up, the optimisation step on joint rows, target updates, logging, saving.
 
-An algorithm adds only its loss (:meth:`_compute_loss`) and, where it needs them, its joint modules (in its
-policy); collection lives in :mod:`sb3_eps.common.collection`.
-
-Counting: SB3's ``num_timesteps`` (and so ``total_timesteps``, ``learning_starts``) counts agent-steps, as
-SuperSuit makes every agent a sub-env; ``ticks`` counts simulator steps of one world
-(``num_timesteps // n_agents``). ``train_freq`` counts vector-env steps, i.e. ticks of every world.
+An algorithm adds only its loss (:meth:`_compute_loss`) and its joint modules (in its policy); collection lives in
+:mod:`sb3_eps.common.collection`. ``num_timesteps`` counts agent-steps (every agent is a sub-env), ``ticks``
+simulator steps of one world.
 """
 
 from __future__ import annotations
@@ -46,7 +43,7 @@ from sb3_eps.common.buffers import (
 from sb3_eps.common.multi_agent_vec_env import MultiAgentVecEnv
 from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.common.threads import set_torch_threads
-from sb3_eps.common.utils import describe_space, epsilon_greedy, polyak_update_tensors_
+from sb3_eps.common.utils import describe_space, epsilon_greedy, is_int, polyak_update_tensors_
 
 SelfMultiAgentOffPolicyAlgorithm = TypeVar(
     "SelfMultiAgentOffPolicyAlgorithm", bound="MultiAgentOffPolicyAlgorithm"
@@ -64,22 +61,16 @@ class TDTerms(NamedTuple):
 
 
 def find_multi_agent_env(env: VecEnv) -> Any:
-    """Return the :class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv` inside ``env`` (through SB3 wrappers).
-
-    :raises ValueError: when ``env`` is not one of our multi-agent vector envs
-    """
-
+    """Return the :class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv` inside ``env`` (through SB3 wrappers)."""
     current: Any = env
-    while True:
-        if isinstance(current, MultiAgentVecEnv):
-            return current
-        if isinstance(current, VecEnvWrapper):
-            current = current.venv
-            continue
+    while isinstance(current, VecEnvWrapper):
+        current = current.venv
+    if not isinstance(current, MultiAgentVecEnv):
         raise ValueError(
             f"{type(env).__name__} is not a multi-agent vector env: build the env with "
             "sb3_eps.make_vec_env(env_id, n_envs=...) so the algorithm knows which agents share a world"
         )
+    return current
 
 
 class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
@@ -106,17 +97,12 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     policy: MultiAgentQPolicy
     replay_buffer: JointReplayBuffer | None  # type: ignore[assignment]
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": MultiAgentQPolicy}
-    # Algorithms whose joint modules are sized by the number of agents cannot change it after training.
-    requires_fixed_n_agents: ClassVar[bool] = False
-    # Ticks and agent-steps before the last change of team size (set_env / load on another team size).
-    _tick_offset: int = 0
+    requires_fixed_n_agents: ClassVar[bool] = False  # joint modules sized by the number of agents
+    _tick_offset: int = 0  # ticks and agent-steps before the last change of team size
     _step_offset: int = 0
     default_agent_target: ClassVar[bool] = True
-    # Only state-conditioned mixers (QMIX) read the global state; the others neither query nor store it.
-    uses_global_state: ClassVar[bool] = False
-    # Gradient steps between two diagnostic records in the train/ logs (GDQ's g_i and action margins, QMIX's
-    # mixer gain): a few extra passes every so often, never on every step.
-    diagnostics_interval: ClassVar[int] = 250
+    uses_global_state: ClassVar[bool] = False  # only state-conditioned mixers (QMIX) read and store it
+    diagnostics_interval: ClassVar[int] = 250  # gradient steps between two diagnostic records under train/
 
     def __init__(
         self,
@@ -227,17 +213,15 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                 f"gradient_steps_per_target_update must be >= 1, got {values['gradient_steps_per_target_update']}"
             )
         if values["team_reward_mode"] not in TEAM_REWARD_MODES:
-            raise ValueError(f"team_reward_mode must be one of {TEAM_REWARD_MODES}, got {values['team_reward_mode']!r}")
+            raise ValueError(
+                f"team_reward_mode must be one of {TEAM_REWARD_MODES}, got {values['team_reward_mode']!r}"
+            )
         if values["prioritized_replay_alpha"] < 0:
             raise ValueError(
                 f"prioritized_replay_alpha must be >= 0, got {values['prioritized_replay_alpha']}"
             )
         for name in ("buffer_size", "batch_size"):
-            if (
-                not isinstance(values[name], int | np.integer)
-                or isinstance(values[name], bool)
-                or values[name] < 1
-            ):
+            if not (is_int(values[name]) and values[name] >= 1):
                 raise ValueError(f"{name} must be an int >= 1 (joint rows), got {values[name]!r}")
         for name in ("exploration_fraction", "exploration_initial_eps", "exploration_final_eps"):
             if not isinstance(values[name], float | int) or not 0.0 <= values[name] <= 1.0:
@@ -354,7 +338,9 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         }
         clash = sorted(set(self.replay_buffer_kwargs) & {*owned, "buffer_size", "observation_space"})
         if clash:
-            raise ValueError(f"replay_buffer_kwargs cannot set {clash}: the algorithm sets them (buffer_size, env)")
+            raise ValueError(
+                f"replay_buffer_kwargs cannot set {clash}: the algorithm sets them (buffer_size, env)"
+            )
         defaults = {"alpha": self.prioritized_replay_alpha} if self.prioritized_replay else {}
         try:
             return buffer_class(
@@ -408,7 +394,11 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
 
     def rollout_state(self) -> dict[str, Any]:
         """:return: what training needs beyond ``save`` to go on exactly (a checkpoint pickles it as one object)."""
-        return {"replay_buffer": self.replay_buffer, "collector": self._collector, "last_state": self._last_state}
+        return {
+            "replay_buffer": self.replay_buffer,
+            "collector": self._collector,
+            "last_state": self._last_state,
+        }
 
     def set_rollout_state(self, state: dict[str, Any]) -> None:
         """Restore what :meth:`rollout_state` returned (after ``set_env``, which forgets the collector)."""
@@ -462,43 +452,28 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     def collection_values(
         self, observations: np.ndarray, next_observations: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray] | None:
-        """The per-agent values that replay rows store with these ticks (None when the algorithm stores none), for
-        rows written from outside the rollout (EPS's experience sharing); see :meth:`_collection_values`."""
+        """The per-agent values that replay rows store with these ticks, or None (:meth:`_collection_values`)."""
         return self._collection_values(observations, next_observations)
 
     def _collection_values(
         self, observations: np.ndarray, next_observations: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray] | None:
-        """Hook: per-agent values to store with each tick, computed at collection time, as ``(v, v')`` arrays of
-        shape ``(n_worlds, n_agents)``; None (the default) stores none. GDQ's ``global_values="stored"`` uses it.
-
-        :param observations: ``(n_worlds, n_agents, obs)`` of the tick; ``next_observations`` the same after it
-        """
+        """Hook: per-agent values ``(v, v')`` to store with the ticks' ``(n_worlds, n_agents, obs)`` observations,
+        computed at collection time; None (the default) stores none."""
         return None
 
     # ------------------------------------------------------------------ learning
     def _compute_loss(
         self, batch: JointReplayBufferSamples
     ) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
-        """The algorithm's loss on a batch of joint rows.
-
-        :return: ``(loss, per-row absolute TD error for the priorities, values to log under train/)``
-        """
+        """:return: ``(loss, per-row absolute TD error for the priorities, values to log under train/)``"""
         raise NotImplementedError(f"{type(self).__name__} must implement _compute_loss")
 
     def _td_terms(self, batch: JointReplayBufferSamples, need_online_next_values: bool = False) -> TDTerms:
-        """Everything a value-based loss needs from the agent networks, in as few forward passes as possible.
-
-        The prediction side keeps its gradient: ``V(s)`` and ``Q(s, a)`` of the taken actions. The bootstrap side
-        has none: ``Q(s', a*) = V(s') + [A(s', a*) - mean A(s', .)]``, where ``a*`` is the online network's greedy
-        action when ``double_q`` and a target network exist, the evaluating network's own greedy action
-        otherwise, and values come from the target network if any. When the online network is needed on the
-        next observations (no target network, double-Q, or GDQ's ``v'``), it runs once there for all of them.
-        (Stacking ``s`` and ``s'`` into one pass with gradient was measured slower on a CPU: the backward pass
-        then runs over both halves.)
-
-        :param need_online_next_values: also return the online network's ``V(s')`` (GDQ's ``v'``)
-        """
+        """Everything a value-based loss needs from the agent networks, in as few forward passes as possible: ``V(s)``
+        and ``Q(s, a)`` with gradient; without, ``Q(s', a*) = V(s') + [A(s', a*) - mean A(s', .)]`` with ``a*`` the
+        online greedy action under double-Q, values from the target network if any, and (``need_online_next_values``)
+        the online ``V(s')``."""
         batch_size, n_agents, obs_dim = batch.observations.shape
         rows = batch_size * n_agents
         obs = batch.observations.reshape(rows, obs_dim)
@@ -600,8 +575,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         )
 
     def _update_targets(self) -> None:
-        """Polyak step of every target network. The tensor lists are gathered once per policy object; parameters
-        are updated in place everywhere (loading, EPS crossover), so the lists stay valid for that policy."""
+        """Polyak step of every target network, on tensor lists gathered once per policy object (parameters are only
+        ever updated in place)."""
         cache = getattr(self, "_target_lists", None)
         if cache is None or cache[0] is not self.policy:
             pairs = []
@@ -617,8 +592,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
 
     # ------------------------------------------------------------------ logging and saving
     def dump_logs(self) -> None:
-        """SB3's logs (``rollout/ep_rew_mean`` is the mean team return) plus the team rates; episode statistics are
-        per world (team), never per agent."""
+        """SB3's logs, per world (``rollout/ep_rew_mean`` is the mean team return), plus the team rates."""
         episodes = list(self.ep_info_buffer or [])
         if episodes:
             if "collision" in episodes[0]:
@@ -631,7 +605,13 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         super().dump_logs()
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_collector", "_last_state", "_target_lists", "_trained_ahead"]
+        return [
+            *super()._excluded_save_params(),
+            "_collector",
+            "_last_state",
+            "_target_lists",
+            "_trained_ahead",
+        ]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "policy.optimizer"], []
@@ -653,8 +633,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         device: th.device | str = "auto",
         **kwargs: Any,
     ) -> SelfMultiAgentOffPolicyAlgorithm:
-        """SB3's ``load``; a file of another algorithm, or an env whose spaces differ from the model's, is one
-        ``ValueError`` line that says so (instead of a state-dict dump)."""
+        """SB3's ``load``; a file of another algorithm, or an env of other spaces, is a one-line ``ValueError``."""
         try:
             model = super().load(path, env=env, device=device, **kwargs)
         except (RuntimeError, ValueError) as error:

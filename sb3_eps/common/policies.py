@@ -215,13 +215,19 @@ class MultiAgentQPolicy(BasePolicy):
         cache = getattr(self, "_average_lists", None)
         if cache is None or cache[0] is not self.q_net_average or cache[1] is not self.q_net:
             lists = [
-                list(part) for net in (self.q_net_average, self.q_net) for part in (net.parameters(), net.buffers())
+                list(part)
+                for net in (self.q_net_average, self.q_net)
+                for part in (net.parameters(), net.buffers())
             ]
             cache = (self.q_net_average, self.q_net, lists)
             self._average_lists = cache
         average_params, average_buffers, params, buffers = cache[2]
         assert self.weight_average_tau is not None
-        rate = self.weight_average_tau if n_updates is None else weight_average_rate(self.weight_average_tau, n_updates)
+        rate = (
+            self.weight_average_tau
+            if n_updates is None
+            else weight_average_rate(self.weight_average_tau, n_updates)
+        )
         polyak_update_tensors_(average_params, params, average_buffers, buffers, rate)
 
     def greedy_net(self) -> DuelingQNetwork:

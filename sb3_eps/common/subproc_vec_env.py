@@ -1,16 +1,9 @@
-"""The bridge with its worlds in worker processes: :class:`SubprocMultiAgentVecEnv`.
+"""The bridge with its worlds in worker processes: :class:`SubprocMultiAgentVecEnv` (``vec_env_cls="subproc"``).
 
-``make_vec_env(env_id, n_envs, vec_env_cls=SubprocVecEnv)`` (or ``"subproc"``) builds it. The worlds are split
-into contiguous blocks: the main process may step the first block itself (:func:`default_layout`) while worker
-processes (:class:`~sb3_eps.common.workers.WorkerPool`) step the others. Each block is an ordinary in-process
-:class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv` with its own PyBullet clients, so every promise of the
-bridge holds unchanged and a seeded run gives the same numbers as in-process (world ``w`` is reset with
-``seed + w``). Steps travel as raw bytes, everything else pickled; processes poll their pipes for ``spin_s`` before
-they sleep (``docs/benchmarks.md``, scale-out).
-
-Pickling (a checkpoint) asks every block for a snapshot of its worlds, mid-episode; unpickling starts new workers
-from those snapshots, so a resumed run continues exactly. A worker that dies, or a world of a worker that raises,
-becomes a :class:`VecEnvWorkerError` naming its worlds.
+The worlds are split into contiguous blocks, each an in-process
+:class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv`: the main process may step the first itself while
+workers (:class:`~sb3_eps.common.workers.WorkerPool`) step the others, so a seeded run gives the same numbers as
+in-process. Pickling (a checkpoint) snapshots every block mid-episode; unpickling starts new workers from them.
 """
 
 from __future__ import annotations
@@ -29,6 +22,7 @@ from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper, Ve
 
 from sb3_eps.common.multi_agent_vec_env import MultiAgentVecEnv
 from sb3_eps.common.snapshots import snapshot_dumps
+from sb3_eps.common.utils import is_int
 from sb3_eps.common.workers import START_TIMEOUT, Served, WorkerError, WorkerPool, default_start_method
 
 #: Seconds a process polls its pipe without sleeping before it sleeps, where every process of the vec env has a
@@ -116,7 +110,8 @@ def _pack_step_reply(reply: tuple[Any, ...]) -> bytes | None:
     if any(array.dtype.hasobject for array in arrays):
         return None
     meta = pickle.dumps(
-        ([(array.dtype.str, array.shape) for array in arrays], infos, reset_infos), protocol=pickle.HIGHEST_PROTOCOL
+        ([(array.dtype.str, array.shape) for array in arrays], infos, reset_infos),
+        protocol=pickle.HIGHEST_PROTOCOL,
     )
     parts = [_STEP_REPLY.ljust(4, b"\0"), len(meta).to_bytes(4, "little"), meta]
     parts.append(b"\0" * (-len(meta) % 8))
@@ -142,51 +137,51 @@ def _unpack_step_reply(message: bytes) -> tuple[Any, ...]:
 
 
 # ---------------------------------------------------------------------------------------------- worker side
-def _build_block(payload: tuple[str, Any, float]) -> MultiAgentVecEnv:
-    kind, value, t_start = payload
-    if kind == "snapshot":
-        return pickle.loads(value)  # written by this class's __getstate__ in a process of this run
-    env_fns, env_id = value.var
-    venv = MultiAgentVecEnv(env_fns, env_id=env_id)
-    venv._t_start = t_start  # episode "t" counts from the main process's vec env
-    return venv
-
-
-def _handle(venv: MultiAgentVecEnv, command: str, data: Any) -> Any:
-    """Run one command of the main process on a block's vec env; :return: the reply."""
-    if command == "step":
-        actions, want_state = data
-        obs, rewards, dones, infos = venv.step(actions)
-        reset_infos = venv.reset_infos if dones.any() else None
-        return obs, rewards, dones, infos, venv.alive, venv.get_state() if want_state else None, reset_infos
-    if command == "reset":
-        seed, options, want_state = data
-        if seed is not None:
-            venv.seed(seed)
-        venv.set_options(options)
-        obs = venv.reset()
-        return obs, venv.reset_infos, venv.get_state() if want_state else None
-    if command == "get_state":
-        return venv.get_state()
-    if command == "call":
-        worlds, kind, name, args, kwargs = data
-        return venv._world_call(worlds, kind, name, args, kwargs)
-    if command == "snapshot":
-        return snapshot_dumps(venv)  # the checkpoint's pickler: envs continue mid-episode
-    raise ValueError(f"unknown command {command!r}")
-
-
-class _ServedWorlds(Served):
-    """A worker's block of worlds; steps travel as raw bytes."""
+class _Worlds(Served):
+    """A block of worlds, in a worker or in the main process; a worker's steps travel as raw bytes."""
 
     def __init__(self, payload: tuple[str, Any, float]) -> None:
-        self.venv = _build_block(payload)
+        kind, value, t_start = payload
+        if kind == "snapshot":
+            self.venv = pickle.loads(value)  # written by SubprocMultiAgentVecEnv.__getstate__ in this run
+        else:
+            env_fns, env_id = value.var
+            self.venv = MultiAgentVecEnv(env_fns, env_id=env_id)
+            self.venv._t_start = t_start  # episode "t" counts from the main process's vec env
 
     def hello(self) -> tuple[Any, ...]:
-        return _layout(self.venv)
+        venv = self.venv
+        return venv.possible_agents, venv.observation_space, venv.action_space, venv.state_space
 
     def handle(self, command: str, data: Any) -> Any:
-        return _handle(self.venv, command, data)
+        venv = self.venv
+        if command == "step":
+            actions, want_state = data
+            obs, rewards, dones, infos = venv.step(actions)
+            reset_infos = venv.reset_infos if dones.any() else None
+            return (
+                obs,
+                rewards,
+                dones,
+                infos,
+                venv.alive,
+                venv.get_state() if want_state else None,
+                reset_infos,
+            )
+        if command == "reset":
+            seed, options, want_state = data
+            if seed is not None:
+                venv.seed(seed)
+            venv.set_options(options)
+            obs = venv.reset()
+            return obs, venv.reset_infos, venv.get_state() if want_state else None
+        if command == "get_state":
+            return venv.get_state()
+        if command == "call":
+            return venv._world_call(*data)
+        if command == "snapshot":
+            return snapshot_dumps(venv)  # the checkpoint's pickler: envs continue mid-episode
+        return super().handle(command, data)
 
     def unpack(self, message: bytes) -> tuple[str, Any]:
         return "step", _unpack_step(message)
@@ -198,19 +193,11 @@ class _ServedWorlds(Served):
         self.venv.close()
 
 
-def _layout(venv: MultiAgentVecEnv) -> tuple[Any, ...]:
-    return venv.possible_agents, venv.observation_space, venv.action_space, venv.state_space
-
-
 # ---------------------------------------------------------------------------------------------- main side
 class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
     """A :class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv` whose worlds run in worker processes.
 
-    Same attributes, step semantics and sub-env order as in-process (``docs/architecture.md``).
-
-    :param env_fns: one constructor per world (PettingZoo ParallelEnv or gymnasium env), sent to the workers with
-        cloudpickle, so lambdas and closures work
-    :param env_id: the registered id the worlds were built from, for the record and error messages
+    :param env_fns: one constructor per world, sent to the workers with cloudpickle (lambdas and closures work)
     :param n_workers: worker processes, each holding a contiguous block of worlds (None: see ``main_worlds``)
     :param start_method: multiprocessing start method (None: ``"fork"`` where available, else ``"spawn"``)
     :param main_worlds: worlds the main process steps itself, side by side with the workers (the first ones).
@@ -232,15 +219,9 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         n_worlds = len(env_fns)
         if n_worlds < 1:
             raise ValueError("SubprocMultiAgentVecEnv needs at least one env constructor")
-        if n_workers is not None and (
-            isinstance(n_workers, bool) or not isinstance(n_workers, int | np.integer) or n_workers < 1
-        ):
+        if n_workers is not None and not (is_int(n_workers) and n_workers >= 1):
             raise ValueError(f"n_workers must be an int >= 1 (or None: one per core), got {n_workers!r}")
-        if main_worlds is not None and (
-            isinstance(main_worlds, bool)
-            or not isinstance(main_worlds, int | np.integer)
-            or not 0 <= main_worlds < n_worlds
-        ):
+        if main_worlds is not None and not (is_int(main_worlds) and 0 <= main_worlds < n_worlds):
             raise ValueError(
                 f"main_worlds must be an int in [0, {n_worlds - 1}] (at least one of the {n_worlds} worlds in a "
                 f"worker; DummyVecEnv keeps them all in this process), or None for the default; got {main_worlds!r}"
@@ -249,10 +230,13 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
             raise ValueError(
                 f"start_method {start_method!r} is not available here; use one of {mp.get_all_start_methods()}"
             )
-        if spin_s is not None and (
-            isinstance(spin_s, bool) or not isinstance(spin_s, int | float) or not 0 <= spin_s < float("inf")
-        ):
-            raise ValueError(f"spin_s must be a number of seconds >= 0 (or None for the default), got {spin_s!r}")
+        valid_spin = (
+            not isinstance(spin_s, bool) and isinstance(spin_s, int | float) and 0 <= spin_s < float("inf")
+        )
+        if spin_s is not None and not valid_spin:
+            raise ValueError(
+                f"spin_s must be a number of seconds >= 0 (or None for the default), got {spin_s!r}"
+            )
         if main_worlds is None:
             if n_workers is None:
                 main_worlds, n_workers = default_layout(n_worlds)
@@ -273,9 +257,13 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
             spin_s = DEFAULT_SPIN_S if len(self._blocks) + 1 <= available_cores() else 0.0
         self.spin_s = float(spin_s)
         self._t_start = time.time()
-        payloads = [("fns", CloudpickleWrapper(([env_fns[w] for w in block], env_id))) for block in self._blocks]
+        payloads = [
+            ("fns", CloudpickleWrapper(([env_fns[w] for w in block], env_id))) for block in self._blocks
+        ]
         main_payload = (
-            ("fns", CloudpickleWrapper(([env_fns[w] for w in self._main_block], env_id))) if main_worlds else None
+            ("fns", CloudpickleWrapper(([env_fns[w] for w in self._main_block], env_id)))
+            if main_worlds
+            else None
         )
         self._start_workers(payloads, main_payload)
 
@@ -297,9 +285,9 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
 
     def _start_workers(self, payloads: list[tuple[str, Any]], main_payload: tuple[str, Any] | None) -> None:
         self._step_in_flight = False
-        self._local: MultiAgentVecEnv | None = None
+        self._local: _Worlds | None = None
         self._pool = WorkerPool(
-            _ServedWorlds,
+            _Worlds,
             [(*payload, self._t_start) for payload in payloads],
             self.start_method,
             describe=self._describe,
@@ -310,13 +298,15 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         )
         try:
             if main_payload is not None:  # built while the workers build theirs, after the forks
-                self._local = _build_block((*main_payload, self._t_start))
-            layouts = [self._pool.recv(i, "building its worlds", START_TIMEOUT) for i in range(self.n_workers)]
+                self._local = _Worlds((*main_payload, self._t_start))
+            layouts = [
+                self._pool.recv(i, "building its worlds", START_TIMEOUT) for i in range(self.n_workers)
+            ]
         except BaseException:
             self._pool.terminate()
             raise
         if self._local is not None:
-            layouts.insert(0, _layout(self._local))
+            layouts.insert(0, self._local.hello())
         possible_agents, observation_space, action_space, state_space = layouts[0]
         if any(layout[0] != possible_agents for layout in layouts[1:]):
             self.close()
@@ -325,7 +315,9 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         self.n_agents = len(self.possible_agents)
         self.state_space = state_space
         self._main_slice = slice(0, len(self._main_block) * self.n_agents)
-        self._slices = [slice(block.start * self.n_agents, block.stop * self.n_agents) for block in self._blocks]
+        self._slices = [
+            slice(block.start * self.n_agents, block.stop * self.n_agents) for block in self._blocks
+        ]
         VecEnv.__init__(self, self.n_worlds * self.n_agents, observation_space, action_space)
         self.alive = np.ones(self.num_envs, dtype=bool)
         self._actions = np.zeros(self.num_envs, dtype=np.int64)
@@ -360,11 +352,11 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
 
     def _finish_all(self, command: str, local: Any) -> list[Any]:
         doing = _DOING.get(command, command)
-        mine = self._while_workers_run(lambda venv: _handle(venv, command, local), doing)
+        mine = self._while_workers_run(lambda block: block.handle(command, local), doing)
         replies = self._pool.gather(range(self.n_workers), doing)
         return replies if self._local is None else [mine, *replies]
 
-    def _while_workers_run(self, work: Callable[[MultiAgentVecEnv], Any], doing: str) -> Any:
+    def _while_workers_run(self, work: Callable[[_Worlds], Any], doing: str) -> Any:
         """Run ``work`` on the main process's block while the workers run a command; if it raises, collect the
         workers' replies first (the error of the main block is the one raised, as in process)."""
         if self._local is None:
@@ -453,7 +445,9 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         kwargs: dict[str, Any] | None = None,
     ) -> dict[int, Any]:
         if self._step_in_flight:
-            raise RuntimeError(f"cannot run {kind} {name or ''} while a step is in flight: call step_wait() first")
+            raise RuntimeError(
+                f"cannot run {kind} {name or ''} while a step is in flight: call step_wait() first"
+            )
         wanted = set(worlds)
         doing = f"running {kind} {name or ''}".strip()
         asked = []
@@ -466,7 +460,9 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         results: dict[int, Any] = {}
         if mine:  # the main block starts at world 0: its local indices are the global ones
             results.update(
-                self._while_workers_run(lambda venv: venv._world_call(mine, kind, name, args, kwargs), doing)
+                self._while_workers_run(
+                    lambda block: block.venv._world_call(mine, kind, name, args, kwargs), doing
+                )
             )
         for i, replies in zip(asked, self._pool.gather(asked, doing)):
             start = self._blocks[i].start
@@ -476,7 +472,9 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
     def _join(self, parts: list[np.ndarray]) -> np.ndarray:
         if len(parts) > 1:
             return np.concatenate(parts)
-        return parts[0] if parts[0].flags.writeable else parts[0].copy()  # a step reply's arrays are read-only
+        return (
+            parts[0] if parts[0].flags.writeable else parts[0].copy()
+        )  # a step reply's arrays are read-only
 
     def _join_states(self, parts: list[np.ndarray | None]) -> np.ndarray | None:
         return None if any(part is None for part in parts) else self._join(parts)  # type: ignore[arg-type]

@@ -9,12 +9,19 @@ import numpy as np
 import torch as th
 
 
+def is_int(value: Any) -> bool:
+    """Whether ``value`` is a Python or NumPy integer (a bool is not)."""
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
 def check_seed(seed: Any) -> int | None:
     """:return: ``seed`` as a Python int (or None); :raises ValueError: for anything but None or an int >= 0."""
     if seed is None:
         return None
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
-        raise ValueError(f"seed must be None or a non-negative int, got {seed!r} of type {type(seed).__name__}")
+    if not is_int(seed):
+        raise ValueError(
+            f"seed must be None or a non-negative int, got {seed!r} of type {type(seed).__name__}"
+        )
     if seed < 0:
         raise ValueError(f"seed must be None or a non-negative int, got {seed}")
     return int(seed)
@@ -32,11 +39,15 @@ def dueling_aggregation(values: th.Tensor, advantages: th.Tensor) -> th.Tensor:
     ``(..., 1)`` and ``advantages`` ``(..., n_actions)``."""
     # The check is skipped while tracing (ONNX export), where shapes are symbolic.
     if not th.jit.is_tracing() and (values.shape[-1] != 1 or values.shape[:-1] != advantages.shape[:-1]):
-        raise ValueError(f"values {tuple(values.shape)} must be (..., 1) over advantages {tuple(advantages.shape)}")
+        raise ValueError(
+            f"values {tuple(values.shape)} must be (..., 1) over advantages {tuple(advantages.shape)}"
+        )
     return values + advantages - advantages.mean(dim=-1, keepdim=True)
 
 
-def td_target(rewards: th.Tensor, discounts: th.Tensor, dones: th.Tensor, next_values: th.Tensor) -> th.Tensor:
+def td_target(
+    rewards: th.Tensor, discounts: th.Tensor, dones: th.Tensor, next_values: th.Tensor
+) -> th.Tensor:
     """n-step TD target ``y = G + gamma^k * (1 - done) * next_value`` (Sutton & Barto 7.1): ``rewards`` the n-step
     returns ``G``, ``discounts`` ``gamma ** k``, ``dones`` 1 where the episode terminated inside the window."""
     if not (rewards.shape == discounts.shape == dones.shape == next_values.shape):

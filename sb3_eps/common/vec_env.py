@@ -12,7 +12,6 @@ from collections.abc import Callable
 from typing import Any
 
 import gymnasium
-import numpy as np
 import pettingzoo
 from pettingzoo import ParallelEnv
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
@@ -20,7 +19,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from sb3_eps.common.multi_agent_vec_env import MultiAgentVecEnv
 from sb3_eps.common.subproc_vec_env import SubprocMultiAgentVecEnv
-from sb3_eps.common.utils import check_seed
+from sb3_eps.common.utils import check_seed, is_int
 
 __all__ = ["VEC_ENV_MODES", "MultiAgentVecEnv", "make_vec_env", "vec_env_mode", "world_constructor"]
 
@@ -45,6 +44,7 @@ def vec_env_mode(vec_env_cls: type[VecEnv] | str | None) -> str:
         f"processes), or their names 'dummy' / 'subproc'; got {vec_env_cls!r}"
     )
 
+
 def make_vec_env(
     env_id: str | Callable[..., ParallelEnv | gymnasium.Env],
     n_envs: int = 1,
@@ -68,7 +68,7 @@ def make_vec_env(
             "env_id must be a registered id (envs.ENV_IDS lists this project's) or a callable returning a "
             f"PettingZoo ParallelEnv (or a gymnasium env); got {env_id!r}"
         )
-    if isinstance(n_envs, bool) or not isinstance(n_envs, int | np.integer) or n_envs < 1:
+    if not (is_int(n_envs) and n_envs >= 1):
         raise ValueError(f"n_envs (the number of worlds) must be an int >= 1, got {n_envs!r}")
     seed = check_seed(seed)
     mode = vec_env_mode(vec_env_cls)

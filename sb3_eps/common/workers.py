@@ -120,7 +120,9 @@ def _worker_main(
                 poll = time.perf_counter() - idle_since <= spin_s
             except (EOFError, OSError):  # the main process is gone
                 break
-            command, data = ForkingPickler.loads(message) if message[:1] == _PICKLE else served.unpack(message)
+            command, data = (
+                ForkingPickler.loads(message) if message[:1] == _PICKLE else served.unpack(message)
+            )
             if command == "close":
                 remote.send(("ok", None))
                 break

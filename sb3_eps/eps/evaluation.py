@@ -70,7 +70,9 @@ class _EpisodeRecorder:
         n_ticks, n_agents = len(self.actions), self.env.team_size
         states = np.stack(self.states) if self.record_states else np.zeros((n_ticks + 1, 0), dtype=np.float32)
         flags = {
-            name: np.stack([getattr(tick, name) for tick in self.ticks]) if self.ticks else np.zeros((0, n_agents))
+            name: np.stack([getattr(tick, name) for tick in self.ticks])
+            if self.ticks
+            else np.zeros((0, n_agents))
             for name in TeamTick._fields
         }
         return TeamEpisode(
@@ -191,9 +193,7 @@ class _Block:
         self.record = record
         self.forward = PopulationForward(network, batched)
 
-    def evaluate(
-        self, population: Parameters, seeds: Sequence[int], valid: np.ndarray
-    ) -> PoolAnswer:
+    def evaluate(self, population: Parameters, seeds: Sequence[int], valid: np.ndarray) -> PoolAnswer:
         """Play every episode of every ``valid`` individual greedily, all envs in lockstep; an individual whose
         output is not finite becomes invalid. :return: :data:`PoolAnswer`"""
         shape = (self.n_individuals, self.n_episodes)
@@ -211,7 +211,9 @@ class _Block:
             obs[index] = self.envs[index].reset(seed=int(seeds[int(index) % self.n_episodes]))[0]
         recorders = self._recorders(obs, active)
         while active.any():
-            outputs = self.forward(th.as_tensor(obs).reshape(self.n_individuals, self.n_episodes * agents, -1))
+            outputs = self.forward(
+                th.as_tensor(obs).reshape(self.n_individuals, self.n_episodes * agents, -1)
+            )
             outputs = outputs.reshape(len(self.envs), agents, -1)
             # A NaN/inf output disqualifies its individual at once: its envs stop, its fitness becomes -inf.
             finite = th.isfinite(outputs).all(dim=-1).all(dim=-1).numpy()
@@ -232,9 +234,13 @@ class _Block:
                 if terminated or truncated:
                     outcomes.flat[index] = episode_outcome(bool(terminated), info)
         episodes = None
-        if recorders is not None:  # an individual stopped for non-finite outputs left unfinished episodes: none
+        if (
+            recorders is not None
+        ):  # an individual stopped for non-finite outputs left unfinished episodes: none
             played = np.repeat(valid, self.n_episodes)
-            episodes = [recorder.episode() if played[index] else None for index, recorder in enumerate(recorders)]
+            episodes = [
+                recorder.episode() if played[index] else None for index, recorder in enumerate(recorders)
+            ]
         return returns, lengths, outcomes, valid, episodes
 
     def _recorders(self, obs: np.ndarray, active: np.ndarray) -> list[_EpisodeRecorder] | None:
@@ -268,7 +274,9 @@ class _ServedBlock(Served):
         if command != "evaluate":
             return super().handle(command, data)
         population, seeds, valid = data
-        return self.block.evaluate({name: th.from_numpy(array) for name, array in population.items()}, seeds, valid)
+        return self.block.evaluate(
+            {name: th.from_numpy(array) for name, array in population.items()}, seeds, valid
+        )
 
     def close(self) -> None:
         self.block.close()
@@ -357,7 +365,8 @@ class SubprocessEnvPool(EnvPool):
         self.blocks = [block for block in np.array_split(np.arange(n_individuals), n_blocks) if len(block)]
         common = {"env_id": env_id, "env_kwargs": env_kwargs, "n_episodes": n_episodes, "network": network}
         payloads = [
-            {**common, "n_individuals": len(block), "batched": batched, "record": record} for block in self.blocks
+            {**common, "n_individuals": len(block), "batched": batched, "record": record}
+            for block in self.blocks
         ]
         # The workers build their envs while the main process goes on training; the first evaluation waits for
         # their hellos within its own deadline.
@@ -472,7 +481,9 @@ def evaluate_population(
     valid = finite_individuals(cpu_population)
     if active is not None:
         valid &= np.asarray(active, dtype=bool)
-    returns, lengths, outcomes, valid, episodes = pool.evaluate(cpu_population, list(episode_seeds), valid, deadline)
+    returns, lengths, outcomes, valid, episodes = pool.evaluate(
+        cpu_population, list(episode_seeds), valid, deadline
+    )
     scores = population_fitness(returns, outcomes, valid, fitness)
     return PopulationResult(
         returns=returns, lengths=lengths, valid=valid, fitness=scores, outcomes=outcomes, episodes=episodes

@@ -70,9 +70,16 @@ class EPSRound:
         theta = network_parameters(q_net)  # line 5: the copies of theta^e
         observations = self.visited_observations(None)
         assert observations is not None
-        sensitivities = self._sensitivities(q_net, observations) if settings.mutation == "safe" else None  # 7-8
+        sensitivities = (
+            self._sensitivities(q_net, observations) if settings.mutation == "safe" else None
+        )  # 7-8
         directions = mutation_directions(  # lines 6 and 9 at unit scale: G ~ N(0, 1), G / omega
-            theta, settings.population_size, self.generator, sensitivities, settings.sensitivity_floor, self.evolved
+            theta,
+            settings.population_size,
+            self.generator,
+            sensitivities,
+            settings.sensitivity_floor,
+            self.evolved,
         )
         max_step = settings.max_step if settings.mutation == "safe" else float("inf")
         scale = self._mutation_scale(q_net, theta, directions, observations, max_step)
@@ -112,7 +119,12 @@ class EPSRound:
         return sample_visited_observations(self.model, self.settings.sensitivity_batch_size, self.rng, robot)
 
     def _mutation_scale(
-        self, q_net: nn.Module, theta: Parameters, directions: Parameters, observations: th.Tensor, max_step: float
+        self,
+        q_net: nn.Module,
+        theta: Parameters,
+        directions: Parameters,
+        observations: th.Tensor,
+        max_step: float,
     ) -> float:
         """The noise scale of this round: ``sigma``, or calibrated to ``target_flip_share`` of greedy actions."""
         settings = self.settings
@@ -127,12 +139,16 @@ class EPSRound:
         self.scale, _ = calibrate_scale(flip_share_at, settings.target_flip_share, initial)
         return self.scale
 
-    def _play(self, population: Parameters, active: np.ndarray | None = None) -> tuple[list[int], PopulationResult]:
+    def _play(
+        self, population: Parameters, active: np.ndarray | None = None
+    ) -> tuple[list[int], PopulationResult]:
         """Play the population on fresh common-random-number episodes and count their ticks."""
         settings = self.settings
         assert self.pool is not None
         seeds = [int(seed) for seed in self.rng.integers(2**31 - 1, size=settings.n_eval_episodes)]
-        result = evaluate_population(self.pool, population, seeds, settings.eval_timeout, settings.fitness, active)
+        result = evaluate_population(
+            self.pool, population, seeds, settings.eval_timeout, settings.fitness, active
+        )
         self.eps_ticks += int(result.lengths.sum())
         if settings.share_experience and result.episodes is not None:
             rows = share_episodes(self.model, result.episodes)  # before any crossover: the round's network
@@ -156,7 +172,9 @@ class EPSRound:
         )
         return result
 
-    def _accept(self, population: Parameters, result: PopulationResult, winner: int, record: dict[str, Any]) -> bool:
+    def _accept(
+        self, population: Parameters, result: PopulationResult, winner: int, record: dict[str, Any]
+    ) -> bool:
         """The acceptance rule: a gain over copy 0 beyond ``min_gain``, and again on fresh episodes."""
         fitness, min_gain = result.fitness, self.settings.min_gain
         gain = float(fitness[winner] - fitness[0]) if np.isfinite(fitness[0]) else float("nan")

@@ -32,9 +32,7 @@ def sharing_problem(model: Any, eval_env: Any) -> str | None:
     """Why the episodes of ``eval_env`` (:func:`~sb3_eps.eps.evaluation.make_eval_env`) cannot become ``model``'s
     replay rows, or None when they can."""
     if not isinstance(model, MultiAgentOffPolicyAlgorithm):
-        return (
-            f"share_experience writes joint replay rows: it needs IQL, GDQ, QMIX or VDN, not {type(model).__name__}"
-        )
+        return f"share_experience writes joint replay rows: it needs IQL, GDQ, QMIX or VDN, not {type(model).__name__}"
     team_size = int(getattr(eval_env, "team_size", 0))
     if not team_size:
         return (
@@ -74,7 +72,11 @@ def share_episodes(model: MultiAgentOffPolicyAlgorithm, episodes: Sequence[TeamE
     offset = 0
     for episode in played:
         collector = NStepJointCollector(
-            counter, 1, model.n_steps, model.gamma, model.team_reward_mode  # type: ignore[arg-type]
+            counter,
+            1,
+            model.n_steps,
+            model.gamma,
+            model.team_reward_mode,  # type: ignore[arg-type]
         )
         for tick in range(episode.n_ticks):
             row = offset + tick
@@ -86,14 +88,20 @@ def share_episodes(model: MultiAgentOffPolicyAlgorithm, episodes: Sequence[TeamE
                     stacklevel=2,
                 )
                 continue
-            collector.add(0, _episode_tick(episode, tick, None if values is None else (values[0][row], values[1][row])))
+            collector.add(
+                0, _episode_tick(episode, tick, None if values is None else (values[0][row], values[1][row]))
+            )
         offset += episode.n_ticks
     return counter.n_rows
 
 
 def _episode_tick(episode: TeamEpisode, tick: int, values: tuple[np.ndarray, np.ndarray] | None) -> Any:
     """Tick ``tick`` of a team-world episode as the bridge would report it (``MultiAgentVecEnv.step_wait``)."""
-    terminations, truncations, alive = episode.terminations[tick], episode.truncations[tick], episode.alive[tick]
+    terminations, truncations, alive = (
+        episode.terminations[tick],
+        episode.truncations[tick],
+        episode.alive[tick],
+    )
     dones = terminations | truncations
     return joint_tick(
         observations=episode.observations[tick],
