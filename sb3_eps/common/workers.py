@@ -59,17 +59,11 @@ def poller(remote: Connection) -> Callable[[], Any]:
     return remote.poll  # Windows
 
 
-def spin_wait(ready: Callable[[], Any], spin_s: float) -> bool:
-    """Return when ``ready()`` is true, or after asking it for ``spin_s`` seconds, yielding the core in between;
-    :return: whether the message came while polling."""
-    if spin_s <= 0:
-        return False
+def spin_wait(ready: Callable[[], Any], spin_s: float) -> None:
+    """Return when ``ready()`` is true, or after asking it for ``spin_s`` seconds, yielding the core in between."""
     deadline = time.perf_counter() + spin_s
-    while not ready():
-        if time.perf_counter() > deadline:
-            return False
+    while spin_s > 0 and not ready() and time.perf_counter() <= deadline:
         _yield()
-    return True
 
 
 class Served:
