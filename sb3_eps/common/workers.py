@@ -186,9 +186,6 @@ class WorkerPool:
             raise
         _OPEN.add(self)
 
-    def __len__(self) -> int:
-        return len(self._processes)
-
     @property
     def pids(self) -> list[int]:
         return [int(process.pid) for process in self._processes]
