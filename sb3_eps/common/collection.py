@@ -135,7 +135,7 @@ def store_joint_transition(
                 values=None if values is None else (values[0][world], values[1][world]),
             ),
         )
-    model._last_obs = new_obs  # type: ignore[assignment]
+    model._last_obs = new_obs
     model._last_state = new_state
     return int(step.world_ended.sum())
 
@@ -161,13 +161,14 @@ def _read_step(
     truncated = np.fromiter(
         (info.get("TimeLimit.truncated", False) for info in infos), dtype=bool, count=len(infos)
     )
-    ended = np.asarray(dones, dtype=bool) & alive
+    dones = np.asarray(dones, dtype=bool)
+    ended = dones & alive
     return _Step(
         next_observations=next_obs,
         alive=alive.reshape(shape),
         truncated=truncated.reshape(shape),
         ended=ended.reshape(shape),
-        world_ended=np.asarray(dones, dtype=bool).reshape(shape).all(axis=1),
+        world_ended=dones.reshape(shape).all(axis=1),
     )
 
 

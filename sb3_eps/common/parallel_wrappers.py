@@ -17,13 +17,8 @@ from pettingzoo import ParallelEnv
 
 
 class SingleAgentParallelEnv(ParallelEnv):
-    """A gymnasium env seen as a PettingZoo ParallelEnv with one agent.
-
-    The global state is the env's ``state()`` when it has one (with ``state_space``), else its observation.
-
-    :param env: the gymnasium env
-    :param agent: the name of its agent
-    """
+    """A gymnasium env seen as a PettingZoo ParallelEnv with one agent named ``agent``; its global state is the
+    env's ``state()`` when it has one (with ``state_space``), else its observation."""
 
     def __init__(self, env: gymnasium.Env, agent: str = "agent_0") -> None:
         self.env = env
@@ -80,8 +75,6 @@ class ParallelEnvAsGymnasium(gymnasium.Env):
 
     It gives a world of your own its single-agent variant for EPS (``docs/bring_your_own_world.md``). At an
     episode's end ``info["is_success"]`` is the agent's ``is_success``, ``success`` or ``team["success"]``.
-
-    :param env: a ParallelEnv with exactly one possible agent
     """
 
     def __init__(self, env: ParallelEnv) -> None:

@@ -71,13 +71,8 @@ def share_episodes(model: MultiAgentOffPolicyAlgorithm, episodes: Sequence[TeamE
     counter = _RowCounter(model.replay_buffer)
     offset = 0
     for episode in played:
-        collector = NStepJointCollector(
-            counter,
-            1,
-            model.n_steps,
-            model.gamma,
-            model.team_reward_mode,  # type: ignore[arg-type]
-        )
+        buffer: Any = counter  # the collector only calls add_row
+        collector = NStepJointCollector(buffer, 1, model.n_steps, model.gamma, model.team_reward_mode)
         for tick in range(episode.n_ticks):
             row = offset + tick
             if not _finite_tick(episode, tick):
