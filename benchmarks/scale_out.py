@@ -52,7 +52,7 @@ import numpy as np
 import torch as th
 
 from sb3_eps import make_vec_env
-from sb3_eps.common.subproc_vec_env import _handle, default_n_workers
+from sb3_eps.common.subproc_vec_env import default_n_workers
 from sb3_eps.grid import Grid, run_grid
 from sb3_eps.zoo.config import resolve_config
 from sb3_eps.zoo.schema import algorithm_kwargs
@@ -189,7 +189,7 @@ def parts_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
             for i, part in enumerate(venv._slices):
                 venv._send_step(i, action[part], False)
             t1 = time.perf_counter()
-            _handle(venv._local, "step", (action[venv._main_slice], False))
+            venv._local.handle("step", (action[venv._main_slice], False))
             t2 = time.perf_counter()
             venv._gather(range(venv.n_workers), "step")
             t3 = time.perf_counter()

@@ -26,7 +26,6 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from sb3_eps.common.utils import format_table
 from sb3_eps.zoo.plotting import RECORD_FILE
 
 __all__ = [
@@ -283,3 +282,23 @@ def _mean_curve(curves: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray
     start, end = max(x[0] for x, _ in curves), min(x[-1] for x, _ in curves)
     grid = np.linspace(start, end, 100) if end > start else np.array([end])
     return grid, np.mean([np.interp(grid, x, y) for x, y in curves], axis=0)
+
+
+def format_table(rows: list[dict[str, Any]], columns: list[str] | None = None, precision: int = 3) -> str:
+    """Rows of dicts as a fixed-width text table: a header line, a rule and one line per row (``columns``
+    default to the first row's keys; floats with ``precision`` significant digits)."""
+    if not rows:
+        return "(no rows)"
+    columns = list(columns or rows[0])
+
+    def cell(value: Any) -> str:
+        if isinstance(value, float):
+            return f"{value:.{precision}g}"
+        return "" if value is None else str(value)
+
+    cells = [[cell(row.get(column)) for column in columns] for row in rows]
+    widths = [max(len(column), *(len(line[i]) for line in cells)) for i, column in enumerate(columns)]
+    lines = ["  ".join(column.ljust(width) for column, width in zip(columns, widths, strict=True))]
+    lines.append("  ".join("-" * width for width in widths))
+    lines += ["  ".join(value.ljust(width) for value, width in zip(line, widths, strict=True)) for line in cells]
+    return "\n".join(line.rstrip() for line in lines)

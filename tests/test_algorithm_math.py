@@ -266,9 +266,14 @@ def test_sum_tree_totals_stay_exact_after_repeated_updates() -> None:
     assert tree.leaves(np.arange(37)) == pytest.approx(leaves)
 
 
-def test_polyak_update_hand_computation() -> None:
-    from sb3_eps.common.utils import polyak_update_
+def polyak_update_(target: th.nn.Module, source: th.nn.Module, tau: float) -> None:
+    from sb3_eps.common.utils import polyak_update_tensors_
 
+    lists = [list(part) for net in (target, source) for part in (net.parameters(), net.buffers())]
+    polyak_update_tensors_(lists[0], lists[2], lists[1], lists[3], tau)
+
+
+def test_polyak_update_hand_computation() -> None:
     target, source = th.nn.Linear(2, 1), th.nn.Linear(2, 1)
     with th.no_grad():
         target.weight.fill_(1.0), source.weight.fill_(3.0)
@@ -277,6 +282,4 @@ def test_polyak_update_hand_computation() -> None:
 
 
 def test_polyak_update_accepts_parameter_free_modules() -> None:
-    from sb3_eps.common.utils import polyak_update_
-
     polyak_update_(SumMixer(), SumMixer(), 0.5)

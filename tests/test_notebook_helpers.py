@@ -26,13 +26,13 @@ from research.results import (
     best_covered,
     draw_seed_curves,
     find_evaluation_runs,
+    format_table,
     group_runs,
     read_evaluation_run,
     read_progress,
     results_table,
 )
 from sb3_eps.common.evaluation import record_frames
-from sb3_eps.common.utils import format_table
 from sb3_eps.eps.evaluation import PopulationResult
 from sb3_eps.eps.mutations import mutation_directions, network_parameters
 

@@ -237,7 +237,7 @@ def test_a_step_in_flight_refuses_other_commands_and_closes_cleanly(closing) -> 
     assert obs.shape[0] == venv.num_envs
     venv.step_async(np.zeros(venv.num_envs, dtype=np.int64))
     venv.close()  # drains the step's replies before it asks the workers to close
-    assert all(not process.is_alive() for process in venv._processes)
+    assert all(not process.is_alive() for process in venv._pool._processes)
 
 
 def test_overlap_training_needs_train_freq_in_steps() -> None:

@@ -1,13 +1,6 @@
-"""Joint replay buffers: one row is one world's step for all of its agents.
-
-Multi-agent algorithms need the agents of one world together (GDQ's global value head, the QMIX/VDN
-mixers), and the per-agent end-of-life logic needs to know which agents were acting. A row therefore holds
-the joint observation, the agents' actions and individual n-step returns, their terminal flags, an ``alive``
-mask (the agent acted at the row's first tick, so its transition is real) and a ``next_alive`` mask (the
-agent still acts in the bootstrap observation), the team n-step return and the global states.
-
-The n-step logic lives in :class:`NStepJointCollector`: it keeps the last ``n_steps`` ticks of every world
-and writes a row once its window is full or the world's episode ended.
+"""Joint replay buffers: one row is one world's tick for all of its agents (the joint heads and mixers need them
+together), with ``alive`` (the agent acted at the row's first tick) and ``next_alive`` (it still acts in the bootstrap
+observation) masks. :class:`NStepJointCollector` folds every world's ticks into n-step rows.
 """
 
 from __future__ import annotations
@@ -26,16 +19,8 @@ TEAM_REWARD_MODES: tuple[str, ...] = typing.get_args(TeamRewardMode)
 
 
 class JointReplayBufferSamples(NamedTuple):
-    """A batch of joint rows as torch tensors; ``B`` rows of ``n`` agents.
-
-    ``observations`` / ``next_observations`` (B, n, obs_dim); ``actions`` (B, n) long; ``rewards``,
-    ``dones``, ``discounts`` (B, n): individual n-step returns, terminal flags and ``gamma ** k`` of the
-    bootstrap; ``alive`` / ``next_alive`` (B, n) float masks; ``team_rewards``, ``team_dones``,
-    ``team_discounts`` (B,); ``states`` / ``next_states`` (B, state_dim); ``weights`` (B,) importance weights
-    (ones without prioritisation); ``indices`` (B,) numpy row indices, for priority updates; ``values`` /
-    ``next_values`` (B, n) the agents' state-values stored at collection time (``None`` unless the buffer keeps
-    them: GDQ with ``global_values="stored"``).
-    """
+    """A batch of ``B`` joint rows of ``n`` agents as torch tensors: per agent ``(B, n, ...)``, per team ``(B,)``,
+    states ``(B, state_dim)``, importance ``weights``, numpy row ``indices``, and the stored ``values`` (or None)."""
 
     observations: th.Tensor
     actions: th.Tensor
@@ -59,13 +44,9 @@ class JointReplayBufferSamples(NamedTuple):
 class JointReplayBuffer:
     """Uniform replay buffer of joint rows.
 
-    :param buffer_size: capacity in rows (one row = one world's tick for all its agents)
     :param observation_space: one agent's observation space (a flat Box)
-    :param n_agents: agents per world
-    :param state_dim: length of the global state vector (0 when the env has none)
-    :param device: torch device of the sampled tensors
-    :param store_values: also keep the agents' state-values of each row's first and bootstrap observations, as
-        the agent network computed them at collection time (rows must then carry ``values`` / ``next_values``)
+    :param state_dim: length of the global state vector (0: none stored)
+    :param store_values: also keep the agents' state-values computed at collection time
     """
 
     def __init__(
@@ -113,10 +94,7 @@ class JointReplayBuffer:
         return self.buffer_size if self.full else self.pos
 
     def add_row(self, row: JointRow) -> int:
-        """Store one joint row and return its index.
-
-        :param row: the row, as made by :class:`NStepJointCollector`
-        """
+        """Store one joint row (:class:`NStepJointCollector`'s) and return its index."""
         index = self.pos
         self.observations[index] = row.observations
         self.next_observations[index] = row.next_observations
@@ -144,11 +122,7 @@ class JointReplayBuffer:
         return index
 
     def sample(self, batch_size: int, beta: float = 1.0) -> JointReplayBufferSamples:
-        """Sample ``batch_size`` rows uniformly with replacement.
-
-        :param batch_size: number of rows
-        :param beta: unused here (importance-sampling exponent of the prioritised variant)
-        """
+        """Sample ``batch_size`` rows uniformly with replacement (``beta``: the prioritised variant's)."""
         if self.size() == 0:
             raise RuntimeError("cannot sample from an empty replay buffer")
         indices = np.random.randint(0, self.size(), size=batch_size)
@@ -188,10 +162,7 @@ class JointReplayBuffer:
 
 
 class SumTree:
-    """Binary sum tree over ``capacity`` leaves, vectorised over batches of indices.
-
-    :param capacity: number of leaves (rounded up to a power of two internally)
-    """
+    """Binary sum tree over ``capacity`` leaves (a power of two inside), vectorised over batches of indices."""
 
     def __init__(self, capacity: int) -> None:
         self.capacity = int(capacity)
@@ -238,17 +209,9 @@ class SumTree:
 
 
 class PrioritizedJointReplayBuffer(JointReplayBuffer):
-    """Proportional prioritised replay (Schaul et al., 2016) over joint rows.
-
-    A row's priority is ``(|delta| + eps) ** alpha`` where ``|delta|`` is the largest absolute TD error among
-    its alive agents (or the team TD error for mixing algorithms); new rows get the current maximum priority.
-    Sampling probability ``P(i) = p_i / sum_j p_j``; importance weight ``(N * P(i)) ** -beta`` normalised by
-    the largest weight of the batch.
-
-    :param alpha: prioritisation exponent (0 = uniform)
-    :param priority_eps: added to ``|delta|`` so no row has zero probability
-    :param kwargs: as :class:`JointReplayBuffer`
-    """
+    """Proportional prioritised replay (Schaul et al., 2016) over joint rows: priority ``(|delta| + eps) ** alpha``
+    of the row's TD error, new rows at the maximum; importance weights ``(N * P(i)) ** -beta`` over the batch's
+    largest."""
 
     def __init__(self, *args: Any, alpha: float = 0.6, priority_eps: float = 1e-6, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -265,11 +228,7 @@ class PrioritizedJointReplayBuffer(JointReplayBuffer):
         return index
 
     def sample(self, batch_size: int, beta: float = 0.4) -> JointReplayBufferSamples:
-        """Stratified proportional sampling: one draw in each of ``batch_size`` equal slices of the mass.
-
-        :param batch_size: number of rows
-        :param beta: importance-sampling exponent (annealed to 1 by the algorithm)
-        """
+        """Stratified proportional sampling: one draw in each of ``batch_size`` equal slices of the mass."""
         size = self.size()
         if size == 0:
             raise RuntimeError("cannot sample from an empty replay buffer")
@@ -283,11 +242,7 @@ class PrioritizedJointReplayBuffer(JointReplayBuffer):
         return self._to_samples(indices, weights)
 
     def update_priorities(self, indices: np.ndarray, td_errors: np.ndarray) -> None:
-        """Set the rows' priorities from their absolute TD errors.
-
-        :param indices: row indices of the sampled batch
-        :param td_errors: one non-negative error per row
-        """
+        """Set the rows' priorities from their absolute TD errors."""
         priorities = (np.abs(td_errors) + self.priority_eps) ** self.alpha
         self.tree.update(indices, priorities)
         self.max_priority = max(self.max_priority, float(priorities.max()))
@@ -354,17 +309,9 @@ def joint_tick(
     next_state: np.ndarray,
     values: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> _Tick:
-    """One world's tick for the n-step collector, from what the bridge says of each agent (``(n_agents, ...)``
-    arrays), with the termination flags derived from ``ended`` and ``truncated``: the training rollout
-    (:class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`) and EPS's experience sharing both store
-    their ticks through it.
-
-    :param alive: the agents that acted at this tick
-    :param ended: the agents whose episode (life) ended at this tick
-    :param truncated: the agents whose end was the time limit
-    :param world_ended: every agent of the world is done
-    :param values: ``(v, v')`` to store with the tick (GDQ's ``global_values="stored"``), or None
-    """
+    """One world's tick for the n-step collector from what the bridge says of each agent (the rollout and EPS's
+    experience sharing both store through it): ``alive`` the agents that acted, ``ended`` those whose life ended,
+    ``truncated`` those ended by the time limit; ``values`` ``(v, v')`` to store, or None."""
     return _Tick(
         observations=observations,
         actions=actions,
@@ -384,17 +331,11 @@ def joint_tick(
 
 
 def n_step_row(ticks: list[_Tick], gamma: float, team_reward_mode: str = "sum") -> JointRow:
-    """Fold the ticks ``t0 .. t0+K-1`` of one world into the n-step row of tick ``t0``.
+    """Fold the window ``t0 .. t0+K-1`` of one world (only the last tick may end it) into the n-step row of ``t0``.
 
-    Individual return of agent i: ``G_i = sum_{k < K_i} gamma^k r_i(t0+k)`` where ``K_i <= K`` stops at the
-    tick where the agent's own episode ended; it bootstraps with ``gamma^K_i`` from the observation after
-    tick ``t0+K-1`` unless it terminated inside the window (``done_i``). Team return: the same sum over the
-    whole window of the team reward (sum, or mean, of the alive agents' rewards), bootstrapped from the
-    global state after the window unless the world terminated in it.
-
-    :param ticks: the window, oldest first, ``1 <= K <= n_steps`` ticks; only the last may end the world
-    :param gamma: discount factor
-    :param team_reward_mode: ``"sum"`` or ``"mean"`` of the alive agents' rewards
+    Agent i: ``G_i = sum_{k < K_i} gamma^k r_i(t0+k)``, ``K_i`` stopping where its own episode ended, bootstrapped
+    with ``gamma^K_i`` unless it terminated inside the window. Team: the same over the whole window of the team reward
+    (sum or mean of the alive agents'), bootstrapped unless the world terminated.
     """
     if all(tick.all_alive for tick in ticks) and not any(tick.any_ended for tick in ticks[:-1]):
         return _n_step_row_all_alive(ticks, gamma, team_reward_mode)
@@ -443,9 +384,8 @@ def _n_step_row_general(ticks: list[_Tick], gamma: float, team_reward_mode: str)
 
 
 def _n_step_row_all_alive(ticks: list[_Tick], gamma: float, team_reward_mode: str) -> JointRow:
-    """:func:`n_step_row` for the common window: every agent alive at every tick and no agent's episode
-    ending before the last tick. Then every ``K_i = K`` and only the last tick can terminate an agent; the result
-    equals the general fold (``tests/test_algorithm_math.py`` compares them), at a third of its cost."""
+    """:func:`n_step_row` where every agent is alive at every tick and none ends before the last: the general fold's
+    result at a third of its cost (``tests/test_algorithm_math.py`` compares them)."""
     first, last = ticks[0], ticks[-1]
     individual = np.zeros_like(first.rewards, dtype=np.float64)
     team_reward = 0.0
@@ -475,14 +415,7 @@ def _n_step_row_all_alive(ticks: list[_Tick], gamma: float, team_reward_mode: st
 
 
 class NStepJointCollector:
-    """Turns the per-tick stream of every world into n-step joint rows and writes them to a buffer.
-
-    :param buffer: where finished rows go
-    :param n_worlds: number of worlds in the vector env
-    :param n_steps: n of the n-step return (1 = one-step TD)
-    :param gamma: discount factor
-    :param team_reward_mode: ``"sum"`` or ``"mean"`` of the alive agents' rewards
-    """
+    """Turns the per-tick stream of every world into n-step joint rows (:func:`n_step_row`) written to ``buffer``."""
 
     def __init__(
         self,
@@ -503,10 +436,7 @@ class NStepJointCollector:
         self.pending: list[list[_Tick]] = [[] for _ in range(n_worlds)]
 
     def add(self, world: int, tick: _Tick) -> None:
-        """Append one world's tick; write every row whose window is complete.
-
-        Rows whose first tick has no alive agent carry no real transition and are dropped.
-        """
+        """Append one world's tick; write every complete window's row (none where no agent was alive)."""
         window = self.pending[world]
         window.append(tick)
         if tick.world_ended:

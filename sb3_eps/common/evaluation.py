@@ -9,7 +9,14 @@ import numpy as np
 from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env
 
 # Episode keys averaged into the summary when the env reports them.
-_OPTIONAL_KEYS = ("success", "collision", "n_arrived", "distance_travelled", "min_dist_sum", "occupied_landmarks")
+_OPTIONAL_KEYS = (
+    "success",
+    "collision",
+    "n_arrived",
+    "distance_travelled",
+    "min_dist_sum",
+    "occupied_landmarks",
+)
 
 
 def evaluate_team(
@@ -21,20 +28,13 @@ def evaluate_team(
     seed: int | None = 0,
     env_kwargs: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Run the model's decentralised policy for ``n_eval_episodes`` world episodes.
-
-    Each world runs a fixed quota of episodes (so short episodes are not over-represented, unlike a
-    first-come count over several worlds).
+    """Run the model's decentralised policy for ``n_eval_episodes`` world episodes, a fixed quota per world (so
+    short episodes are not over-represented).
 
     :param model: anything with ``predict(obs, deterministic=...)`` over a batch of agent observations
-    :param env: an env id (a vector env of ``n_envs`` worlds is made and closed) or a :class:`MultiAgentVecEnv`
-    :param n_eval_episodes: world episodes to run
-    :param n_envs: worlds run side by side when ``env`` is an id
-    :param deterministic: greedy actions (True) or the model's exploration
+    :param env: an env id (``n_envs`` worlds built with ``env_kwargs``, closed at the end) or a vec env
     :param seed: seed of the evaluation worlds (world ``w`` gets ``seed + w``)
-    :param env_kwargs: constructor arguments of the worlds when ``env`` is an id
-    :return: ``episodes`` (list of the episode dicts) and the mean/std of ``team_return`` and ``length``, plus
-        the rates of ``success`` and ``collision`` and the means of the other metrics the env reports
+    :return: the episode dicts and their summary (:func:`summarize_episodes`)
     """
     if n_eval_episodes < 1:
         raise ValueError(f"n_eval_episodes must be >= 1, got {n_eval_episodes}")
@@ -44,7 +44,9 @@ def evaluate_team(
     if not owned and seed is not None:
         venv.seed(seed)
     n_worlds, n_agents = venv.n_worlds, venv.n_agents
-    quotas = [n_eval_episodes // n_worlds + (1 if w < n_eval_episodes % n_worlds else 0) for w in range(n_worlds)]
+    quotas = [
+        n_eval_episodes // n_worlds + (1 if w < n_eval_episodes % n_worlds else 0) for w in range(n_worlds)
+    ]
     counts = [0] * n_worlds
     episodes: list[dict[str, Any]] = []
     try:
@@ -93,18 +95,10 @@ def record_frames(
     max_frames: int = 3_000,
     frame_every: int = 1,
 ) -> tuple[list[np.ndarray], list[dict[str, Any]]]:
-    """Play greedy episodes in one world and keep its pictures (for a GIF or a notebook animation).
+    """Play greedy episodes in one world and keep one picture every ``frame_every`` ticks, at most ``max_frames``.
 
-    :param model: anything with ``predict(obs, deterministic=True)``
-    :param env: an env id (one world drawn as ``rgb_array`` is made and closed) or a one-world vec env whose worlds
-        render ``rgb_array`` pictures
-    :param n_episodes: episodes to play
-    :param seed: seed of the world (None: leave a given vec env's seed as it is)
-    :param env_kwargs: constructor arguments when ``env`` is an id
-    :param max_frames: stop after this many pictures even if the episodes are not over
-    :param frame_every: keep one picture every this many ticks of an episode, from its first
-    :return: the pictures (the last one of an episode is the one before its final tick: the bridge resets a world in
-        the step that ends its episode) and the episode dicts of the finished episodes (``r``, ``l``, ``success``...)
+    :param env: an env id (one world drawn as ``rgb_array``, closed at the end) or a one-world vec env
+    :return: the pictures (an episode's last is the one before its final tick) and the finished episodes' dicts
     """
     if frame_every < 1:
         raise ValueError(f"frame_every must be >= 1, got {frame_every}")

@@ -23,13 +23,8 @@ EXPORT_FORMAT_VERSION = 1
 
 
 def export_policy(model: Any, path: str | os.PathLike[str], opset_version: int = 17) -> tuple[str, str]:
-    """Write ``<path>.onnx`` (the agent Q-network) and ``<path>.json`` (observation/action layout).
-
-    :param model: a trained :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`
-    :param path: destination without extension (an ``.onnx`` suffix is stripped)
-    :param opset_version: ONNX opset
-    :return: the paths of the ONNX and JSON files
-    """
+    """Write ``<path>.onnx`` (the greedy agent Q-network) and ``<path>.json`` (observation/action layout) of a trained
+    model; :return: their paths."""
     policy = getattr(model, "policy", None)
     # The network the greedy actions come from: the weight average when the policy keeps one (weight_average_tau).
     q_net = policy.greedy_net() if hasattr(policy, "greedy_net") else getattr(policy, "q_net", None)

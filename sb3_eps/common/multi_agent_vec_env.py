@@ -1,25 +1,13 @@
-"""The bridge: env id -> PettingZoo worlds -> SuperSuit -> an SB3 ``VecEnv`` with one sub-env per agent.
+"""The bridge: PettingZoo worlds -> SuperSuit -> an SB3 ``VecEnv`` with one sub-env per agent (parameter sharing).
 
-``sb3_eps.make_vec_env`` returns a :class:`MultiAgentVecEnv` (contract in ``docs/architecture.md``). Every agent of
-every world is a sub-env (parameter sharing), ordered world-major: sub-env ``w * n_agents + i`` is agent ``i`` of
-world ``w``. SuperSuit's ``pettingzoo_env_to_vec_env_v1`` turns each world into a vector env of its agents and
-resets it automatically; this is the only module that imports SuperSuit. Around it:
-
-- before it, :class:`~sb3_eps.common.parallel_wrappers.FixedAgentSet` keeps the agent set fixed (dead agents:
-  last observation, reward 0, ``alive=False``) and keeps what SuperSuit drops (``state()``, reset infos);
-- on top, :class:`MultiAgentVecEnv` concatenates the worlds and repairs what SuperSuit 3.11 + SB3 2.9 get
-  wrong: SB3's ``seed=`` (raw SuperSuit has no ``seed``), ``TimeLimit.truncated`` (SuperSuit reports
-  ``done = terminated | truncated``), ``get_attr`` / ``env_method`` / ``render`` on gymnasium 1.x, team-level
-  episode statistics counted once per world, the global state (``get_state()``, ``terminal_state``), per-agent
-  ``alive`` flags and ``terminal_observation`` for agents that end before their world.
-
-The worlds are concatenated here with NumPy rather than by SuperSuit's ``concat_vec_envs_v1``, for two reasons:
-it builds its worlds as cloudpickled copies of one env, and a copied PyBullet world keeps the physics client id
-of the original, so all "worlds" would drive one simulation; and its generic concatenation through gymnasium's
-space utilities cost about 45 us per tick of a 4-agent world (measured against a no-op env), more than the
-whole bridge costs now (about 30 us, ``benchmarks/bridge_overhead.py``).
-
-Do not wrap the result in SB3's ``VecMonitor``: it would count every agent as an episode.
+Sub-env ``w * n_agents + i`` is agent ``i`` of world ``w`` (contract in ``docs/architecture.md``). Before SuperSuit,
+:class:`~sb3_eps.common.parallel_wrappers.FixedAgentSet` keeps the agent set fixed and what SuperSuit drops; on top,
+:class:`MultiAgentVecEnv` concatenates the worlds and repairs what SuperSuit 3.11 + SB3 2.9 get wrong (seeding,
+``TimeLimit.truncated``, ``get_attr`` / ``env_method`` / ``render``, episode statistics per world, the global state,
+per-agent ``alive`` flags). SuperSuit's ``concat_vec_envs_v1`` is not used: its cloudpickled copies of one PyBullet
+world would share one physics client, and it costs more per tick than this whole bridge
+(``benchmarks/bridge_overhead.py``). Do not wrap the result in SB3's ``VecMonitor``: it would count every agent as
+an episode.
 """
 
 from __future__ import annotations
@@ -45,20 +33,13 @@ _EPISODE_RENAMED_KEYS = ("team_return", "ticks")
 class MultiAgentVecEnv(VecEnv):
     """SB3 ``VecEnv`` over ``n_worlds`` PettingZoo worlds of ``n_agents`` agents each, one sub-env per agent.
 
-    Step semantics (see ``docs/architecture.md``):
+    Step semantics (``docs/architecture.md``): ``infos[k]["alive"]`` (``self.alive[k]``) says whether agent ``k``
+    acted; ``dones[k]`` is set at its own end and at its world's end (dead agents included, with ``alive=False``),
+    with ``terminal_observation`` and ``TimeLimit.truncated``; when world ``w`` ends, ``infos[w * n_agents]`` alone
+    carries ``"episode"`` (team return, ticks, seconds, the env's ``info["team"]``), ``"is_success"`` and
+    ``"terminal_state"``.
 
-    - ``infos[k]["alive"]`` (also ``self.alive[k]``) is True iff agent ``k`` acted in this step; nothing from a
-      non-alive step may enter a replay buffer;
-    - ``dones[k]`` is True when agent ``k``'s episode ends: its own end (a robot that arrived), or the end of
-      its world's episode, which sets ``dones`` for every agent of that world, dead ones included (with
-      ``alive=False``). Then ``infos[k]["terminal_observation"]`` holds its last observation and
-      ``infos[k]["TimeLimit.truncated"]`` is True iff that agent's end was a time limit (never for a dead agent);
-    - when world ``w`` ends, ``infos[w * n_agents]`` alone carries ``"episode"`` (``"r"`` team return, ``"l"``
-      ticks, ``"t"`` seconds since creation, plus the env's ``info["team"]`` metrics), ``"is_success"`` (when
-      the env reports ``success``) and ``"terminal_state"``.
-
-    :param env_fns: one constructor per world, returning a PettingZoo ParallelEnv or a gymnasium env (a
-        one-agent world)
+    :param env_fns: one constructor per world (a PettingZoo ParallelEnv, or a gymnasium env: a one-agent world)
     :param env_id: the registered id the worlds were built from, for the record
     """
 
@@ -170,21 +151,15 @@ class MultiAgentVecEnv(VecEnv):
         return self._n_steps * self.n_worlds
 
     def get_state(self) -> np.ndarray:
-        """The current global state of each world, ``(n_worlds, state_dim)`` float32.
-
-        After an automatic reset it is the state of the new episode; the state at the end of the finished one
-        is in ``infos[w * n_agents]["terminal_state"]``. Do not modify the returned array.
-        """
+        """The current global state of each world, ``(n_worlds, state_dim)`` float32 (read-only); after an automatic
+        reset, the new episode's (the finished one's is ``infos[w * n_agents]["terminal_state"]``)."""
         if self._state is None:
             self._state = np.stack([world.state() for world in self._worlds]).astype(np.float32, copy=False)
         return self._state
 
     def seed(self, seed: int | None = None) -> list[int | None]:
-        """Seed the next reset: world ``w`` is reset with ``seed + w`` (SB3 calls this for ``seed=``).
-
-        :param seed: non-negative int; None draws one at random
-        :return: the seed of each sub-env (the seed of its world)
-        """
+        """Seed the next reset: world ``w`` is reset with ``seed + w`` (None: a random seed).
+        :return: the seed of each sub-env (its world's)"""
         seed = check_seed(seed)
         if seed is None:
             seed = int(np.random.randint(0, np.iinfo(np.uint32).max, dtype=np.uint32))
@@ -198,45 +173,24 @@ class MultiAgentVecEnv(VecEnv):
             venv.close()
 
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
-        """An attribute of the env that each selected sub-env's world was built from.
-
-        :param attr_name: the attribute
-        :param indices: sub-env indices (agents); None for all
-        :return: one value per selected sub-env
-        """
+        """An attribute of the env that each selected sub-env's world was built from, one value per sub-env."""
         return self._per_sub_env(indices, "getattr", attr_name)
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
-        """Set an attribute of the env of each world that a selected sub-env belongs to (once per world).
-
-        :param attr_name: the attribute
-        :param value: its new value
-        :param indices: sub-env indices (agents); None for all
-        """
+        """Set an attribute of the env of each world that a selected sub-env belongs to (once per world)."""
         self._world_call(self._world_indices(indices), "setattr", attr_name, (value,))
 
     def env_method(
         self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
     ) -> list[Any]:
-        """Call a method of the env of each world that a selected sub-env belongs to, once per world.
-
-        :param method_name: the method
-        :param method_args: its positional arguments
-        :param indices: sub-env indices (agents); None for all
-        :param method_kwargs: its keyword arguments
-        :return: one result per selected sub-env (agents of one world share their world's result)
-        """
+        """Call a method of the env of each world that a selected sub-env belongs to, once per world; :return: one
+        result per selected sub-env (agents of one world share their world's)."""
         return self._per_sub_env(indices, "method", method_name, method_args, method_kwargs)
 
     def env_is_wrapped(
         self, wrapper_class: type[gymnasium.Wrapper], indices: VecEnvIndices = None
     ) -> list[bool]:
-        """Whether the env of each selected sub-env is a gymnasium env wrapped in ``wrapper_class``.
-
-        :param wrapper_class: the wrapper to look for
-        :param indices: sub-env indices (agents); None for all
-        :return: one answer per selected sub-env (always False for PettingZoo worlds)
-        """
+        """Whether the env of each selected sub-env is a gymnasium env wrapped in ``wrapper_class``."""
         return self._per_sub_env(indices, "is_wrapped", None, (wrapper_class,))
 
     def get_images(self) -> Sequence[np.ndarray | None]:

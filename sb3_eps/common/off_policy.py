@@ -1,13 +1,8 @@
-"""Multi-agent off-policy base: rollout into joint rows, per-agent epsilon-greedy, n-step, PER, targets.
+"""Multi-agent off-policy base: set-up, the optimisation step on joint rows, target updates, logging, saving.
 
-An algorithm built on :class:`MultiAgentOffPolicyAlgorithm` adds only its loss (:meth:`_compute_loss`) and,
-where it needs them, its joint modules (in its policy). Everything else is shared: the rollout that turns the
-bridge's per-agent stream into joint rows (dropping non-alive agents), the exploration, the replay buffer,
-the optimisation step, the target-network updates, the team-level logging and saving.
-
-Counting: SB3's ``num_timesteps`` (and so ``total_timesteps``, ``learning_starts``) counts agent-steps, as
-SuperSuit makes every agent a sub-env; ``ticks`` counts simulator steps of one world
-(``num_timesteps // n_agents``). ``train_freq`` counts vector-env steps, i.e. ticks of every world.
+An algorithm adds only its loss (:meth:`_compute_loss`) and its joint modules (in its policy); collection lives in
+:mod:`sb3_eps.common.collection`. ``num_timesteps`` counts agent-steps (every agent is a sub-env), ``ticks``
+simulator steps of one world.
 """
 
 from __future__ import annotations
@@ -33,9 +28,10 @@ from stable_baselines3.common.type_aliases import (
     TrainFreq,
     TrainFrequencyUnit,
 )
-from stable_baselines3.common.utils import LinearSchedule, safe_mean, should_collect_more_steps
+from stable_baselines3.common.utils import LinearSchedule, safe_mean
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
+from sb3_eps.common import collection
 from sb3_eps.common.buffers import (
     TEAM_REWARD_MODES,
     JointReplayBuffer,
@@ -43,12 +39,11 @@ from sb3_eps.common.buffers import (
     NStepJointCollector,
     PrioritizedJointReplayBuffer,
     TeamRewardMode,
-    joint_tick,
 )
 from sb3_eps.common.multi_agent_vec_env import MultiAgentVecEnv
 from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.common.threads import set_torch_threads
-from sb3_eps.common.utils import describe_space, epsilon_greedy, polyak_update_tensors_
+from sb3_eps.common.utils import describe_space, epsilon_greedy, is_int, polyak_update_tensors_
 
 SelfMultiAgentOffPolicyAlgorithm = TypeVar(
     "SelfMultiAgentOffPolicyAlgorithm", bound="MultiAgentOffPolicyAlgorithm"
@@ -66,84 +61,48 @@ class TDTerms(NamedTuple):
 
 
 def find_multi_agent_env(env: VecEnv) -> Any:
-    """Return the :class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv` inside ``env`` (through SB3 wrappers).
-
-    :raises ValueError: when ``env`` is not one of our multi-agent vector envs
-    """
-
+    """Return the :class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv` inside ``env`` (through SB3 wrappers)."""
     current: Any = env
-    while True:
-        if isinstance(current, MultiAgentVecEnv):
-            return current
-        if isinstance(current, VecEnvWrapper):
-            current = current.venv
-            continue
+    while isinstance(current, VecEnvWrapper):
+        current = current.venv
+    if not isinstance(current, MultiAgentVecEnv):
         raise ValueError(
             f"{type(env).__name__} is not a multi-agent vector env: build the env with "
             "sb3_eps.make_vec_env(env_id, n_envs=...) so the algorithm knows which agents share a world"
         )
+    return current
 
 
 class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     """Base of the parameter-shared value-based multi-agent algorithms (IQL, GDQ, QMIX, VDN).
 
-    :param policy: policy class or alias (``"MlpPolicy"``)
-    :param env: a vector env from :func:`sb3_eps.make_vec_env` (or None when loading)
-    :param learning_rate: Adam learning rate, constant or schedule
-    :param buffer_size: replay capacity in joint rows (one row = one world's tick, all its agents)
-    :param learning_starts: agent-steps of uniformly random actions before learning starts
-    :param batch_size: joint rows per gradient step
-    :param tau: Polyak coefficient of the target updates (1 = hard copy)
-    :param gamma: discount factor
-    :param train_freq: train every ``train_freq`` vector-env steps (ticks of every world)
-    :param gradient_steps: gradient steps per training call (-1: as many as agent-steps collected)
-    :param replay_buffer_class: a :class:`~sb3_eps.common.buffers.JointReplayBuffer` class or subclass (None: the
-        prioritised one when ``prioritized_replay``, else the uniform one); a given class decides ``prioritized_replay``
-    :param replay_buffer_kwargs: its keyword arguments beyond the ones the algorithm sets (capacity, spaces, agents,
-        device); a prioritised buffer's ``alpha`` defaults to ``prioritized_replay_alpha``
-    :param gradient_steps_per_target_update: gradient steps between two Polyak updates of the target networks (as
-        SB3's SAC counts its ``target_update_interval``; SB3's DQN counts that name in env steps)
-    :param n_steps: n of the n-step returns (1 = one-step TD)
-    :param prioritized_replay: use proportional prioritised replay
-    :param prioritized_replay_alpha: PER priority exponent
-    :param prioritized_replay_beta0: initial PER importance exponent, annealed linearly to 1 over training
+    Parameters as SB3's ``DQN`` where they share a name; ``buffer_size`` and ``batch_size`` count joint rows (one
+    world's tick, all its agents), ``learning_starts`` agent-steps, ``train_freq`` ticks of every world.
+
+    :param replay_buffer_class: a :class:`~sb3_eps.common.buffers.JointReplayBuffer` class (None: the prioritised one
+        when ``prioritized_replay``); ``replay_buffer_kwargs`` are its arguments beyond capacity, spaces and agents
+    :param gradient_steps_per_target_update: gradient steps between two Polyak updates of the target networks
+    :param n_steps: n of the n-step returns
+    :param prioritized_replay: proportional prioritised replay, with exponent ``prioritized_replay_alpha`` and an
+        importance exponent annealed from ``prioritized_replay_beta0`` to 1
     :param double_q: choose the bootstrap action with the online network and value it with the target one
-        (only with an agent target network, ``policy_kwargs=dict(agent_target=True)``; without one the
-        online network both chooses and values)
-    :param exploration_fraction: fraction of training over which epsilon decays linearly
-    :param exploration_initial_eps: initial epsilon
-    :param exploration_final_eps: final epsilon
-    :param max_grad_norm: gradient clipping norm
+        (only with an agent target network)
     :param team_reward_mode: team reward of a tick: ``"sum"`` or ``"mean"`` of the alive agents' rewards
-    :param overlap_training: run the gradient steps due after a collection while its last tick's worlds step
-        (between the env's ``step_async`` and ``step_wait``), so that with worlds in worker processes
-        (``make_vec_env(..., vec_env_cls="subproc")``, best with ``main_worlds=0``) learning and simulation run
-        side by side. The only change to training: a tick's own transition joins the replay buffer after the
-        gradient steps of that tick instead of before them. Same seed, same results with worlds in process or in
-        workers. Needs ``train_freq`` in steps
+    :param overlap_training: run the gradient steps due after a collection while its last tick's worlds step (with
+        worlds in worker processes, learning and simulation run side by side); a tick's own transition then joins
+        the buffer after that tick's gradient steps. Needs ``train_freq`` in steps
     :param stats_window_size: episodes (worlds, not agents) averaged in the rollout logs
-    :param tensorboard_log: TensorBoard log folder (None: no TensorBoard)
-    :param policy_kwargs: keyword arguments of the policy (``net_arch``, ``stream_arch``, ``agent_target``...)
-    :param verbose: 0 silent, 1 info, 2 debug
-    :param seed: random seed
-    :param device: torch device
-    :param _init_setup_model: build the networks now (False when loading)
     """
 
     policy: MultiAgentQPolicy
     replay_buffer: JointReplayBuffer | None  # type: ignore[assignment]
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": MultiAgentQPolicy}
-    # Algorithms whose joint modules are sized by the number of agents cannot change it after training.
-    requires_fixed_n_agents: ClassVar[bool] = False
-    # Ticks and agent-steps before the last change of team size (set_env / load on another team size).
-    _tick_offset: int = 0
+    requires_fixed_n_agents: ClassVar[bool] = False  # joint modules sized by the number of agents
+    _tick_offset: int = 0  # ticks and agent-steps before the last change of team size
     _step_offset: int = 0
     default_agent_target: ClassVar[bool] = True
-    # Only state-conditioned mixers (QMIX) read the global state; the others neither query nor store it.
-    uses_global_state: ClassVar[bool] = False
-    # Gradient steps between two diagnostic records in the train/ logs (GDQ's g_i and action margins, QMIX's
-    # mixer gain): a few extra passes every so often, never on every step.
-    diagnostics_interval: ClassVar[int] = 250
+    uses_global_state: ClassVar[bool] = False  # only state-conditioned mixers (QMIX) read and store it
+    diagnostics_interval: ClassVar[int] = 250  # gradient steps between two diagnostic records under train/
 
     def __init__(
         self,
@@ -254,17 +213,15 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                 f"gradient_steps_per_target_update must be >= 1, got {values['gradient_steps_per_target_update']}"
             )
         if values["team_reward_mode"] not in TEAM_REWARD_MODES:
-            raise ValueError(f"team_reward_mode must be one of {TEAM_REWARD_MODES}, got {values['team_reward_mode']!r}")
+            raise ValueError(
+                f"team_reward_mode must be one of {TEAM_REWARD_MODES}, got {values['team_reward_mode']!r}"
+            )
         if values["prioritized_replay_alpha"] < 0:
             raise ValueError(
                 f"prioritized_replay_alpha must be >= 0, got {values['prioritized_replay_alpha']}"
             )
         for name in ("buffer_size", "batch_size"):
-            if (
-                not isinstance(values[name], int | np.integer)
-                or isinstance(values[name], bool)
-                or values[name] < 1
-            ):
+            if not (is_int(values[name]) and values[name] >= 1):
                 raise ValueError(f"{name} must be an int >= 1 (joint rows), got {values[name]!r}")
         for name in ("exploration_fraction", "exploration_initial_eps", "exploration_final_eps"):
             if not isinstance(values[name], float | int) or not 0.0 <= values[name] <= 1.0:
@@ -306,26 +263,22 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
 
     @property
     def ticks(self) -> int:
-        """Simulator steps of one world so far (agent-steps / agents per world), those of earlier team sizes
-        included."""
+        """Simulator steps of one world so far (agent-steps / agents per world), earlier team sizes included."""
         return self._tick_offset + (self.num_timesteps - self._step_offset) // max(self.n_agents, 1)
 
     def _fixed_team_size(self) -> bool:
-        """Whether the joint modules read exactly ``n_agents`` agents, so the model cannot move to another team
-        size (QMIX's mixer; GDQ's paper head)."""
+        """Whether the joint modules read exactly ``n_agents`` agents (QMIX's mixer; GDQ's paper head)."""
         return self.requires_fixed_n_agents
 
     def _team_size_advice(self) -> str:
-        """:return: what to do instead, for the error of a model that cannot change its team size"""
         return (
             "Use an env with as many agents, or warm-start a new model's agent network from this one "
             "(python -m sb3_eps.train --init-from; decentralised prediction alone works on any env)"
         )
 
     def set_env(self, env: GymEnv, force_reset: bool = True) -> None:
-        """SB3's ``set_env``; an env with another number of agents per world is accepted when the joint modules
-        read any team size (IQL, VDN, GDQ with ``global_head="pooled"``): the networks and the optimizer carry
-        over, the replay buffer starts empty (its rows hold one team), the ticks so far stay counted."""
+        """SB3's ``set_env``; another team size is accepted where the joint modules read any (the replay buffer
+        then starts empty, the ticks so far stay counted)."""
         previous_team = self.n_agents
         self._read_env_layout(env)  # type: ignore[arg-type]
         if self.n_agents != previous_team and getattr(self, "policy", None) is not None:
@@ -369,8 +322,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             )
 
     def _make_replay_buffer(self) -> JointReplayBuffer:
-        """``replay_buffer_class`` (default: by ``prioritized_replay``) with ``replay_buffer_kwargs``; the algorithm
-        sets the capacity, spaces, agents and device. :raises ValueError: for a class that does not store joint rows"""
         default = PrioritizedJointReplayBuffer if self.prioritized_replay else JointReplayBuffer
         buffer_class: Any = self.replay_buffer_class or default
         if not (isinstance(buffer_class, type) and issubclass(buffer_class, JointReplayBuffer)):
@@ -387,7 +338,9 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         }
         clash = sorted(set(self.replay_buffer_kwargs) & {*owned, "buffer_size", "observation_space"})
         if clash:
-            raise ValueError(f"replay_buffer_kwargs cannot set {clash}: the algorithm sets them (buffer_size, env)")
+            raise ValueError(
+                f"replay_buffer_kwargs cannot set {clash}: the algorithm sets them (buffer_size, env)"
+            )
         defaults = {"alpha": self.prioritized_replay_alpha} if self.prioritized_replay else {}
         try:
             return buffer_class(
@@ -405,8 +358,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfMultiAgentOffPolicyAlgorithm:
-        """SB3's ``learn``; TensorBoard runs are named after the algorithm (``GDQ_1``), as SB3's own algorithms name
-        theirs (``DQN_1``), unless ``tb_log_name`` is given."""
+        """SB3's ``learn``; TensorBoard runs are named after the algorithm (``GDQ_1``) by default."""
         return super().learn(
             total_timesteps,
             callback=callback,
@@ -441,10 +393,12 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         return total_timesteps, callback
 
     def rollout_state(self) -> dict[str, Any]:
-        """:return: what training needs beyond ``save`` to go on exactly: the replay buffer, the n-step collector with
-        its unfinished windows and the worlds' last global states (a checkpoint pickles them together, so the
-        collector keeps pointing at the buffer)."""
-        return {"replay_buffer": self.replay_buffer, "collector": self._collector, "last_state": self._last_state}
+        """:return: what training needs beyond ``save`` to go on exactly (a checkpoint pickles it as one object)."""
+        return {
+            "replay_buffer": self.replay_buffer,
+            "collector": self._collector,
+            "last_state": self._last_state,
+        }
 
     def set_rollout_state(self, state: dict[str, Any]) -> None:
         """Restore what :meth:`rollout_state` returned (after ``set_env``, which forgets the collector)."""
@@ -453,8 +407,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self._last_state = state["last_state"]
 
     def _stores_agent_values(self) -> bool:
-        """Whether the replay rows carry the agents' state-values computed at collection time (GDQ's stored
-        ``v`` / ``v'`` option); read before the policy exists, so from the raw ``policy_kwargs``."""
+        """Whether the replay rows carry the agents' state-values computed at collection time."""
         return False
 
     def _global_state(self) -> np.ndarray:
@@ -471,36 +424,13 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         episode_start: np.ndarray | None = None,
         deterministic: bool = False,
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """Decentralised action selection: each row of ``observation`` is one agent's own observation.
-
-        Exploration draws one epsilon coin PER AGENT (SB3's DQN draws one for the whole batch, so all agents
-        would explore on the same steps).
-        """
-        # deterministic: the greedy network (the weight average when the policy keeps one); otherwise the online
-        # network, as in training, with epsilon-greedy exploration on top.
+        """Decentralised action selection, one row per agent; exploration draws one epsilon coin per agent."""
         actions, state = self.policy.predict(observation, state, episode_start, deterministic=deterministic)
         if deterministic or self.exploration_rate <= 0:
             return actions, state
         n_actions = int(self.action_space.n)  # type: ignore[attr-defined]
         flat, _ = epsilon_greedy(np.atleast_1d(actions), self.exploration_rate, n_actions)
         return flat.reshape(np.shape(actions)), state
-
-    def _sample_action(
-        self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
-    ) -> tuple[np.ndarray, np.ndarray]:
-        if self.num_timesteps < learning_starts:
-            actions = np.random.randint(int(self.action_space.n), size=n_envs)  # type: ignore[attr-defined]
-        else:
-            # The same as ``self.predict(self._last_obs)`` without SB3's generic input checks, which cost as much
-            # as the network itself for our small observations (the rollout's hot path).
-            assert self._last_obs is not None
-            self.policy.set_training_mode(False)
-            with th.no_grad():
-                observation = th.as_tensor(self._last_obs, device=self.device)
-                actions = self.policy._predict(observation, deterministic=False).cpu().numpy()  # online network
-            if self.exploration_rate > 0:
-                actions, _ = epsilon_greedy(actions, self.exploration_rate, int(self.action_space.n))  # type: ignore[attr-defined]
-        return actions, actions
 
     def _on_step(self) -> None:
         self.exploration_rate = self.exploration_schedule(self._current_progress_remaining)
@@ -516,137 +446,34 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         learning_starts: int = 0,
         log_interval: int | None = None,
     ) -> RolloutReturn:
-        """Step every world ``train_freq`` times, store joint rows, count episodes per world (not agent)."""
-        self.policy.set_training_mode(False)
-        self._trained_ahead = False
-        n_collected_steps, n_collected_episodes = 0, 0
-        callback.on_rollout_start()
-        while should_collect_more_steps(train_freq, n_collected_steps, n_collected_episodes):
-            actions, _ = self._sample_action(learning_starts, None, env.num_envs)
-            env.step_async(actions)
-            if self.overlap_training and n_collected_steps + 1 >= train_freq.frequency:
-                self._train_ahead(env.num_envs, n_collected_steps + 1)
-            new_obs, rewards, dones, infos = env.step_wait()
-            self.num_timesteps += env.num_envs
-            n_collected_steps += 1
-            callback.update_locals(locals())
-            if not callback.on_step():
-                return RolloutReturn(
-                    n_collected_steps * env.num_envs, n_collected_episodes, continue_training=False
-                )
-            self._update_info_buffer(infos, dones)
-            n_ended = self._store_joint_transition(actions, new_obs, rewards, dones, infos)
-            self._update_current_progress_remaining(self.num_timesteps, self._total_timesteps)
-            self._on_step()
-            for _ in range(n_ended):
-                n_collected_episodes += 1
-                self._episode_num += 1
-                if log_interval is not None and self._episode_num % log_interval == 0:
-                    self.dump_logs()
-        callback.on_rollout_end()
-        return RolloutReturn(n_collected_steps * env.num_envs, n_collected_episodes, continue_training=True)
-
-    def _train_ahead(self, n_envs: int, n_steps: int) -> None:
-        """``overlap_training``: the gradient steps that SB3's ``learn`` runs after this collection, run now while
-        the worlds step; its own call to :meth:`train` then does nothing (the same condition decides both)."""
-        if self.num_timesteps + n_envs <= self.learning_starts:
-            return
-        gradient_steps = self.gradient_steps if self.gradient_steps >= 0 else n_steps * n_envs
-        if gradient_steps > 0:
-            self.train(gradient_steps, self.batch_size)
-            self._trained_ahead = True
-            self.policy.set_training_mode(False)
-
-    def _store_joint_transition(
-        self,
-        actions: np.ndarray,
-        new_obs: np.ndarray,
-        rewards: np.ndarray,
-        dones: np.ndarray,
-        infos: list[dict[str, Any]],
-    ) -> int:
-        """Group the agents' transitions by world and feed them to the n-step collector.
-
-        :return: the number of worlds whose episode ended at this step
-        """
-        assert self._collector is not None and self._last_state is not None and self._last_obs is not None
-        shape = (self.n_worlds, self.n_agents)
-        step = _read_step(new_obs, dones, infos, shape)
-        new_state = self._global_state()
-        last_obs = np.asarray(self._last_obs, dtype=np.float32).reshape((*shape, -1))
-        next_obs = step.next_observations.reshape((*shape, -1))
-        rewards = np.asarray(rewards, dtype=np.float32).reshape(shape)
-        actions = np.asarray(actions, dtype=np.int64).reshape(shape)
-        values = self._collection_values(last_obs, next_obs)
-        refused = _non_finite_worlds(last_obs, next_obs, rewards)
-        for world in range(self.n_worlds):
-            if world in refused:  # never stored; windows across the bad tick are dropped too
-                self._collector.pending[world].clear()
-                warnings.warn(f"{refused[world]}: the tick is not stored", RuntimeWarning, stacklevel=3)
-                continue
-            next_state = new_state[world]
-            if step.world_ended[world] and self.uses_global_state:
-                next_state = infos[world * self.n_agents].get("terminal_state", next_state)
-            self._collector.add(
-                world,
-                joint_tick(
-                    observations=last_obs[world],
-                    actions=actions[world],
-                    rewards=rewards[world],
-                    next_observations=next_obs[world],
-                    alive=step.alive[world],
-                    ended=step.ended[world],
-                    truncated=step.truncated[world],
-                    world_ended=bool(step.world_ended[world]),
-                    state=self._last_state[world],
-                    next_state=np.asarray(next_state, dtype=np.float32),
-                    values=None if values is None else (values[0][world], values[1][world]),
-                ),
-            )
-        self._last_obs = new_obs  # type: ignore[assignment]
-        self._last_state = new_state
-        return int(step.world_ended.sum())
+        """Step every world ``train_freq`` times into the replay buffer (:mod:`sb3_eps.common.collection`)."""
+        return collection.collect_rollouts(self, env, callback, train_freq, learning_starts, log_interval)
 
     def collection_values(
         self, observations: np.ndarray, next_observations: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray] | None:
-        """The per-agent values that replay rows store with these ticks (None when the algorithm stores none), for
-        rows written from outside the rollout (EPS's experience sharing); see :meth:`_collection_values`."""
+        """The per-agent values that replay rows store with these ticks, or None (:meth:`_collection_values`)."""
         return self._collection_values(observations, next_observations)
 
     def _collection_values(
         self, observations: np.ndarray, next_observations: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray] | None:
-        """Hook: per-agent values to store with each tick, computed at collection time, as ``(v, v')`` arrays of
-        shape ``(n_worlds, n_agents)``; None (the default) stores none. GDQ's ``global_values="stored"`` uses it.
-
-        :param observations: ``(n_worlds, n_agents, obs)`` of the tick; ``next_observations`` the same after it
-        """
+        """Hook: per-agent values ``(v, v')`` to store with the ticks' ``(n_worlds, n_agents, obs)`` observations,
+        computed at collection time; None (the default) stores none."""
         return None
 
     # ------------------------------------------------------------------ learning
     def _compute_loss(
         self, batch: JointReplayBufferSamples
     ) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
-        """The algorithm's loss on a batch of joint rows.
-
-        :return: ``(loss, per-row absolute TD error for the priorities, values to log under train/)``
-        """
+        """:return: ``(loss, per-row absolute TD error for the priorities, values to log under train/)``"""
         raise NotImplementedError(f"{type(self).__name__} must implement _compute_loss")
 
     def _td_terms(self, batch: JointReplayBufferSamples, need_online_next_values: bool = False) -> TDTerms:
-        """Everything a value-based loss needs from the agent networks, in as few forward passes as possible.
-
-        The prediction side keeps its gradient: ``V(s)`` and ``Q(s, a)`` of the taken actions. The bootstrap side
-        has none: ``Q(s', a*) = V(s') + [A(s', a*) - mean A(s', .)]``, where ``a*`` is the online network's greedy
-        action when ``double_q`` and a target network exist, the evaluating network's own greedy action
-        otherwise, and values come from the target network if any. When the online network is needed on the
-        next observations (no target network, double-Q, or GDQ's ``v'``), it runs once there for all of them.
-        (Stacking ``s`` and ``s'`` into one pass with gradient was measured slower on a CPU: the backward pass
-        then runs over both halves.)
-
-        :param need_online_next_values: also return the online network's ``V(s')`` (GDQ's ``v'``)
-        """
+        """Everything a value-based loss needs from the agent networks, in as few forward passes as possible: ``V(s)``
+        and ``Q(s, a)`` with gradient; without, ``Q(s', a*) = V(s') + [A(s', a*) - mean A(s', .)]`` with ``a*`` the
+        online greedy action under double-Q, values from the target network if any, and (``need_online_next_values``)
+        the online ``V(s')``."""
         batch_size, n_agents, obs_dim = batch.observations.shape
         rows = batch_size * n_agents
         obs = batch.observations.reshape(rows, obs_dim)
@@ -748,8 +575,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         )
 
     def _update_targets(self) -> None:
-        """Polyak step of every target network. The tensor lists are gathered once per policy object; parameters
-        are updated in place everywhere (loading, EPS crossover), so the lists stay valid for that policy."""
+        """Polyak step of every target network, on tensor lists gathered once per policy object (parameters are only
+        ever updated in place)."""
         cache = getattr(self, "_target_lists", None)
         if cache is None or cache[0] is not self.policy:
             pairs = []
@@ -765,8 +592,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
 
     # ------------------------------------------------------------------ logging and saving
     def dump_logs(self) -> None:
-        """SB3's logs (``rollout/ep_rew_mean`` is the mean team return) plus the team rates; episode statistics are
-        per world (team), never per agent."""
+        """SB3's logs, per world (``rollout/ep_rew_mean`` is the mean team return), plus the team rates."""
         episodes = list(self.ep_info_buffer or [])
         if episodes:
             if "collision" in episodes[0]:
@@ -779,7 +605,13 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         super().dump_logs()
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_collector", "_last_state", "_target_lists", "_trained_ahead"]
+        return [
+            *super()._excluded_save_params(),
+            "_collector",
+            "_last_state",
+            "_target_lists",
+            "_trained_ahead",
+        ]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "policy.optimizer"], []
@@ -801,8 +633,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         device: th.device | str = "auto",
         **kwargs: Any,
     ) -> SelfMultiAgentOffPolicyAlgorithm:
-        """SB3's ``load``; a file of another algorithm, or an env whose spaces differ from the model's, is one
-        ``ValueError`` line that says so (instead of a state-dict dump)."""
+        """SB3's ``load``; a file of another algorithm, or an env of other spaces, is a one-line ``ValueError``."""
         try:
             model = super().load(path, env=env, device=device, **kwargs)
         except (RuntimeError, ValueError) as error:
@@ -816,57 +647,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         if policy_name not in self.policy_aliases:
             raise ValueError(f"unknown policy {policy_name!r}; use one of {sorted(self.policy_aliases)}")
         return self.policy_aliases[policy_name]
-
-
-class _Step(NamedTuple):
-    """What one vector step says of each agent, as ``(n_worlds, n_agents)`` arrays (observations flat)."""
-
-    next_observations: np.ndarray  # (n_worlds * n_agents, obs): terminal observations where an episode ended
-    alive: np.ndarray  # the agent acted at this tick
-    truncated: np.ndarray  # its episode was cut by the time limit
-    ended: np.ndarray  # its episode (its life) ended at this tick
-    world_ended: np.ndarray  # (n_worlds,): every agent of the world is done
-
-
-def _read_step(
-    new_obs: np.ndarray,
-    dones: np.ndarray,
-    infos: list[dict[str, Any]],
-    shape: tuple[int, int],
-) -> _Step:
-    """Read the bridge's flags from a step's infos; patch in the terminal observations SB3 moved to the infos."""
-    next_obs = np.array(new_obs, dtype=np.float32, copy=True)
-    for index in np.flatnonzero(dones):
-        next_obs[index] = infos[index]["terminal_observation"]
-    alive = np.fromiter((info.get("alive", True) for info in infos), dtype=bool, count=len(infos))
-    truncated = np.fromiter(
-        (info.get("TimeLimit.truncated", False) for info in infos), dtype=bool, count=len(infos)
-    )
-    dones = np.asarray(dones, dtype=bool)
-    ended = dones & alive
-    return _Step(
-        next_observations=next_obs,
-        alive=alive.reshape(shape),
-        truncated=truncated.reshape(shape),
-        ended=ended.reshape(shape),
-        world_ended=dones.reshape(shape).all(axis=1),
-    )
-
-
-def _non_finite_worlds(
-    observations: np.ndarray, next_observations: np.ndarray, rewards: np.ndarray
-) -> dict[int, str]:
-    """:return: world -> what was not finite in its tick (``(worlds, agents, ...)`` arrays; empty when all are)."""
-    parts = {"observation": observations, "next observation": next_observations, "reward": rewards}
-    found: dict[int, str] = {}
-    if all(np.isfinite(array).all() for array in parts.values()):  # the hot path: one check per array
-        return found
-    for name, array in parts.items():
-        bad = ~np.isfinite(array.reshape(array.shape[0], array.shape[1], -1)).all(axis=2)
-        for world in np.flatnonzero(bad.any(axis=1)):
-            agents = np.flatnonzero(bad[world]).tolist()
-            found.setdefault(int(world), f"non-finite {name} from the env (world {world}, agents {agents})")
-    return found
 
 
 def _load_mismatch(cls: type[MultiAgentOffPolicyAlgorithm], path: Any, env: GymEnv | None) -> str | None:

@@ -1,12 +1,9 @@
-"""PettingZoo ParallelEnv adapters that the SB3 bridge (:mod:`sb3_eps.common.multi_agent_vec_env`) puts in front
-of SuperSuit.
+"""PettingZoo ParallelEnv adapters around the SB3 bridge (:mod:`sb3_eps.common.multi_agent_vec_env`).
 
-SuperSuit's ``pettingzoo_env_to_vec_env_v1`` needs every agent in every step, drops ``state()``, and its
-``black_death_v3`` is broken in 3.11 (a phantom zero step, dead agents never flagged). :class:`FixedAgentSet` owns
-the end-of-life logic instead; :class:`SingleAgentParallelEnv` turns a gymnasium env into a one-agent world so the
-single-agent ids run through the same bridge (single-robot pre-training); :class:`ParallelEnvAsGymnasium` turns a
-one-agent ParallelEnv into a gymnasium env, the single-agent variant EPS evaluates in; :class:`TeamAsGymnasium`
-turns a whole multi-agent world into one gymnasium env whose agents all act with one policy (EPS's team worlds).
+:class:`FixedAgentSet` owns the end-of-life logic (SuperSuit's needs every agent in every step, and its
+``black_death_v3`` is broken in 3.11); :class:`SingleAgentParallelEnv` makes a gymnasium env a one-agent world;
+:class:`ParallelEnvAsGymnasium` the reverse; :class:`TeamAsGymnasium` makes a multi-agent world one gymnasium env
+whose agents all act with one policy (EPS's team worlds).
 """
 
 from __future__ import annotations
@@ -20,13 +17,8 @@ from pettingzoo import ParallelEnv
 
 
 class SingleAgentParallelEnv(ParallelEnv):
-    """A gymnasium env seen as a PettingZoo ParallelEnv with one agent.
-
-    The global state is the env's ``state()`` when it has one (with ``state_space``), else its observation.
-
-    :param env: the gymnasium env
-    :param agent: the name of its agent
-    """
+    """A gymnasium env seen as a PettingZoo ParallelEnv with one agent named ``agent``; its global state is the
+    env's ``state()`` when it has one (with ``state_space``), else its observation."""
 
     def __init__(self, env: gymnasium.Env, agent: str = "agent_0") -> None:
         self.env = env
@@ -41,22 +33,14 @@ class SingleAgentParallelEnv(ParallelEnv):
         self._last_obs: Any = None
 
     def observation_space(self, agent: str) -> spaces.Space:
-        """The env's observation space."""
         return self.env.observation_space
 
     def action_space(self, agent: str) -> spaces.Space:
-        """The env's action space."""
         return self.env.action_space
 
     def reset(
         self, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
-        """Reset the env.
-
-        :param seed: passed to the env's ``reset``
-        :param options: passed to the env's ``reset``
-        :return: the observation and info of the one agent
-        """
         obs, info = self.env.reset(seed=seed, options=options)
         self.agents = list(self.possible_agents)
         self._last_obs = obs
@@ -66,11 +50,6 @@ class SingleAgentParallelEnv(ParallelEnv):
     def step(
         self, actions: dict[str, Any]
     ) -> tuple[dict[str, Any], dict[str, float], dict[str, bool], dict[str, bool], dict[str, dict[str, Any]]]:
-        """Step the env with the one agent's action.
-
-        :param actions: ``{agent: action}``
-        :return: the PettingZoo step tuple; the agent leaves ``agents`` when its episode ends
-        """
         agent = self.possible_agents[0]
         obs, reward, terminated, truncated, info = self.env.step(actions[agent])
         self._last_obs = obs
@@ -85,24 +64,17 @@ class SingleAgentParallelEnv(ParallelEnv):
         return np.asarray(self._last_obs, dtype=np.float32)
 
     def render(self) -> Any:
-        """Render the env."""
         return self.env.render()
 
     def close(self) -> None:
-        """Close the env."""
         self.env.close()
 
 
 class ParallelEnvAsGymnasium(gymnasium.Env):
     """A one-agent PettingZoo ParallelEnv seen as a gymnasium env: the reverse of :class:`SingleAgentParallelEnv`.
 
-    It gives a world of your own its single-agent variant for EPS (``EvolutionCallback(eval_env_id=...)`` takes
-    a gymnasium id; ``docs/bring_your_own_world.md``): build the ParallelEnv with one agent, wrap it, register
-    the wrapper with ``gymnasium.register``. ``info["is_success"]`` (what EPS's outcome fitness reads) is set at the
-    end of an episode from the agent's ``info["is_success"]``, ``info["success"]`` or ``info["team"]["success"]``,
-    whichever the env reports.
-
-    :param env: a ParallelEnv with exactly one possible agent
+    It gives a world of your own its single-agent variant for EPS (``docs/bring_your_own_world.md``). At an
+    episode's end ``info["is_success"]`` is the agent's ``is_success``, ``success`` or ``team["success"]``.
     """
 
     def __init__(self, env: ParallelEnv) -> None:
@@ -121,13 +93,11 @@ class ParallelEnvAsGymnasium(gymnasium.Env):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[Any, dict[str, Any]]:
-        """Reset the world. :return: the agent's observation and info."""
         super().reset(seed=seed)
         observations, infos = self.env.reset(seed=seed, options=options)
         return observations[self.agent], dict(infos.get(self.agent, {}))
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
-        """Step the world with the agent's action. :return: gymnasium's step tuple."""
         observations, rewards, terminations, truncations, infos = self.env.step({self.agent: action})
         terminated, truncated = bool(terminations[self.agent]), bool(truncations[self.agent])
         info = dict(infos.get(self.agent, {}))
@@ -138,17 +108,14 @@ class ParallelEnvAsGymnasium(gymnasium.Env):
         return observations[self.agent], float(rewards[self.agent]), terminated, truncated, info
 
     def render(self) -> Any:
-        """Render the world."""
         return self.env.render()
 
     def close(self) -> None:
-        """Close the world."""
         self.env.close()
 
 
 class TeamTick(NamedTuple):
-    """What one step of a team world said of each agent (``possible_agents`` order), as the bridge would see it:
-    the wrapped :class:`FixedAgentSet`'s rewards, terminations and truncations, and which agents acted."""
+    """What one step of a team world said of each agent (``possible_agents`` order), as the bridge would see it."""
 
     rewards: np.ndarray  # (n,) float32; 0 for an agent whose episode was over
     terminations: np.ndarray  # (n,) bool
@@ -159,18 +126,10 @@ class TeamTick(NamedTuple):
 class TeamAsGymnasium(gymnasium.Env):
     """A multi-agent ParallelEnv seen as one gymnasium env played by a team that shares one policy.
 
-    EPS evaluates an individual in it the way training uses the shared network: every agent acts greedily with the
-    same weights, so fitness sees what a single-agent world cannot (the other robots, robot-robot collisions).
-
-    - Observation: ``(n_agents, *obs_shape)``, the agents' observations in ``possible_agents`` order (an agent
-      whose episode is over keeps its last one, as in training: :class:`FixedAgentSet`).
-    - Action: ``MultiDiscrete`` of one action per agent (those of finished agents are ignored).
-    - Reward: the mean of the agents' rewards of the tick (0 for a finished agent): one robot's scale.
-    - The episode ends when every agent's has ended; it is truncated when an agent was cut by the time limit,
-      else terminated. At its end ``info["is_success"]`` is the team's success (``info["team"]["success"]`` of
-      the agents' infos, where the env reports it) and ``info["team"]`` the team's last record.
-    - ``last_tick`` (a :class:`TeamTick`) keeps what the step said of each agent, which the gymnasium step tuple
-      averages away: EPS's experience sharing turns it into the replay rows a training tick would give.
+    Observation ``(n_agents, *obs_shape)`` (a finished agent keeps its last one), a ``MultiDiscrete`` action (one per
+    agent), the reward the mean of the agents' (one robot's scale). The episode ends when every agent's has ended,
+    truncated when an agent was cut by the time limit; ``info["is_success"]`` and ``info["team"]`` are then the
+    team's. ``last_tick`` (:class:`TeamTick`) keeps what the step said of each agent, for experience sharing.
 
     :param env: a ParallelEnv whose agents all exist at reset and share one observation and one action space
     """
@@ -208,13 +167,12 @@ class TeamAsGymnasium(gymnasium.Env):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        """Reset the world. :return: the team's observations and the first agent's info."""
+        """:return: the team's observations and the first agent's info."""
         super().reset(seed=seed)
         observations, _ = self.env.reset(seed=seed, options=options)
         return self._stack(observations), dict(self.env.reset_infos.get(self.agents[0], {}))
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        """Step the world with one action per agent. :return: gymnasium's step tuple."""
         actions = np.asarray(action).reshape(-1)
         if actions.shape != (self.team_size,):
             raise ValueError(f"expected {self.team_size} actions (one per agent), got {np.shape(action)}")
@@ -245,32 +203,21 @@ class TeamAsGymnasium(gymnasium.Env):
         return np.asarray(self.env.state(), dtype=np.float32)
 
     def render(self) -> Any:
-        """Render the world."""
         return self.env.env.render()
 
     def close(self) -> None:
-        """Close the world."""
         self.env.env.close()
 
 
 class FixedAgentSet(ParallelEnv):
     """Keeps every possible agent in every step, so that SuperSuit sees a fixed set of sub-envs.
 
-    An agent whose episode ended before the world's (a robot that arrived and parked) keeps returning its last
-    observation with reward 0, terminated False and ``info == {"alive": False}``; when the world's episode
-    ends it is flagged terminated like the others. The agents that acted get the env's own info dicts (the
-    bridge adds their ``"alive": True`` to SuperSuit's copies). The env's ``agents`` shrink as usual; this
-    wrapper's ``agents`` never change.
-
-    The bridge reads what SuperSuit cannot carry straight from this object after each step (SuperSuit resets the
-    world inside its step, so these survive the reset; it also means the worlds live in the bridge's process):
-    ``step_alive`` (alive flags of that step, read-only), ``any_end`` (some agent's episode ended),
-    ``world_done``, ``terminal_state`` and ``terminal_team`` (the global state and ``info["team"]`` at the end
-    of the episode), and ``reset_infos`` (the env's infos of the latest reset; ``reset`` itself returns empty
-    infos because SuperSuit merges them over the terminal step's infos).
-
-    Envs without a ``state_space`` get the concatenated observations of all agents (the last one of a dead
-    agent) as their global state.
+    An agent whose episode ended before the world's keeps returning its last observation with reward 0,
+    terminated False and ``info == {"alive": False}``, and is terminated with the world. After each step the
+    bridge reads what SuperSuit cannot carry (it resets the world inside its step): ``step_alive`` (read-only),
+    ``any_end``, ``world_done``, ``terminal_state``, ``terminal_team`` (``info["team"]`` at the end) and
+    ``reset_infos`` (``reset`` returns empty infos: SuperSuit merges them over the terminal step's). Envs without a
+    ``state_space`` get the concatenated observations of all agents as their global state.
 
     :param env: a PettingZoo ParallelEnv whose agents all exist at reset and share one observation space
         and one action space
@@ -302,22 +249,15 @@ class FixedAgentSet(ParallelEnv):
         self.reset_infos: dict[str, dict[str, Any]] = {}
 
     def observation_space(self, agent: str) -> spaces.Space:
-        """The wrapped env's observation space."""
         return self.env.observation_space(agent)
 
     def action_space(self, agent: str) -> spaces.Space:
-        """The wrapped env's action space."""
         return self.env.action_space(agent)
 
     def reset(
         self, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
-        """Reset the world; every possible agent must be present.
-
-        :param seed: passed to the env
-        :param options: passed to the env
-        :return: observations of all agents and empty infos (the env's are in ``reset_infos``)
-        """
+        """Reset the world; every possible agent must be present. The env's infos go to ``reset_infos``."""
         observations, infos = self.env.reset(seed=seed, options=options)
         missing = [agent for agent in self.possible_agents if agent not in observations]
         if missing:
@@ -333,12 +273,7 @@ class FixedAgentSet(ParallelEnv):
     def step(
         self, actions: dict[str, Any]
     ) -> tuple[dict[str, Any], dict[str, float], dict[str, bool], dict[str, bool], dict[str, dict[str, Any]]]:
-        """Step the live agents; fill in the agents whose episode is over.
-
-        :param actions: an action for every possible agent (those of dead agents are ignored)
-        :return: the PettingZoo step tuple with an entry for every possible agent (the infos of the agents
-            that acted are the env's own dicts)
-        """
+        """Step the live agents (dead agents' actions are ignored); fill in the agents whose episode is over."""
         alive = self._alive
         everyone_acts = self._n_alive == len(alive)
         if not everyone_acts:
@@ -417,9 +352,7 @@ class FixedAgentSet(ParallelEnv):
         return spaces.Box(low, high, dtype=np.float32)
 
     def render(self) -> Any:
-        """Render the wrapped env."""
         return self.env.render()
 
     def close(self) -> None:
-        """Close the wrapped env."""
         self.env.close()

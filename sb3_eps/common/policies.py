@@ -23,13 +23,9 @@ WEIGHT_AVERAGE_WARMUP_ETA = 3
 
 
 def weight_average_rate(tau: float, n_updates: int, eta: int = WEIGHT_AVERAGE_WARMUP_ETA) -> float:
-    """:return: how far the ``n_updates``-th gradient step (counting from 1) moves the weight average toward the
-    online weights: ``max(tau, (eta + 1) / (n + eta))``, eta = :data:`WEIGHT_AVERAGE_WARMUP_ETA`. Early on, the
-    polynomial-decay average (weights growing as ``n^eta``, none left on the initial network after the first step)
-    keeps up with a short run; once its rate falls to ``tau`` it is the exponential moving average. Chosen on
-    held-out seeds (``docs/results/gdq_weight_average.md``): the mean of all weights so far
-    (``eta`` 0) lagged a 20k-tick robot run by about 17 points of greedy success on three held-out seeds, ``eta`` 3
-    and 7 kept up with it (``benchmarks/average_warmup_check.py``, which compares ``eta`` values)."""
+    """:return: how far the ``n_updates``-th gradient step (from 1) moves the weight average toward the online
+    weights: ``max(tau, (eta + 1) / (n + eta))``, a polynomial-decay average until its rate falls to ``tau``, then
+    the exponential moving average (eta chosen in ``docs/results/gdq_weight_average.md``)."""
     return max(float(tau), (eta + 1.0) / (max(int(n_updates), 1) + eta))
 
 
@@ -37,14 +33,8 @@ class DuelingQNetwork(BasePolicy):
     """Dueling Q-network (Wang et al., 2016; EPS paper Eq. 2): a trunk, then a state-value stream and an
     advantage stream aggregated as ``Q = V + A - mean(A)``.
 
-    :param observation_space: one agent's observation space
-    :param action_space: one agent's discrete action space
-    :param features_extractor: the features extractor (a flatten layer for vector observations)
-    :param features_dim: output size of the features extractor
     :param net_arch: hidden sizes of the shared trunk (default ``[128, 64]``)
     :param stream_arch: hidden sizes of each of the two streams (default ``[64]``)
-    :param activation_fn: activation between layers
-    :param normalize_images: whether image observations are divided by 255
     """
 
     action_space: spaces.Discrete
@@ -117,29 +107,15 @@ class MultiAgentQPolicy(BasePolicy):
     """Holds the shared agent network ``q_net``, its optional target ``q_net_target`` and the joint modules
     an algorithm adds (GDQ's global value head, QMIX's mixer), with one optimizer over everything trainable.
 
-    Subclasses override :meth:`_build_joint_modules` to create their joint modules (and their targets) and
-    :meth:`joint_module_names` to list them.
+    Subclasses override :meth:`_build_joint_modules` and :meth:`joint_module_names`. Arguments as SB3's
+    ``DQNPolicy``, and:
 
-    :param observation_space: one agent's observation space
-    :param action_space: one agent's discrete action space
-    :param lr_schedule: learning-rate schedule
-    :param net_arch: hidden sizes of the agent trunk (default ``[128, 64]``)
-    :param stream_arch: hidden sizes of the value and advantage streams (default ``[64]``)
-    :param activation_fn: activation function
-    :param features_extractor_class: features extractor class (``FlattenExtractor``)
-    :param features_extractor_kwargs: its keyword arguments
-    :param normalize_images: whether image observations are divided by 255
-    :param optimizer_class: optimizer class (Adam)
-    :param optimizer_kwargs: optimizer keyword arguments other than the learning rate
+    :param net_arch: hidden sizes of the agent trunk; ``stream_arch`` those of the value and advantage streams
     :param agent_target: whether the agent network has a target network
     :param weight_average_tau: keep ``q_net_average``, a moving average of the agent network's weights
-        (``avg <- (1 - r) avg + r theta`` after every gradient step, ``r = max(tau, 4 / (n + 3))`` at the n-th,
-        :func:`weight_average_rate`: an average over about the last fifth of the run so far, then, from
-        ``n = 4 / tau``, the exponential moving average with ``tau``; :meth:`update_weight_average`), and take the
-        greedy actions (``predict(deterministic=True)``, evaluation, export) from it; training's epsilon-greedy
-        actions keep the online network, so training itself is unchanged. None (this class's default; GDQ's is ``2e-4``): no average, greedy actions from ``q_net``.
-    :param n_agents: agents per world (used by the joint modules)
-    :param state_dim: length of the global state (used by state-conditioned mixers)
+        (:func:`weight_average_rate`), and take the greedy actions from it; training's exploring actions keep the
+        online network. None: no average
+    :param n_agents: agents per world; ``state_dim`` the length of the global state (for the joint modules)
     """
 
     q_net: DuelingQNetwork
@@ -232,24 +208,26 @@ class MultiAgentQPolicy(BasePolicy):
             self.q_net_average.load_state_dict(self.q_net.state_dict())
 
     def update_weight_average(self, n_updates: int | None = None) -> None:
-        """One step of the weight average toward the online network (the algorithm calls it after every
-        gradient step); nothing without ``weight_average_tau``.
-
-        :param n_updates: the gradient steps so far, this one included (n): the step moves the average by
-            :func:`weight_average_rate`, ``max(tau, 4 / (n + 3))``. None: by ``tau``.
-        """
+        """One step of the weight average toward the online network, by :func:`weight_average_rate` of the
+        ``n_updates`` so far (None: by ``tau``); nothing without ``weight_average_tau``."""
         if self.q_net_average is None:
             return
         cache = getattr(self, "_average_lists", None)
         if cache is None or cache[0] is not self.q_net_average or cache[1] is not self.q_net:
             lists = [
-                list(part) for net in (self.q_net_average, self.q_net) for part in (net.parameters(), net.buffers())
+                list(part)
+                for net in (self.q_net_average, self.q_net)
+                for part in (net.parameters(), net.buffers())
             ]
             cache = (self.q_net_average, self.q_net, lists)
             self._average_lists = cache
         average_params, average_buffers, params, buffers = cache[2]
         assert self.weight_average_tau is not None
-        rate = self.weight_average_tau if n_updates is None else weight_average_rate(self.weight_average_tau, n_updates)
+        rate = (
+            self.weight_average_tau
+            if n_updates is None
+            else weight_average_rate(self.weight_average_tau, n_updates)
+        )
         polyak_update_tensors_(average_params, params, average_buffers, buffers, rate)
 
     def greedy_net(self) -> DuelingQNetwork:

@@ -33,14 +33,8 @@ def _picklable(value: Any) -> bool:
 
 
 class SnapshotPickler(pickle.Pickler):
-    """A pickler that captures envs mid-episode.
-
-    Gymnasium's ``EzPickle`` (used by mpe2) pickles an env as its constructor arguments, which restarts it; here
-    such an object is rebuilt by its constructor and then given back every attribute that pickles (its world,
-    agents, step counters, random generator...), so it continues exactly. Attributes that cannot be pickled
-    (mpe2's pygame drawing surface) keep what the constructor made. The TurtleBot3 worlds pickle exactly on
-    their own (a fresh PyBullet client with the same poses).
-    """
+    """A pickler that captures envs mid-episode: an ``EzPickle`` object (mpe2's envs), which pickles as its
+    constructor arguments, is rebuilt by its constructor and then given back every attribute that pickles."""
 
     def reducer_override(self, obj: Any) -> Any:
         if isinstance(obj, EzPickle) and not isinstance(obj, type):

@@ -1,11 +1,7 @@
-"""Torch's intra-op threads, set on purpose when a model is built.
+"""Torch's intra-op threads, set to one when a model is built unless the user chose a count.
 
-The package's networks are small (two layers of 64 units): one thread trains a GDQ model as fast as torch's default
-of one thread per core, and two runs side by side on 2 cores, each with torch's default threads, train 5.4x slower
-than one run alone, while with one thread each they keep their speed (``benchmarks/threads_side_by_side.py``,
-``docs/benchmarks.md``). So a model built through the Python API sets torch to one thread, as the command line does,
-unless the user chose otherwise: with ``OMP_NUM_THREADS`` in the environment, or by calling
-``torch.set_num_threads`` before building the model, the user's choice is kept.
+The networks are small: one thread trains as fast as one per core, and runs side by side keep their speed
+(``docs/benchmarks.md``, threads).
 """
 
 from __future__ import annotations
@@ -22,10 +18,7 @@ _THREADS_AT_IMPORT = th.get_num_threads()
 
 def set_torch_threads() -> int:
     """Set torch's intra-op threads to :data:`DEFAULT_TORCH_THREADS` unless the user chose a count (``OMP_NUM_THREADS``
-    set, or ``torch.set_num_threads`` called since the package was imported).
-
-    :return: the thread count in effect
-    """
+    or ``torch.set_num_threads`` since import); :return: the count in effect."""
     if "OMP_NUM_THREADS" not in os.environ and th.get_num_threads() == _THREADS_AT_IMPORT:
         th.set_num_threads(DEFAULT_TORCH_THREADS)
     return th.get_num_threads()

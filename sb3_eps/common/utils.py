@@ -9,16 +9,19 @@ import numpy as np
 import torch as th
 
 
-def check_seed(seed: Any) -> int | None:
-    """:return: ``seed`` as a Python int (or None). NumPy integers are accepted (SB3 and ``np.random`` hand them
-    out); bools are refused (``True`` as a seed is always a mistake).
+def is_int(value: Any) -> bool:
+    """Whether ``value`` is a Python or NumPy integer (a bool is not)."""
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)
 
-    :raises ValueError: for anything but None or a non-negative int
-    """
+
+def check_seed(seed: Any) -> int | None:
+    """:return: ``seed`` as a Python int (or None); :raises ValueError: for anything but None or an int >= 0."""
     if seed is None:
         return None
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
-        raise ValueError(f"seed must be None or a non-negative int, got {seed!r} of type {type(seed).__name__}")
+    if not is_int(seed):
+        raise ValueError(
+            f"seed must be None or a non-negative int, got {seed!r} of type {type(seed).__name__}"
+        )
     if seed < 0:
         raise ValueError(f"seed must be None or a non-negative int, got {seed}")
     return int(seed)
@@ -32,40 +35,27 @@ def describe_space(space: Any) -> str:
 
 
 def dueling_aggregation(values: th.Tensor, advantages: th.Tensor) -> th.Tensor:
-    """Dueling aggregation, EPS paper Eq. 2: ``Q(s, a) = V(s) + A(s, a) - mean_a' A(s, a')``.
-
-    :param values: state values, shape ``(..., 1)``
-    :param advantages: advantages, shape ``(..., n_actions)``
-    :return: Q-values, shape ``(..., n_actions)``
-    """
+    """Dueling aggregation, EPS paper Eq. 2: ``Q(s, a) = V(s) + A(s, a) - mean_a' A(s, a')``, with ``values``
+    ``(..., 1)`` and ``advantages`` ``(..., n_actions)``."""
     # The check is skipped while tracing (ONNX export), where shapes are symbolic.
     if not th.jit.is_tracing() and (values.shape[-1] != 1 or values.shape[:-1] != advantages.shape[:-1]):
-        raise ValueError(f"values {tuple(values.shape)} must be (..., 1) over advantages {tuple(advantages.shape)}")
+        raise ValueError(
+            f"values {tuple(values.shape)} must be (..., 1) over advantages {tuple(advantages.shape)}"
+        )
     return values + advantages - advantages.mean(dim=-1, keepdim=True)
 
 
-def td_target(rewards: th.Tensor, discounts: th.Tensor, dones: th.Tensor, next_values: th.Tensor) -> th.Tensor:
-    """n-step TD target ``y = G + gamma^k * (1 - done) * next_value`` (the n-step return, Sutton & Barto 7.1).
-
-    :param rewards: n-step discounted returns ``G``
-    :param discounts: ``gamma ** k`` with ``k`` the ticks the return spans
-    :param dones: 1 where the episode terminated inside the window (no bootstrap), else 0
-    :param next_values: the bootstrap value of the state after the window
-    """
+def td_target(
+    rewards: th.Tensor, discounts: th.Tensor, dones: th.Tensor, next_values: th.Tensor
+) -> th.Tensor:
+    """n-step TD target ``y = G + gamma^k * (1 - done) * next_value`` (Sutton & Barto 7.1): ``rewards`` the n-step
+    returns ``G``, ``discounts`` ``gamma ** k``, ``dones`` 1 where the episode terminated inside the window."""
     if not (rewards.shape == discounts.shape == dones.shape == next_values.shape):
         raise ValueError(
             "td_target needs equal shapes, got "
             f"{tuple(rewards.shape)}, {tuple(discounts.shape)}, {tuple(dones.shape)}, {tuple(next_values.shape)}"
         )
     return rewards + discounts * (1.0 - dones) * next_values
-
-
-def polyak_update_(target: th.nn.Module, source: th.nn.Module, tau: float) -> None:
-    """In place ``target = tau * source + (1 - tau) * target`` over parameters and buffers."""
-    target_params, params = list(target.parameters()), list(source.parameters())
-    if len(target_params) != len(params):
-        raise ValueError("polyak_update_: target and source have different parameter lists")
-    polyak_update_tensors_(target_params, params, list(target.buffers()), list(source.buffers()), tau)
 
 
 def polyak_update_tensors_(
@@ -75,8 +65,8 @@ def polyak_update_tensors_(
     buffers: list[th.Tensor],
     tau: float,
 ) -> None:
-    """:func:`polyak_update_` on lists gathered once (the per-step path: module traversal costs more than the update
-    for small networks). Buffers are copied."""
+    """In place ``target = tau * source + (1 - tau) * target`` on parameter lists gathered once (module traversal
+    costs more than the update for small networks); buffers are copied."""
     with th.no_grad():
         if target_params:  # a parameter-free module (VDN's sum mixer) has nothing to move
             # One fused call: target + tau * (source - target).
@@ -88,16 +78,8 @@ def polyak_update_tensors_(
 def epsilon_greedy(
     greedy_actions: np.ndarray, epsilon: float, n_actions: int, rng: np.random.Generator | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Per-agent epsilon-greedy: one independent coin per entry of ``greedy_actions``.
-
-    SB3's DQN draws a single coin for the whole batch, so every agent would explore on the same steps.
-
-    :param greedy_actions: ``(N,)`` greedy actions, one per agent
-    :param epsilon: probability of a uniformly random action
-    :param n_actions: size of the discrete action space
-    :param rng: generator (default: numpy's global one, which SB3 seeds)
-    :return: ``(actions, explore_flags)``
-    """
+    """Per-agent epsilon-greedy: one independent coin per entry of ``greedy_actions`` (SB3's DQN draws one for the
+    batch). ``rng`` None: numpy's global generator, which SB3 seeds. :return: ``(actions, explore_flags)``"""
     draw_uniform = np.random.random if rng is None else rng.random
     draw_integers = np.random.randint if rng is None else rng.integers
     explore = draw_uniform(greedy_actions.shape[0]) < epsilon
@@ -111,28 +93,3 @@ def input_gain(head: Callable[..., th.Tensor], inputs: th.Tensor, *args: Any) ->
     probe = inputs.detach().clone().requires_grad_(True)
     with th.enable_grad():
         return th.autograd.grad(head(probe, *args).sum(), probe)[0]
-
-
-def format_table(rows: list[dict[str, Any]], columns: list[str] | None = None, precision: int = 3) -> str:
-    """Rows of dicts as a fixed-width text table (for a notebook's or a terminal's plain-text output).
-
-    :param rows: the rows; a missing value prints as an empty cell
-    :param columns: the columns, in order (default: the first row's keys)
-    :param precision: significant digits of floats
-    :return: a header line, a rule and one line per row
-    """
-    if not rows:
-        return "(no rows)"
-    columns = list(columns or rows[0])
-
-    def cell(value: Any) -> str:
-        if isinstance(value, float):
-            return f"{value:.{precision}g}"
-        return "" if value is None else str(value)
-
-    cells = [[cell(row.get(column)) for column in columns] for row in rows]
-    widths = [max(len(column), *(len(line[i]) for line in cells)) for i, column in enumerate(columns)]
-    lines = ["  ".join(column.ljust(width) for column, width in zip(columns, widths, strict=True))]
-    lines.append("  ".join("-" * width for width in widths))
-    lines += ["  ".join(value.ljust(width) for value, width in zip(line, widths, strict=True)) for line in cells]
-    return "\n".join(line.rstrip() for line in lines)

@@ -1,11 +1,8 @@
 """``make_vec_env``: an env id (or a world constructor) -> the parameter-shared SB3 vector env.
 
-Env ids are resolved through PettingZoo's registry (``pettingzoo.register("parallel", env_id, ...)``: multi-agent
-worlds) and gymnasium's (``gymnasium.register``: one-agent worlds), as SB3's ``make_vec_env`` resolves through
-gymnasium's: the core knows no world. This project's worlds register their ids when the package ``envs`` is
-imported; a plug-in registers its own the same way (``docs/bring_your_own_world.md``). The vector env is
-:class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv` (worlds in this process) or
-:class:`~sb3_eps.common.subproc_vec_env.SubprocMultiAgentVecEnv` (worlds in worker processes).
+Env ids are resolved through PettingZoo's registry (multi-agent worlds) and gymnasium's (one-agent worlds): the core
+knows no world. This project's worlds register their ids when the package ``envs`` is imported; a plug-in registers
+its own the same way (``docs/bring_your_own_world.md``).
 """
 
 from __future__ import annotations
@@ -15,7 +12,6 @@ from collections.abc import Callable
 from typing import Any
 
 import gymnasium
-import numpy as np
 import pettingzoo
 from pettingzoo import ParallelEnv
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
@@ -23,7 +19,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from sb3_eps.common.multi_agent_vec_env import MultiAgentVecEnv
 from sb3_eps.common.subproc_vec_env import SubprocMultiAgentVecEnv
-from sb3_eps.common.utils import check_seed
+from sb3_eps.common.utils import check_seed, is_int
 
 __all__ = ["VEC_ENV_MODES", "MultiAgentVecEnv", "make_vec_env", "vec_env_mode", "world_constructor"]
 
@@ -32,10 +28,7 @@ VEC_ENV_MODES = ("dummy", "subproc")
 
 
 def vec_env_mode(vec_env_cls: type[VecEnv] | str | None) -> str:
-    """:return: ``"dummy"`` or ``"subproc"`` for SB3's ``DummyVecEnv`` / ``SubprocVecEnv`` (or those names).
-
-    :raises ValueError: for anything else
-    """
+    """:return: ``"dummy"`` or ``"subproc"`` for SB3's ``DummyVecEnv`` / ``SubprocVecEnv`` (or those names)."""
     if vec_env_cls is None:
         return "dummy"
     if isinstance(vec_env_cls, str):
@@ -51,6 +44,7 @@ def vec_env_mode(vec_env_cls: type[VecEnv] | str | None) -> str:
         f"processes), or their names 'dummy' / 'subproc'; got {vec_env_cls!r}"
     )
 
+
 def make_vec_env(
     env_id: str | Callable[..., ParallelEnv | gymnasium.Env],
     n_envs: int = 1,
@@ -61,32 +55,20 @@ def make_vec_env(
 ) -> MultiAgentVecEnv:
     """Build the parameter-shared SB3 vector env of a registered env id, or of your own world.
 
-    :param env_id: an id of PettingZoo's registry (a multi-agent world: ``MultiRobotNav-4-v0``) or of gymnasium's
-        (one-agent worlds: ``SingleRobotNav-v0``), see :func:`world_constructor`; or a callable that returns a new
-        world each time it is called with ``env_kwargs``: a PettingZoo ``ParallelEnv`` whose agents share one observation
-        space and one Discrete action space, or a gymnasium env (``docs/bring_your_own_world.md``). The vec env
-        of a callable has ``env_id = None``
+    :param env_id: a registered id (:func:`world_constructor`), or a callable that returns a new world (a PettingZoo
+        ``ParallelEnv`` whose agents share their spaces, or a gymnasium env) from ``env_kwargs``
     :param n_envs: number of worlds (the VecEnv has ``n_envs * n_agents`` sub-envs)
     :param seed: seed of the first reset (world ``w`` gets ``seed + w``); None for random
-    :param env_kwargs: constructor arguments of every world
-    :param vec_env_cls: SB3's switch: ``DummyVecEnv`` (None, the default: every world in this process) or
-        ``SubprocVecEnv`` (worlds in worker processes, each with its own PyBullet clients:
-        :class:`~sb3_eps.common.subproc_vec_env.SubprocMultiAgentVecEnv`); also ``"dummy"`` / ``"subproc"``
-    :param vec_env_kwargs: for ``SubprocVecEnv``: ``n_workers`` and ``main_worlds`` (the layout: by default, on
-        ``C`` cores, this process steps one block of worlds itself while ``C - 1`` workers step the others; with
-        ``n_workers`` alone, every world in those workers), ``spin_s`` (seconds the processes poll their pipes
-        before they sleep; None: 10 ms where each process has a core, else 0) and ``start_method`` (None:
-        ``"fork"`` where available); see :class:`~sb3_eps.common.subproc_vec_env.SubprocMultiAgentVecEnv`
-    :return: the vector env (the same results in both modes for the same seed)
-    :raises ValueError: for an unknown id, ``n_envs < 1``, a seed that is not a non-negative int, or an unknown
-        ``vec_env_cls`` / ``vec_env_kwargs``
+    :param vec_env_cls: ``DummyVecEnv`` (None: every world in this process) or ``SubprocVecEnv`` (worlds in worker
+        processes, :class:`~sb3_eps.common.subproc_vec_env.SubprocMultiAgentVecEnv`, whose arguments
+        ``vec_env_kwargs`` are); also ``"dummy"`` / ``"subproc"``. Both give the same results for the same seed
     """
     if not isinstance(env_id, str) and not callable(env_id):
         raise ValueError(
             "env_id must be a registered id (envs.ENV_IDS lists this project's) or a callable returning a "
             f"PettingZoo ParallelEnv (or a gymnasium env); got {env_id!r}"
         )
-    if isinstance(n_envs, bool) or not isinstance(n_envs, int | np.integer) or n_envs < 1:
+    if not (is_int(n_envs) and n_envs >= 1):
         raise ValueError(f"n_envs (the number of worlds) must be an int >= 1, got {n_envs!r}")
     seed = check_seed(seed)
     mode = vec_env_mode(vec_env_cls)
@@ -122,10 +104,9 @@ def make_vec_env(
 
 
 def world_constructor(env_id: str) -> tuple[Callable[..., ParallelEnv | gymnasium.Env], dict[str, Any], bool]:
-    """The constructor registered under ``env_id``, looked up in PettingZoo's registry, then gymnasium's.
+    """The constructor registered under ``env_id`` in PettingZoo's registry, else gymnasium's.
 
     :return: ``(constructor, its registered keyword arguments, whether it builds a multi-agent world)``
-    :raises ValueError: for an id neither registry knows
     """
     spec: Any = pettingzoo.parallel_registry.get(env_id)
     multi_agent = spec is not None

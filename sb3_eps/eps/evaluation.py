@@ -1,37 +1,21 @@
-"""Greedy evaluation of an EPS population in independent single-agent worlds (Algorithm 1, lines 4 and 10).
+"""Greedy evaluation of an EPS population (Algorithm 1, lines 4 and 10).
 
 Every (individual, episode) pair gets its own env. The individuals are split into contiguous blocks, one per
-worker process (:class:`SubprocessEnvPool`), or one block in the main process (:class:`InProcessEnvPool`). A
-block plays all its episodes at once, in lockstep, one tick at a time: one forward pass computes the greedy
-actions of all its individuals (:class:`PopulationForward`: one ``vmap``-ed ``functional_call`` over the
-stacked weights, or one call per individual), then every env whose episode is still running steps. The block
-is done when its longest episode ends. Episode ``j`` of every individual starts from the same seed (common
-random numbers), so fitness differences come from the weights, not from luckier start positions.
-
-Why whole episodes in the workers rather than actions sent from one batched forward in the main process every
-tick (the first version): a tick of a single-robot world costs about 0.3 ms, about as much as a pipe message on a
-loaded machine, and the per-tick pipe writes alone took a fifth of the round (profiled). With whole episodes a
-worker gets its individuals' weights once per round, returns returns and lengths, and runs at its own pace. On
-the loaded 2-core VM both versions measured the same round time (2.6-2.9 s for 7117 evaluation ticks); the
-message-free one is kept because it stops paying for messages as cores become free. The workers are created
-once, reused for every round, and a crashed or hung worker surfaces as :class:`EvaluationFailed`, which the
-callback turns into a skipped round.
-
-With ``record`` (EPS's experience sharing) a block also keeps every tick of its team-world episodes
-(:class:`TeamEpisode`) and sends them back as numpy arrays with its answer: still one message per round.
+worker process (:class:`SubprocessEnvPool`), or one block in the main process (:class:`InProcessEnvPool`). A block
+plays all its episodes in lockstep: one forward pass for all its individuals (:class:`PopulationForward`), then
+every running env steps. Episode ``j`` of every individual starts from the same seed (common random numbers).
+Workers play whole episodes and get the weights once per round: a pipe message per tick would cost as much as the
+tick (``docs/modules/eps.md``). With ``record`` (experience sharing) a block also sends back every tick of its
+team-world episodes (:class:`TeamEpisode`).
 """
 
 from __future__ import annotations
 
 import copy
-import multiprocessing as mp
-import signal
 import time
-import traceback
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
-from multiprocessing.connection import Connection
 from typing import Any
 
 import gymnasium
@@ -41,25 +25,15 @@ from torch import nn
 from torch.func import functional_call, vmap
 
 from sb3_eps.common.parallel_wrappers import TeamAsGymnasium, TeamTick
-from sb3_eps.common.subproc_vec_env import default_start_method
+from sb3_eps.common.workers import Served, WorkerError, WorkerPool
 from sb3_eps.eps.mutations import Parameters, finite_individuals, individual
 
 
 @dataclass
 class TeamEpisode:
-    """Every tick of one team-world episode (``T`` ticks, ``n`` agents, ``possible_agents`` order), as numpy arrays,
-    for EPS's experience sharing (:func:`sb3_eps.eps.sharing.share_episodes`): what a training world's tick tells
-    the replay buffer, recorded where the episode is played (a worker) and sent back in one message.
-
-    :param observations: ``(T + 1, n, obs)``: each agent's observation before every tick, and after the last
-    :param actions: ``(T, n)`` the greedy actions played (those of finished agents are ignored by the world)
-    :param rewards: ``(T, n)`` float32, each agent's reward (0 once its episode is over)
-    :param terminations: ``(T, n)`` the world's per-agent terminations (:class:`TeamTick`)
-    :param truncations: ``(T, n)`` its per-agent truncations
-    :param alive: ``(T, n)`` the agents that acted at each tick
-    :param states: ``(T + 1, state_dim)`` the global state before every tick and after the last; ``(T + 1, 0)`` when
-        not recorded
-    """
+    """Every tick of one team-world episode (``T`` ticks, ``n`` agents) for experience sharing
+    (:func:`sb3_eps.eps.sharing.share_episodes`): observations and global states ``(T + 1, ...)`` (before every
+    tick and after the last; states ``(T + 1, 0)`` when not recorded), the rest ``(T, n)`` as :class:`TeamTick`."""
 
     observations: np.ndarray
     actions: np.ndarray
@@ -71,7 +45,6 @@ class TeamEpisode:
 
     @property
     def n_ticks(self) -> int:
-        """``T``, the episode's ticks."""
         return len(self.actions)
 
 
@@ -86,7 +59,6 @@ class _EpisodeRecorder:
         self.ticks: list[TeamTick] = []
 
     def add(self, action: np.ndarray, next_obs: np.ndarray) -> None:
-        """Note one step: the actions played and what the world returned."""
         assert self.env.last_tick is not None
         self.actions.append(np.asarray(action, dtype=np.int64))
         self.ticks.append(self.env.last_tick)
@@ -95,11 +67,12 @@ class _EpisodeRecorder:
             self.states.append(self.env.state())
 
     def episode(self) -> TeamEpisode:
-        """:return: the arrays of the ticks played so far."""
         n_ticks, n_agents = len(self.actions), self.env.team_size
         states = np.stack(self.states) if self.record_states else np.zeros((n_ticks + 1, 0), dtype=np.float32)
         flags = {
-            name: np.stack([getattr(tick, name) for tick in self.ticks]) if self.ticks else np.zeros((0, n_agents))
+            name: np.stack([getattr(tick, name) for tick in self.ticks])
+            if self.ticks
+            else np.zeros((0, n_agents))
             for name in TeamTick._fields
         }
         return TeamEpisode(
@@ -115,24 +88,18 @@ class _EpisodeRecorder:
 
 #: What an evaluation block records of its episodes: nothing, every tick of a team world, or also its global states.
 RECORD_MODES = (None, "ticks", "ticks+states")
-#: What a pool (or a block) answers for a population: returns, lengths, outcomes ``(P, E)``, valid ``(P,)``, and the
-#: recorded episodes (``P x E``, individual-major; None where not played) when it records them, else None.
+#: Returns, lengths, outcomes ``(P, E)``, valid ``(P,)`` and the recorded episodes (individual-major) or None.
 PoolAnswer = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[TeamEpisode | None] | None]
 
 
-class EvaluationFailed(RuntimeError):
+class EvaluationFailed(WorkerError):
     """An evaluation worker crashed, raised or did not answer in time; the round cannot be scored."""
 
-    record: dict[str, Any] | None = None
-    """What the round measured before (set by :class:`~sb3_eps.eps.round.EPSRound`)."""
+    record: dict[str, Any] | None = None  # what the round measured before (set by the round)
 
 
 def check_eval_env_id(env_id: str) -> None:
-    """Raise ``ValueError`` unless ``env_id`` names an EPS world: a single-agent env (ours or a gymnasium id), or
-    one of our multi-agent ids (a team world: every robot acts with the individual's weights).
-
-    :param env_id: the id of the EPS evaluation world
-    """
+    """Raise ``ValueError`` unless ``env_id`` names an EPS world: a single-agent env or one of our team worlds."""
     import envs  # registers our ids with gymnasium
 
     if env_id in envs.SINGLE_AGENT_ENV_IDS or env_id in envs.MULTI_AGENT_ENV_IDS:
@@ -145,12 +112,8 @@ def check_eval_env_id(env_id: str) -> None:
 
 
 def make_eval_env(env_id: str, env_kwargs: dict[str, Any] | None = None) -> gymnasium.Env:
-    """Build one evaluation env (without gymnasium's checker wrappers for our ids); a multi-agent id gives its
-    world as one env played by a team (:class:`~sb3_eps.common.parallel_wrappers.TeamAsGymnasium`).
-
-    :param env_id: an id :func:`check_eval_env_id` accepts
-    :param env_kwargs: constructor arguments
-    """
+    """Build one evaluation env; a multi-agent id gives its world played by a team
+    (:class:`~sb3_eps.common.parallel_wrappers.TeamAsGymnasium`)."""
     import envs
 
     if env_id in envs.SINGLE_AGENT_ENV_IDS:
@@ -167,13 +130,10 @@ def agent_space(env: gymnasium.Env, kind: str) -> gymnasium.Space:
 
 
 class PopulationForward:
-    """Outputs of a block of individuals, each on its own batch of observations.
+    """Outputs of a block of individuals, each on its own batch of observations: one ``vmap``-ed
+    ``functional_call`` over the stacked weights (``batched``), or one module copy per individual.
 
-    ``batched=True``: one ``vmap`` over the stacked weights of :func:`torch.func.functional_call` (one call for
-    the whole block). ``batched=False``: one module copy per individual, called in turn.
-
-    :param network: the agent network; only its architecture is used (its weights are never changed)
-    :param batched: use the batched forward pass
+    :param network: the agent network; only its architecture is used
     """
 
     def __init__(self, network: nn.Module, batched: bool = True) -> None:
@@ -210,17 +170,8 @@ class PopulationForward:
 
 
 class _Block:
-    """The envs of a block of individuals and the forward pass that drives them (in a worker or in process).
-
-    :param env_id: single-agent env id
-    :param env_kwargs: its constructor arguments
-    :param n_individuals: individuals of this block
-    :param n_episodes: episodes per individual; env ``p * n_episodes + j`` plays episode ``j`` of individual ``p``
-    :param network: architecture template (CPU)
-    :param batched: batched forward pass
-    :param record: ``None`` records nothing; ``"ticks"`` / ``"ticks+states"`` record every tick of every episode of a
-        team world (:class:`TeamEpisode`), with the global states in the second case
-    """
+    """The envs of a block of individuals and the forward pass that drives them (in a worker or in process);
+    env ``p * n_episodes + j`` plays episode ``j`` of individual ``p``. ``record``: see :data:`RECORD_MODES`."""
 
     def __init__(
         self,
@@ -242,19 +193,9 @@ class _Block:
         self.record = record
         self.forward = PopulationForward(network, batched)
 
-    def evaluate(
-        self, population: Parameters, seeds: Sequence[int], valid: np.ndarray
-    ) -> PoolAnswer:
-        """Play every episode of every valid individual greedily, all envs in lockstep.
-
-        :param population: the block's weights ``(n_individuals, *shape)``
-        :param seeds: ``n_episodes`` reset seeds, the same for every individual (common random numbers)
-        :param valid: ``(n_individuals,)`` False for individuals not to run (non-finite weights)
-        :return: returns ``(n_individuals, n_episodes)``, lengths (same shape), outcomes (same shape, see
-            :data:`OUTCOMES`), valid ``(n_individuals,)``: False also where an output was not finite; with
-            ``record``, the episodes (env order) as :class:`TeamEpisode`, None for those of invalid individuals,
-            else None
-        """
+    def evaluate(self, population: Parameters, seeds: Sequence[int], valid: np.ndarray) -> PoolAnswer:
+        """Play every episode of every ``valid`` individual greedily, all envs in lockstep; an individual whose
+        output is not finite becomes invalid. :return: :data:`PoolAnswer`"""
         shape = (self.n_individuals, self.n_episodes)
         if len(seeds) != self.n_episodes:
             raise ValueError(f"expected {self.n_episodes} seeds, got {len(seeds)}")
@@ -270,7 +211,9 @@ class _Block:
             obs[index] = self.envs[index].reset(seed=int(seeds[int(index) % self.n_episodes]))[0]
         recorders = self._recorders(obs, active)
         while active.any():
-            outputs = self.forward(th.as_tensor(obs).reshape(self.n_individuals, self.n_episodes * agents, -1))
+            outputs = self.forward(
+                th.as_tensor(obs).reshape(self.n_individuals, self.n_episodes * agents, -1)
+            )
             outputs = outputs.reshape(len(self.envs), agents, -1)
             # A NaN/inf output disqualifies its individual at once: its envs stop, its fitness becomes -inf.
             finite = th.isfinite(outputs).all(dim=-1).all(dim=-1).numpy()
@@ -291,13 +234,16 @@ class _Block:
                 if terminated or truncated:
                     outcomes.flat[index] = episode_outcome(bool(terminated), info)
         episodes = None
-        if recorders is not None:  # an individual stopped for non-finite outputs left unfinished episodes: none
+        if (
+            recorders is not None
+        ):  # an individual stopped for non-finite outputs left unfinished episodes: none
             played = np.repeat(valid, self.n_episodes)
-            episodes = [recorder.episode() if played[index] else None for index, recorder in enumerate(recorders)]
+            episodes = [
+                recorder.episode() if played[index] else None for index, recorder in enumerate(recorders)
+            ]
         return returns, lengths, outcomes, valid, episodes
 
     def _recorders(self, obs: np.ndarray, active: np.ndarray) -> list[_EpisodeRecorder] | None:
-        """One recorder per env, from its reset observation (None when not recording)."""
         if self.record is None:
             return None
         record_states = self.record == "ticks+states"
@@ -313,35 +259,27 @@ class _Block:
             env.close()
 
 
-def _worker_main(connection: Connection, block_kwargs: dict[str, Any]) -> None:
-    """Worker loop: build a :class:`_Block`, then answer ``evaluate`` / ``close`` messages."""
-    # Ctrl-C goes to the whole process group: let the main process decide and close the workers.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+def _build_served_block(block_kwargs: dict[str, Any]) -> _ServedBlock:
     th.set_num_threads(1)  # the forward passes are tiny; threads would fight over the cores with the envs
-    block: _Block | None = None
-    try:
-        block = _Block(**block_kwargs)
-        connection.send(("ok", None))
-        while True:
-            command, *arguments = connection.recv()
-            if command == "close":
-                break
-            if command != "evaluate":
-                raise ValueError(f"unknown worker command {command!r}")
-            population, seeds, valid = arguments
-            weights = {name: th.from_numpy(array) for name, array in population.items()}
-            connection.send(("ok", block.evaluate(weights, seeds, valid)))
-    except (EOFError, KeyboardInterrupt):  # the main process went away
-        pass
-    except Exception:  # anything an env raises goes back to the main process
-        try:
-            connection.send(("error", traceback.format_exc()))
-        except (BrokenPipeError, OSError):
-            pass
-    finally:
-        if block is not None:
-            block.close()
-        connection.close()
+    return _ServedBlock(_Block(**block_kwargs))
+
+
+class _ServedBlock(Served):
+    """A worker's :class:`_Block`: answers ``evaluate`` with the numpy weights of its individuals."""
+
+    def __init__(self, block: _Block) -> None:
+        self.block = block
+
+    def handle(self, command: str, data: Any) -> Any:
+        if command != "evaluate":
+            return super().handle(command, data)
+        population, seeds, valid = data
+        return self.block.evaluate(
+            {name: th.from_numpy(array) for name, array in population.items()}, seeds, valid
+        )
+
+    def close(self) -> None:
+        self.block.close()
 
 
 class EnvPool(ABC):
@@ -354,19 +292,11 @@ class EnvPool(ABC):
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
     ) -> PoolAnswer:
-        """Play every episode of every valid individual (see :meth:`_Block.evaluate`).
-
-        :param population: weights ``(n_individuals, *shape)`` on the CPU
-        :param seeds: ``n_episodes`` reset seeds
-        :param valid: ``(n_individuals,)`` individuals to run
-        :param deadline: ``time.monotonic()`` value after which the pool gives up (:class:`EvaluationFailed`)
-        :return: returns, lengths and outcomes ``(n_individuals, n_episodes)``, valid ``(n_individuals,)``, and the
-            recorded episodes (individual-major, None where not played) when the pool records them, else None
-        """
+        """Play every episode of every valid individual (:meth:`_Block.evaluate`) before ``deadline``
+        (``time.monotonic()``), else raise :class:`EvaluationFailed`."""
 
     @abstractmethod
-    def close(self) -> None:
-        """Release the envs (and the worker processes)."""
+    def close(self) -> None: ...
 
     @property
     def pids(self) -> list[int]:
@@ -375,16 +305,8 @@ class EnvPool(ABC):
 
 
 class InProcessEnvPool(EnvPool):
-    """All envs in the main process: no start-up cost, no protection against a hanging env.
-
-    :param env_id: single-agent env id
-    :param env_kwargs: its constructor arguments
-    :param n_individuals: individuals per round
-    :param n_episodes: episodes per individual
-    :param network: architecture template (CPU)
-    :param batched: batched forward pass
-    :param record: what to record of every episode (:data:`RECORD_MODES`; see :class:`_Block`)
-    """
+    """All envs in the main process: no start-up cost, no protection against a hanging env (arguments as
+    :class:`SubprocessEnvPool`)."""
 
     def __init__(
         self,
@@ -415,17 +337,13 @@ class InProcessEnvPool(EnvPool):
 class SubprocessEnvPool(EnvPool):
     """Individuals split into contiguous blocks over worker processes, each playing its block's episodes.
 
-    :param env_id: single-agent env id
-    :param env_kwargs: its constructor arguments
-    :param n_individuals: individuals per round
-    :param n_episodes: episodes per individual
+    :param env_id: an id :func:`check_eval_env_id` accepts, built with ``env_kwargs``
+    :param n_individuals: individuals per round, each playing ``n_episodes`` episodes
     :param network: architecture template (CPU; copied into the workers)
-    :param batched: batched forward pass in the workers
+    :param batched: batched forward pass (:class:`PopulationForward`)
     :param n_workers: number of worker processes (at most ``n_individuals``)
-    :param start_method: multiprocessing start method; None: the worlds' workers' default
-        (:func:`~sb3_eps.common.subproc_vec_env.default_start_method`)
-    :param record: what the workers record of every episode (:data:`RECORD_MODES`): the arrays of a block's
-        episodes come back with its answer, one message per round
+    :param start_method: multiprocessing start method (None: the platform's default)
+    :param record: what to record of every episode (:data:`RECORD_MODES`), sent back with the answer
     """
 
     def __init__(
@@ -442,57 +360,44 @@ class SubprocessEnvPool(EnvPool):
     ) -> None:
         if record not in RECORD_MODES:
             raise ValueError(f"record must be one of {RECORD_MODES}, got {record!r}")
-        context: Any = mp.get_context(start_method or default_start_method())
         self.n_individuals, self.n_episodes = n_individuals, n_episodes
         n_blocks = max(1, min(n_workers, n_individuals))
         self.blocks = [block for block in np.array_split(np.arange(n_individuals), n_blocks) if len(block)]
-        self._connections: list[Connection] = []
-        self._processes: list[Any] = []
-        for block in self.blocks:
-            parent_end, child_end = context.Pipe()
-            block_kwargs = {
-                "env_id": env_id,
-                "env_kwargs": env_kwargs,
-                "n_individuals": len(block),
-                "n_episodes": n_episodes,
-                "network": network,
-                "batched": batched,
-                "record": record,
-            }
-            process = context.Process(target=_worker_main, args=(child_end, block_kwargs), daemon=True)
-            process.start()
-            child_end.close()
-            self._connections.append(parent_end)
-            self._processes.append(process)
+        common = {"env_id": env_id, "env_kwargs": env_kwargs, "n_episodes": n_episodes, "network": network}
+        payloads = [
+            {**common, "n_individuals": len(block), "batched": batched, "record": record}
+            for block in self.blocks
+        ]
         # The workers build their envs while the main process goes on training; the first evaluation waits for
-        # their "ready" answers within its own deadline.
+        # their hellos within its own deadline.
+        self._workers = WorkerPool(
+            _build_served_block,
+            payloads,
+            start_method,
+            describe=lambda i: f"evaluation block {i}",
+            error=EvaluationFailed,
+            close_timeout=1.0,
+        )
         self._ready = False
 
     @property
     def pids(self) -> list[int]:
-        return [int(process.pid) for process in self._processes]
+        return [] if self._workers.closed else self._workers.pids
 
     def wait_ready(self, deadline: float) -> None:
-        """Wait until every worker has built its envs.
-
-        :param deadline: ``time.monotonic()`` value after which a worker not yet ready counts as hung
-        :raises EvaluationFailed: when a worker could not build its envs in time
-        """
+        """Wait until every worker has built its envs, before ``deadline`` (``time.monotonic()``)."""
         if not self._ready:
-            self._gather(deadline)
+            self._workers.gather(range(len(self.blocks)), "building its envs", deadline)
             self._ready = True
 
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
     ) -> PoolAnswer:
         self.wait_ready(deadline)
-        for connection, block in zip(self._connections, self.blocks, strict=True):
+        for i, block in enumerate(self.blocks):
             weights = {name: stacked[block].cpu().numpy() for name, stacked in population.items()}
-            try:
-                connection.send(("evaluate", weights, list(seeds), valid[block]))
-            except (BrokenPipeError, OSError) as error:
-                raise EvaluationFailed(f"an evaluation worker is gone ({error})") from error
-        answers = self._gather(deadline)
+            self._workers.send(i, "evaluate", (weights, list(seeds), valid[block]), "receiving the weights")
+        answers = self._workers.gather(range(len(self.blocks)), "evaluating", deadline)
         returns, lengths, outcomes, valid_parts = (
             np.concatenate([answer[part] for answer in answers]) for part in range(4)
         )
@@ -500,50 +405,14 @@ class SubprocessEnvPool(EnvPool):
         return returns, lengths, outcomes, valid_parts, episodes
 
     def close(self) -> None:
-        for connection in self._connections:
-            try:
-                connection.send(("close",))
-            except (BrokenPipeError, OSError):
-                pass
-        for process in self._processes:
-            process.join(timeout=1.0)
-            if process.is_alive():
-                process.kill()
-                process.join(timeout=1.0)
-        for connection in self._connections:
-            connection.close()
-        self._connections, self._processes = [], []
-
-    def _gather(self, deadline: float) -> list[Any]:
-        answers = []
-        for connection, process in zip(self._connections, self._processes, strict=True):
-            if not connection.poll(max(0.0, deadline - time.monotonic())):
-                raise EvaluationFailed(f"evaluation worker {process.pid} did not answer before the timeout")
-            try:
-                status, payload = connection.recv()
-            except (EOFError, OSError) as error:
-                process.join(timeout=1.0)
-                raise EvaluationFailed(
-                    f"evaluation worker {process.pid} died (exit code {process.exitcode})"
-                ) from error
-            if status != "ok":
-                raise EvaluationFailed(f"evaluation worker {process.pid} raised:\n{payload}")
-            answers.append(payload)
-        return answers
+        self._workers.close()
 
 
 @dataclass
 class PopulationResult:
-    """What one evaluation round measured.
-
-    :param returns: ``(P, E)`` undiscounted return of every individual's episodes
-    :param lengths: ``(P, E)`` ticks of every episode (0 for an individual disqualified before its first tick)
-    :param valid: ``(P,)`` False for an individual whose weights or outputs were not finite, or not run
-    :param fitness: ``(P,)`` Eq. 4's ``F`` (:func:`population_fitness`); ``-inf`` where not valid
-    :param outcomes: ``(P, E)`` how every episode ended (:data:`OUTCOMES`); zeros when not recorded
-    :param episodes: ``P x E`` recorded team-world episodes (individual-major; None where not played), when the
-        pool records them
-    """
+    """What one evaluation round measured: returns, lengths and outcomes (:data:`OUTCOMES`) ``(P, E)``; valid
+    ``(P,)`` (False where weights or outputs were not finite, or not run); Eq. 4's fitness ``(P,)`` (``-inf`` where
+    not valid); the recorded episodes when the pool records them."""
 
     returns: np.ndarray
     lengths: np.ndarray
@@ -554,18 +423,15 @@ class PopulationResult:
 
     @property
     def successes(self) -> np.ndarray:
-        """``(P, E)`` bool: the episodes that reached the target."""
         outcomes = self.outcomes if self.outcomes is not None else np.zeros_like(self.lengths)
         return outcomes == OUTCOMES["success"]
 
 
-#: How an episode ended: reached the target (``info["is_success"]``), stopped by the time limit (or not run), or
-#: terminated without success (a collision in the robot worlds).
+#: How an episode ended: reached the target, stopped by the time limit (or not run), or terminated otherwise.
 OUTCOMES = {"success": 1, "timeout": 0, "failure": -1}
 FITNESS_KINDS = ("return", "outcome")
-#: Weight of the mean return beside the mean outcome in ``fitness="outcome"``: small enough that one more success
-#: or one less failure in up to 50 episodes always outranks any return difference of the robot worlds (|return|
-#: below 5 per episode), large enough to rank equal outcomes by return.
+#: Weight of the mean return beside the mean outcome in ``fitness="outcome"``: one more success in up to 50 episodes
+#: outranks any return difference of the robot worlds (|return| < 5), equal outcomes rank by return.
 OUTCOME_RETURN_WEIGHT = 0.01
 
 
@@ -579,19 +445,11 @@ def episode_outcome(terminated: bool, info: dict[str, Any]) -> int:
 def population_fitness(
     returns: np.ndarray, outcomes: np.ndarray, valid: np.ndarray, kind: str = "return"
 ) -> np.ndarray:
-    """Eq. 4's fitness ``F`` of every individual from its episodes.
+    """Eq. 4's fitness ``F`` ``(P,)`` of every individual from its episodes ``(P, E)``; ``-inf`` where not valid.
 
-    ``"return"`` (the paper): the mean undiscounted return. ``"outcome"``: the mean outcome (+1 reached the target,
-    0 timed out, -1 failed) plus :data:`OUTCOME_RETURN_WEIGHT` times the mean return: reaching the target ranks
-    first, and waiting (a timeout, 0) ranks above crashing (-1) whatever the step costs added up to, which the
-    plain return gets the other way round in ``SingleRobotNav-v0`` (a 600-tick wait scores -3.0, a crash -1.1 to
-    -2.2; docs/modules/eps.md). The return breaks ties between equal outcomes.
-
-    :param returns: ``(P, E)``
-    :param outcomes: ``(P, E)`` :data:`OUTCOMES` codes
-    :param valid: ``(P,)``; invalid individuals get ``-inf``
-    :param kind: one of :data:`FITNESS_KINDS`
-    :return: ``(P,)``
+    ``"return"`` (the paper): the mean undiscounted return. ``"outcome"``: the mean outcome (+1 target, 0 timeout,
+    -1 failure) plus :data:`OUTCOME_RETURN_WEIGHT` times the mean return, so waiting ranks above crashing
+    (``docs/modules/eps.md``).
     """
     if kind not in FITNESS_KINDS:
         raise ValueError(f"unknown fitness {kind!r}; use one of {FITNESS_KINDS}")
@@ -609,17 +467,9 @@ def evaluate_population(
     fitness: str = "return",
     active: np.ndarray | None = None,
 ) -> PopulationResult:
-    """Run every individual greedily for ``len(episode_seeds)`` episodes, episode ``j`` seeded with
-    ``episode_seeds[j]`` for all individuals (common random numbers). Algorithm 1, line 10.
-
-    :param pool: the envs, built for this population size and number of episodes
-    :param population: stacked weights ``(P, *shape)``
-    :param episode_seeds: ``E`` reset seeds
-    :param timeout: seconds for the whole round
-    :param fitness: how episodes become fitness (:func:`population_fitness`)
-    :param active: ``(P,)`` bool, the individuals to run (None: all); the others get no episode and ``-inf``
-    :raises EvaluationFailed: when a worker crashed, raised or timed out
-    """
+    """Run every individual of ``population`` ``(P, *shape)`` greedily, episode ``j`` seeded with
+    ``episode_seeds[j]`` for all (Algorithm 1, line 10), within ``timeout`` seconds; individuals not ``active``
+    get no episode and ``-inf``. :raises EvaluationFailed: when a worker crashed, raised or timed out"""
     n_individuals = next(iter(population.values())).shape[0]
     if (pool.n_individuals, pool.n_episodes) != (n_individuals, len(episode_seeds)):
         raise ValueError(
@@ -631,7 +481,9 @@ def evaluate_population(
     valid = finite_individuals(cpu_population)
     if active is not None:
         valid &= np.asarray(active, dtype=bool)
-    returns, lengths, outcomes, valid, episodes = pool.evaluate(cpu_population, list(episode_seeds), valid, deadline)
+    returns, lengths, outcomes, valid, episodes = pool.evaluate(
+        cpu_population, list(episode_seeds), valid, deadline
+    )
     scores = population_fitness(returns, outcomes, valid, fitness)
     return PopulationResult(
         returns=returns, lengths=lengths, valid=valid, fitness=scores, outcomes=outcomes, episodes=episodes

@@ -1,13 +1,10 @@
-"""The math of one EPS round (Marchesini & Farinelli, ICRA 2022, Section III): the output-gradient sensitivity
-(Eq. 6), the safe and the plain Gaussian mutation (Algorithm 1, line 9), the selection of the best individual
-(Eq. 4) and the Polyak mean crossover (Eq. 5); and what this package adds to them (docs/modules/eps.md, "Beyond
-Algorithm 1"): parameter groups left out of mutation and crossover, the effect of a mutation on the greedy policy
-(share of greedy actions changed, mean |dQ|), and the calibration of the mutation size to a target share.
+"""The math of one EPS round (Marchesini & Farinelli, ICRA 2022, Section III): the sensitivity (Eq. 6), the safe
+and plain mutations (Algorithm 1, line 9), the selection (Eq. 4) and the Polyak crossover (Eq. 5); and what this
+package adds (``docs/modules/eps.md``, "Beyond Algorithm 1"): frozen parameter groups, the effect of a mutation on
+the greedy policy, and the calibration of the mutation size.
 
-Weights travel as dictionaries ``{parameter name: tensor}`` (the names of ``network.named_parameters()``), so
-that :func:`torch.func.functional_call` can run a network on any set of them. A *population* is such a
-dictionary whose tensors carry a leading population axis ``(P, *parameter shape)``; individual 0 is always the
-unmutated copy of the network.
+Weights travel as ``{parameter name: tensor}`` for :func:`torch.func.functional_call`; a *population* stacks them
+on a leading axis ``(P, *shape)``, individual 0 the unmutated copy.
 """
 
 from __future__ import annotations
@@ -21,9 +18,7 @@ from torch.func import functional_call, jacrev, vmap
 
 Parameters = dict[str, th.Tensor]
 
-# Samples whose Jacobians are materialised at once in output_sensitivity: a (chunk, |y|, n_weights) float32
-# block, about 56 MB for the default GDQ network (22k weights, 20 actions). The chunks bound memory; inside a
-# chunk the per-sample gradients are batched by vmap.
+# Samples whose Jacobians output_sensitivity holds at once: (chunk, |y|, n_weights) float32, about 56 MB for GDQ.
 SENSITIVITY_CHUNK_SIZE = 32
 
 
@@ -35,16 +30,10 @@ def network_parameters(network: nn.Module) -> Parameters:
 def output_sensitivity(
     network: nn.Module, observations: th.Tensor, chunk_size: int = SENSITIVITY_CHUNK_SIZE
 ) -> Parameters:
-    """Per-weight sensitivity of the network's outputs, EPS paper Eq. 6:
-    ``omega_w = (1 / |y|) * sum_y (1 / |b|) * sum_{s in b} |d y(s) / d w|``.
+    """Per-weight sensitivity of the network's outputs on the visited ``observations`` ``(|b|, obs_dim)``, EPS paper
+    Eq. 6: ``omega_w = (1 / |y|) * sum_y (1 / |b|) * sum_{s in b} |d y(s) / d w|``. The absolute value is taken per
+    sample, so gradients of opposite sign do not cancel (Lehman et al.'s "gradient washout").
 
-    The absolute value is taken per sample, before the batch mean, so gradients of opposite sign on different
-    states do not cancel (Lehman et al.'s "gradient washout"). The per-sample Jacobians come from
-    ``vmap(jacrev(...))`` over the batch, in chunks of ``chunk_size`` samples to bound memory.
-
-    :param network: maps a batch of observations ``(B, obs_dim)`` to outputs ``(B, |y|)`` (the Q-values)
-    :param observations: the batch ``b`` of visited observations, ``(|b|, obs_dim)``
-    :param chunk_size: samples per vmapped Jacobian
     :return: ``omega`` with the network's parameter shapes
     """
     if observations.dim() != 2 or observations.shape[0] < 1:
@@ -73,18 +62,9 @@ def output_sensitivity(
 
 
 def safe_mutation_step(noise: th.Tensor, sensitivity: th.Tensor, floor: float, max_step: float) -> th.Tensor:
-    """The safe mutation of Algorithm 1, line 9: ``delta = G / omega``, made safe as Lehman et al. do.
-
-    A sensitivity of exactly 0 (a weight the batch never exercises, e.g. into a dead ReLU) is replaced by 1 so
-    the weight gets plain Gaussian noise; smaller sensitivities are raised to ``floor`` so no step exceeds
-    ``|G| / floor``; the step is then clipped to ``[-max_step, max_step]`` per weight.
-
-    :param noise: Gaussian noise ``G ~ N(0, sigma)``, any shape
-    :param sensitivity: ``omega`` of Eq. 6, broadcastable to ``noise``
-    :param floor: lower bound on ``omega`` (> 0)
-    :param max_step: bound on ``|delta|`` per weight (> 0; ``inf`` disables the clip)
-    :return: the step ``delta`` with the shape of ``noise``
-    """
+    """The safe mutation of Algorithm 1, line 9: ``delta = G / omega``, made safe as Lehman et al. do: a sensitivity of
+    exactly 0 (a weight never exercised) becomes 1, smaller ones are raised to ``floor``, and the step is clipped to
+    ``[-max_step, max_step]`` per weight. ``sensitivity`` broadcasts to ``noise``."""
     if floor <= 0 or max_step <= 0:
         raise ValueError(f"floor and max_step must be > 0, got {floor} and {max_step}")
     try:
@@ -109,19 +89,13 @@ def mutate_population(
     max_step: float = 0.2,
     names: Collection[str] | None = None,
 ) -> Parameters:
-    """The population of Algorithm 1, lines 5-9: ``n_mutants + 1`` copies of ``parameters``, every copy but
-    copy 0 perturbed by ``G ~ N(0, sigma)`` per weight, normalised by the sensitivity when one is given.
+    """The population of Algorithm 1, lines 5-9: ``n_mutants + 1`` copies of ``parameters``, every copy but copy 0
+    perturbed by ``G ~ N(0, sigma)`` per weight, normalised by the sensitivity when one is given.
 
-    :param parameters: the network's weights ``theta``
-    :param n_mutants: ``m``, the number of mutated copies (>= 1)
-    :param sigma: standard deviation of ``G`` (> 0)
-    :param generator: torch generator of the noise (on the parameters' device)
-    :param sensitivities: None for the plain Gaussian mutation; else one ``omega`` (Eq. 6) shared by all
-        mutants (a list of one) or one per mutant (a list of ``n_mutants``)
-    :param floor: see :func:`safe_mutation_step`
-    :param max_step: see :func:`safe_mutation_step`
-    :param names: the parameters to mutate (None: all); the others are copied unchanged into every individual
-    :return: the population, each tensor ``(n_mutants + 1, *shape)``; row 0 equals ``parameters``
+    :param sensitivities: None for the plain Gaussian mutation; else one ``omega`` (Eq. 6) shared by all mutants
+        or one per mutant (``floor``, ``max_step``: :func:`safe_mutation_step`)
+    :param names: the parameters to mutate (None: all)
+    :return: the population, each tensor ``(n_mutants + 1, *shape)``
     """
     if sigma <= 0:
         raise ValueError(f"sigma must be > 0, got {sigma}")
@@ -140,17 +114,11 @@ def mutation_directions(
     floor: float = 0.01,
     names: Collection[str] | None = None,
 ) -> Parameters:
-    """Unit-scale mutation steps ``G / omega`` with ``G ~ N(0, 1)`` (Algorithm 1, lines 6 and 9, before the
-    noise scale and the clip): :func:`population_from_directions` turns them into a population at any scale, so
-    the scale can be calibrated on their effect (:func:`calibrate_scale`) without drawing new noise.
+    """Unit-scale mutation steps ``G / omega`` with ``G ~ N(0, 1)`` (one ``randn`` per parameter, in order), which
+    :func:`population_from_directions` scales, so the scale can be calibrated without drawing new noise.
 
-    :param parameters: the network's weights ``theta``
-    :param n_mutants: ``m`` (>= 1)
-    :param generator: torch generator of the noise (one ``randn`` per parameter, in ``parameters`` order)
-    :param sensitivities: None (plain Gaussian noise) or 1 or ``n_mutants`` sensitivities ``omega``
-    :param floor: lower bound on ``omega`` (see :func:`safe_mutation_step`)
-    :param names: the parameters to mutate (None: all)
-    :return: ``{name: (n_mutants, *shape)}`` for the mutated parameters only
+    :return: ``{name: (n_mutants, *shape)}`` for the mutated parameters only (arguments as
+        :func:`mutate_population`)
     """
     if n_mutants < 1:
         raise ValueError(f"n_mutants must be >= 1, got {n_mutants}")
@@ -174,14 +142,7 @@ def population_from_directions(
     parameters: Parameters, directions: Parameters, scale: float, max_step: float = float("inf")
 ) -> Parameters:
     """``theta_p = theta + clip(scale * direction_p, -max_step, max_step)`` for every mutant ``p``; copy 0 and the
-    parameters without a direction stay ``theta``.
-
-    :param parameters: the network's weights ``theta``
-    :param directions: :func:`mutation_directions`
-    :param scale: the noise scale ``sigma`` (> 0)
-    :param max_step: per-weight clip of the step (``inf``: none)
-    :return: the population, each tensor ``(n_mutants + 1, *shape)``
-    """
+    parameters without a direction stay ``theta``. :return: each tensor ``(n_mutants + 1, *shape)``"""
     if not scale > 0 or not max_step > 0:
         raise ValueError(f"scale and max_step must be > 0, got {scale} and {max_step}")
     n_mutants = next(iter(directions.values())).shape[0] if directions else 0
@@ -197,13 +158,8 @@ def population_from_directions(
 
 
 def population_outputs(network: nn.Module, population: Parameters, observations: th.Tensor) -> th.Tensor:
-    """Outputs of every individual on the same observations (one ``vmap``-ed ``functional_call``).
-
-    :param network: the architecture (its own weights are not used)
-    :param population: ``{name: (P, *shape)}``; parameters missing from it are taken from ``network``
-    :param observations: ``(B, obs_dim)``
-    :return: ``(P, B, n_outputs)``
-    """
+    """Outputs ``(P, B, n_outputs)`` of every individual on the same observations ``(B, obs_dim)``; parameters
+    missing from the population are taken from ``network``."""
     buffers = dict(network.named_buffers())
     fixed = {name: param.detach() for name, param in network.named_parameters() if name not in population}
 
@@ -215,11 +171,10 @@ def population_outputs(network: nn.Module, population: Parameters, observations:
 
 
 def policy_change(outputs: th.Tensor) -> tuple[np.ndarray, np.ndarray]:
-    """How much each individual's greedy policy differs from individual 0's on the same observations.
+    """How much each individual's greedy policy differs from individual 0's, from Q-values ``(P, B, n_actions)``.
 
-    :param outputs: ``(P, B, n_actions)`` Q-values (:func:`population_outputs`); individual 0 is the reference
-    :return: per individual, the share of observations whose greedy action differs from individual 0's, and the
-        mean ``|Q_p - Q_0|`` over observations and actions (both 0 for individual 0); NaN outputs count as changed
+    :return: per individual, the share of observations whose greedy action changed (NaN outputs count as changed)
+        and the mean ``|Q_p - Q_0|``
     """
     if outputs.dim() != 3 or outputs.shape[0] < 1:
         raise ValueError(f"outputs must be (P, B, n_actions), got {tuple(outputs.shape)}")
@@ -238,21 +193,12 @@ def calibrate_scale(
     max_evaluations: int = 24,
     bounds: tuple[float, float] = (1e-9, 1e3),
 ) -> tuple[float, float]:
-    """Find a noise scale whose mutants change a ``target`` share of greedy actions (a search in log scale).
-
-    Lehman et al.'s safe mutations fix the output change through the sensitivity; with a floor on it, the step
-    is set by the floor instead (docs/modules/eps.md). Here the scale is chosen each round by its measured effect:
-    the share grows with the scale (in expectation), so the search doubles/halves the scale by factors of 4 until
-    it brackets the target, then bisects in log space until the share is within ``tolerance * target``.
+    """Find a noise scale whose mutants change a ``target`` share of greedy actions (``docs/modules/eps.md``): scale
+    by factors of 4 from ``initial`` until the target is bracketed, then bisect in log space until the share is
+    within ``tolerance * target``.
 
     :param flip_share_at: the mean share of greedy actions changed by the mutants at a scale
-    :param target: the share to reach, in (0, 1)
-    :param initial: the first scale to try (the previous round's result, or ``sigma``)
-    :param tolerance: relative tolerance on the share
-    :param max_evaluations: evaluations of ``flip_share_at`` at most
-    :param bounds: the scales searched
-    :return: the scale and the share it gave (the closest one tried, in log-ratio to the target, when the
-        tolerance was not met)
+    :return: the scale and its share (the closest tried, in log-ratio, when the tolerance was not met)
     """
     if not 0.0 < target < 1.0:
         raise ValueError(f"target flip share must be in (0, 1), got {target}")
@@ -289,14 +235,8 @@ def calibrate_scale(
 
 
 def select_best(fitness: np.ndarray) -> int:
-    """The best individual, EPS paper Eq. 4: ``theta* = argmax_p F_p``.
-
-    Non-finite fitness (an individual with NaN/inf weights or outputs) counts as ``-inf`` and can never win;
-    ties go to the lowest index, so the unmutated copy 0 wins unless a mutant is strictly better.
-
-    :param fitness: ``(P,)`` average returns
-    :return: the winner's index
-    """
+    """The best individual, EPS paper Eq. 4: ``theta* = argmax_p F_p``; non-finite fitness never wins, and ties go to
+    the lowest index (copy 0 wins unless a mutant is strictly better)."""
     fitness = np.asarray(fitness, dtype=np.float64)
     if fitness.ndim != 1 or fitness.size < 1:
         raise ValueError(f"fitness must be a non-empty 1-D array, got shape {fitness.shape}")
@@ -307,15 +247,8 @@ def select_best(fitness: np.ndarray) -> int:
 def polyak_crossover_(
     network: nn.Module, best: Parameters, alpha: float, names: Collection[str] | None = None
 ) -> float:
-    """Mean crossover by Polyak averaging, EPS paper Eq. 5: ``theta = alpha * theta* + (1 - alpha) * theta``,
-    in place on ``network``'s parameters.
-
-    :param network: the network to move toward the best individual (the online or the target agent network)
-    :param best: the best individual's weights ``theta*``
-    :param alpha: share of the best individual, in [0, 1]
-    :param names: the parameters to cross over (None: all); the others are left as they are
-    :return: the mean ``|delta theta|`` over the crossed-over weights
-    """
+    """Mean crossover by Polyak averaging, EPS paper Eq. 5: ``theta = alpha * theta* + (1 - alpha) * theta``, in place
+    on ``network``'s parameters ``names`` (None: all). :return: the mean ``|delta theta|``"""
     if not 0.0 <= alpha <= 1.0:
         raise ValueError(f"alpha must be in [0, 1], got {alpha}")
     total_change, n_weights = 0.0, 0
@@ -333,13 +266,8 @@ def polyak_crossover_(
 
 
 def evolved_parameter_names(network: nn.Module, frozen_groups: Collection[str]) -> list[str]:
-    """The parameters EPS mutates and crosses over: all but those under a frozen group.
-
-    :param network: the agent network
-    :param frozen_groups: module names (``"value_stream"``) or parameter names left out
-    :return: the names of the evolved parameters, in the network's order
-    :raises ValueError: when a group names nothing in the network, or every parameter is frozen
-    """
+    """The parameters EPS mutates and crosses over, in order: all but those under a frozen group (module names such
+    as ``"value_stream"``, or parameter names)."""
     names = [name for name, _ in network.named_parameters()]
     for group in frozen_groups:
         if not any(name == group or name.startswith(f"{group}.") for name in names):

@@ -39,11 +39,8 @@ from sb3_eps.eps.sharing import share_episodes
 class EPSRound:
     """Plays the rounds of one model: holds the generators, the calibrated noise scale and the tick counters.
 
-    :param settings: the EPS settings
-    :param model: the model (``policy.q_net``, ``replay_buffer``)
     :param evolved: names of the ``q_net`` parameters mutated and crossed over
-    :param rng: generator of the buffer sampling and the episode seeds
-    :param generator: torch generator of the mutation noise
+    :param rng: generator of the buffer sampling and the episode seeds; ``generator`` that of the mutation noise
     """
 
     def __init__(
@@ -57,18 +54,14 @@ class EPSRound:
         self.settings, self.model, self.evolved = settings, model, evolved
         self.rng, self.generator = rng, generator
         self.pool: EnvPool | None = None
-        self.scale: float | None = None
-        """The last calibrated noise scale: the next calibration starts there."""
-        self.eps_ticks = 0
-        """Ticks simulated by EPS, all rounds together (evaluations, reevaluations, team checks)."""
-        self.shared_rows = 0
-        """Replay rows written from the evaluation episodes (``share_experience``), all rounds together."""
+        self.scale: float | None = None  # the last calibrated noise scale: the next calibration starts there
+        self.eps_ticks = 0  # ticks simulated by EPS, all rounds together
+        self.shared_rows = 0  # replay rows written from the evaluation episodes, all rounds together
         self.round_shared_rows = 0
 
     def run(self) -> dict[str, Any]:
-        """Play one round; the model's network is crossed over when the winner is accepted.
+        """Play one round; :return: its record (``docs/modules/eps.md``, "The round record").
 
-        :return: the round's record (see docs/modules/eps.md, "The round record")
         :raises EvaluationFailed: with ``record`` set to what the round measured before
         """
         settings = self.settings
@@ -77,9 +70,16 @@ class EPSRound:
         theta = network_parameters(q_net)  # line 5: the copies of theta^e
         observations = self.visited_observations(None)
         assert observations is not None
-        sensitivities = self._sensitivities(q_net, observations) if settings.mutation == "safe" else None  # 7-8
+        sensitivities = (
+            self._sensitivities(q_net, observations) if settings.mutation == "safe" else None
+        )  # 7-8
         directions = mutation_directions(  # lines 6 and 9 at unit scale: G ~ N(0, 1), G / omega
-            theta, settings.population_size, self.generator, sensitivities, settings.sensitivity_floor, self.evolved
+            theta,
+            settings.population_size,
+            self.generator,
+            sensitivities,
+            settings.sensitivity_floor,
+            self.evolved,
         )
         max_step = settings.max_step if settings.mutation == "safe" else float("inf")
         scale = self._mutation_scale(q_net, theta, directions, observations, max_step)
@@ -119,7 +119,12 @@ class EPSRound:
         return sample_visited_observations(self.model, self.settings.sensitivity_batch_size, self.rng, robot)
 
     def _mutation_scale(
-        self, q_net: nn.Module, theta: Parameters, directions: Parameters, observations: th.Tensor, max_step: float
+        self,
+        q_net: nn.Module,
+        theta: Parameters,
+        directions: Parameters,
+        observations: th.Tensor,
+        max_step: float,
     ) -> float:
         """The noise scale of this round: ``sigma``, or calibrated to ``target_flip_share`` of greedy actions."""
         settings = self.settings
@@ -134,12 +139,16 @@ class EPSRound:
         self.scale, _ = calibrate_scale(flip_share_at, settings.target_flip_share, initial)
         return self.scale
 
-    def _play(self, population: Parameters, active: np.ndarray | None = None) -> tuple[list[int], PopulationResult]:
+    def _play(
+        self, population: Parameters, active: np.ndarray | None = None
+    ) -> tuple[list[int], PopulationResult]:
         """Play the population on fresh common-random-number episodes and count their ticks."""
         settings = self.settings
         assert self.pool is not None
         seeds = [int(seed) for seed in self.rng.integers(2**31 - 1, size=settings.n_eval_episodes)]
-        result = evaluate_population(self.pool, population, seeds, settings.eval_timeout, settings.fitness, active)
+        result = evaluate_population(
+            self.pool, population, seeds, settings.eval_timeout, settings.fitness, active
+        )
         self.eps_ticks += int(result.lengths.sum())
         if settings.share_experience and result.episodes is not None:
             rows = share_episodes(self.model, result.episodes)  # before any crossover: the round's network
@@ -163,7 +172,9 @@ class EPSRound:
         )
         return result
 
-    def _accept(self, population: Parameters, result: PopulationResult, winner: int, record: dict[str, Any]) -> bool:
+    def _accept(
+        self, population: Parameters, result: PopulationResult, winner: int, record: dict[str, Any]
+    ) -> bool:
         """The acceptance rule: a gain over copy 0 beyond ``min_gain``, and again on fresh episodes."""
         fitness, min_gain = result.fitness, self.settings.min_gain
         gain = float(fitness[winner] - fitness[0]) if np.isfinite(fitness[0]) else float("nan")
@@ -247,10 +258,8 @@ class EPSRound:
 
 
 class _OnlineGreedy:
-    """A policy's greedy actions from its online network: ``predict`` for :func:`evaluate_team`, whatever network
-    the model's own ``predict(deterministic=True)`` takes (``q_net_average`` when the policy keeps one). The
-    package's policies and SB3's ``DQNPolicy`` both take the online network's argmax with ``deterministic=False``
-    (exploration is the algorithm's)."""
+    """A policy's greedy actions from its online network (policies explore only through the algorithm, so
+    ``deterministic=False`` is the online argmax), whatever network ``predict(deterministic=True)`` takes."""
 
     def __init__(self, policy: Any) -> None:
         self.policy = policy
@@ -262,11 +271,8 @@ class _OnlineGreedy:
 
 
 def visited_mask(replay_buffer: Any, robot: int | None = None) -> np.ndarray:
-    """``(rows, agents)`` bool: True where the replay buffer holds a real visited observation (an alive agent).
-
-    :param replay_buffer: the model's replay buffer (ours records ``alive``; in SB3's every stored row is real)
-    :param robot: keep only this agent's column of the joint rows; None for every agent
-    """
+    """``(rows, agents)`` bool: True where the replay buffer holds a visited observation (an alive agent; in SB3's
+    buffers every stored row); ``robot``: only this agent's column."""
     size = int(replay_buffer.size())
     alive = getattr(replay_buffer, "alive", None)
     mask = np.ones(replay_buffer.observations.shape[1:2], dtype=bool)[None].repeat(size, 0)
@@ -278,15 +284,8 @@ def visited_mask(replay_buffer: Any, robot: int | None = None) -> np.ndarray:
 def sample_visited_observations(
     model: Any, batch_size: int, rng: np.random.Generator, robot: int | None = None
 ) -> th.Tensor | None:
-    """Sample up to ``batch_size`` distinct visited observations (alive agents' entries) from a model's replay
-    buffer: the batch ``b`` of Eq. 6, of the calibration and of the diagnostics.
-
-    :param model: an off-policy model with ``replay_buffer`` and ``policy.q_net``
-    :param batch_size: the most observations returned
-    :param rng: the generator that picks them
-    :param robot: restrict to this agent's column of the joint rows; None for every agent
-    :return: ``(batch, obs_dim)`` on the network's device, or None when nothing was visited yet
-    """
+    """Up to ``batch_size`` distinct visited observations (:func:`visited_mask`) of a model's replay buffer, the
+    batch ``b`` of Eq. 6: ``(batch, obs_dim)`` on the network's device, or None when nothing was visited yet."""
     mask = visited_mask(model.replay_buffer, robot)
     candidates = np.flatnonzero(mask.reshape(-1))
     if candidates.size == 0:
@@ -315,22 +314,13 @@ def _warn_disqualified(population: Parameters, valid: np.ndarray) -> None:
 
 
 def gain_accepted(gain: float, min_gain: float) -> bool:
-    """The acceptance rule: a finite fitness gain over copy 0 strictly above ``min_gain``.
-
-    :param gain: winner's fitness minus copy 0's (NaN when copy 0 was disqualified)
-    :param min_gain: the margin (>= 0)
-    """
+    """The acceptance rule: a finite fitness gain over copy 0 (NaN when it was disqualified) above ``min_gain``."""
     return bool(np.isfinite(gain) and gain > min_gain)
 
 
 def scheduled_alpha(alpha: float, schedule: str, progress_remaining: float) -> float:
-    """Eq. 5's alpha at a point of training.
-
-    :param alpha: the base share of the best individual
-    :param schedule: ``"constant"`` or ``"linear"`` (``alpha`` times the share of training still to come, so it
-        reaches 0 at the end)
-    :param progress_remaining: SB3's ``_current_progress_remaining``: 1 at the start, 0 at the end
-    """
+    """Eq. 5's alpha at a point of training (``progress_remaining``: 1 at the start, 0 at the end):
+    ``"constant"``, or ``"linear"`` down to 0 at the end."""
     if schedule not in ALPHA_SCHEDULES:
         raise ValueError(f"alpha_schedule must be one of {ALPHA_SCHEDULES}, got {schedule!r}")
     if schedule == "constant":

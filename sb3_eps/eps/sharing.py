@@ -1,14 +1,7 @@
-"""EPS experience sharing: the population's team-world episodes become replay rows of the learner.
-
-Evolutionary RL (Khadka & Tumer, "Evolution-Guided Policy Gradient in Reinforcement Learning", NeurIPS 2018) puts
-every transition the evolutionary population experiences into the RL agent's replay buffer, so the evaluation
-ticks are not lost to learning. Here the population plays whole episodes of a team world
-(:class:`~sb3_eps.common.parallel_wrappers.TeamAsGymnasium`) whose agents are the training worlds' agents; each
-episode's ticks (:class:`~sb3_eps.eps.evaluation.TeamEpisode`) go through a fresh
-:class:`~sb3_eps.common.buffers.NStepJointCollector` into ``model.replay_buffer`` exactly as a training world's
-ticks do (:func:`~sb3_eps.common.buffers.joint_tick`): the same n-step windows, team reward mode, alive /
-next-alive masks, truncation against termination, global states, and the values GDQ stores at collection time
-(computed by the current network in one batched pass over the round's ticks).
+"""EPS experience sharing: the population's team-world episodes become replay rows of the learner, as in
+Evolutionary RL (Khadka & Tumer, NeurIPS 2018). Each episode's ticks go through a fresh
+:class:`~sb3_eps.common.buffers.NStepJointCollector` into ``model.replay_buffer`` exactly as a training world's do
+(:func:`~sb3_eps.common.buffers.joint_tick`).
 """
 
 from __future__ import annotations
@@ -36,15 +29,10 @@ class _RowCounter:
 
 
 def sharing_problem(model: Any, eval_env: Any) -> str | None:
-    """Why the episodes of ``eval_env`` cannot become ``model``'s replay rows, or None when they can.
-
-    :param model: the model being trained
-    :param eval_env: one evaluation env, as :func:`~sb3_eps.eps.evaluation.make_eval_env` builds it
-    """
+    """Why the episodes of ``eval_env`` (:func:`~sb3_eps.eps.evaluation.make_eval_env`) cannot become ``model``'s
+    replay rows, or None when they can."""
     if not isinstance(model, MultiAgentOffPolicyAlgorithm):
-        return (
-            f"share_experience writes joint replay rows: it needs IQL, GDQ, QMIX or VDN, not {type(model).__name__}"
-        )
+        return f"share_experience writes joint replay rows: it needs IQL, GDQ, QMIX or VDN, not {type(model).__name__}"
     team_size = int(getattr(eval_env, "team_size", 0))
     if not team_size:
         return (
@@ -71,16 +59,8 @@ def record_mode(model: MultiAgentOffPolicyAlgorithm) -> str:
 
 
 def share_episodes(model: MultiAgentOffPolicyAlgorithm, episodes: Sequence[TeamEpisode | None]) -> int:
-    """Write every tick of ``episodes`` into ``model.replay_buffer`` as the training rollout writes a world's ticks.
-
-    The stored values (GDQ ``global_values="stored"``) come from the model's network now, in one batched pass over
-    all the episodes' ticks. A tick with a non-finite observation or reward is refused as in training: it is not
-    stored, and the unfinished windows across it are dropped.
-
-    :param model: the model whose buffer gets the rows
-    :param episodes: recorded episodes (None entries, the episodes of disqualified individuals, are skipped)
-    :return: the rows written
-    """
+    """Write every tick of ``episodes`` (None entries skipped) into ``model.replay_buffer`` as the training rollout
+    writes a world's ticks, non-finite ticks refused as in training. :return: the rows written"""
     played = [episode for episode in episodes if episode is not None and episode.n_ticks]
     if not played:
         return 0
@@ -91,9 +71,8 @@ def share_episodes(model: MultiAgentOffPolicyAlgorithm, episodes: Sequence[TeamE
     counter = _RowCounter(model.replay_buffer)
     offset = 0
     for episode in played:
-        collector = NStepJointCollector(
-            counter, 1, model.n_steps, model.gamma, model.team_reward_mode  # type: ignore[arg-type]
-        )
+        buffer: Any = counter  # the collector only calls add_row
+        collector = NStepJointCollector(buffer, 1, model.n_steps, model.gamma, model.team_reward_mode)
         for tick in range(episode.n_ticks):
             row = offset + tick
             if not _finite_tick(episode, tick):
@@ -104,16 +83,20 @@ def share_episodes(model: MultiAgentOffPolicyAlgorithm, episodes: Sequence[TeamE
                     stacklevel=2,
                 )
                 continue
-            collector.add(0, _episode_tick(episode, tick, None if values is None else (values[0][row], values[1][row])))
+            collector.add(
+                0, _episode_tick(episode, tick, None if values is None else (values[0][row], values[1][row]))
+            )
         offset += episode.n_ticks
     return counter.n_rows
 
 
 def _episode_tick(episode: TeamEpisode, tick: int, values: tuple[np.ndarray, np.ndarray] | None) -> Any:
-    """Tick ``tick`` of a team-world episode as the bridge would report it (``MultiAgentVecEnv.step_wait``): an agent
-    is done when terminated or truncated (a finished agent's slot is terminated with the world), a truncation counts
-    only without a termination, and the world ends when every agent is done."""
-    terminations, truncations, alive = episode.terminations[tick], episode.truncations[tick], episode.alive[tick]
+    """Tick ``tick`` of a team-world episode as the bridge would report it (``MultiAgentVecEnv.step_wait``)."""
+    terminations, truncations, alive = (
+        episode.terminations[tick],
+        episode.truncations[tick],
+        episode.alive[tick],
+    )
     dones = terminations | truncations
     return joint_tick(
         observations=episode.observations[tick],
