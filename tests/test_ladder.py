@@ -13,14 +13,13 @@ import numpy as np
 import pytest
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.save_util import load_from_zip_file
 
 import envs  # noqa: F401
-from sb3_eps import GDQ, QMIX, learn_ladder, make_vec_env, train
+from sb3_eps import GDQ, QMIX, evaluate_team, learn_ladder, make_vec_env, train
 from sb3_eps.zoo.checkpoint import load_checkpoint, read_checkpoint_meta
 from sb3_eps.zoo.config import config_file, resolve_config
 from sb3_eps.zoo.errors import run_command
-from tests.test_zoo_resume import logged_timesteps, without_wall_time
+from tests.test_zoo_resume import assert_equal_runs
 
 SMALL = {"learning_starts": 50, "batch_size": 8, "buffer_size": 500}
 POOLED = {"net_arch": [16], "global_head": "pooled"}
@@ -111,6 +110,7 @@ ERROR_CASES = [
     ("mlp-head", GOOD_RUNGS, [], ["rung 1", "4 agents per world", "global_head='pooled'"]),
     ("qmix", GOOD_RUNGS, ["--algo", "qmix"], ["rung 1", "QMIX", "--init-from"]),
     ("eps", GOOD_RUNGS + "  callback: sb3_eps.EvolutionCallback\n", ["--algo", "eps_gdq"], ["EPS", "with gdq"]),
+    ("tuning", GOOD_RUNGS, ["-optimize"], ["-optimize", "ladder"]),
     ("flag-format", None, ["--ladder", "MultiRobotNav-4-v0"], ["--ladder", "ENV:TICKS"]),
     ("flag-ticks", None, ["--ladder", "MultiRobotNav-2-v0:-5", "MultiRobotNav-4-v0:10"], ["rung 0", ">= 1"]),
 ]  # fmt: skip
@@ -160,21 +160,12 @@ def the_run(folder: Path) -> Path:
     return path
 
 
-def assert_equal_runs(run: Path, expected: Path) -> None:
-    """Final weights, kept replay buffer (the final checkpoint's), episodes, logged rows and evaluations."""
-    _, want, _ = load_from_zip_file(expected / f"{ENV_ID}.zip")
-    _, got, _ = load_from_zip_file(run / f"{ENV_ID}.zip")
-    for key, value in want["policy"].items():
-        assert th.equal(got["policy"][key], value), key
+def assert_equal_buffers(run: Path, expected: Path) -> None:
+    """The replay buffers that the runs' final checkpoints kept are equal."""
     buffers = [load_checkpoint(path / "checkpoint.zip").training["replay_buffer"] for path in (run, expected)]
     assert buffers[0].size() == buffers[1].size() > 0
     for name in ("observations", "actions", "team_rewards", "next_observations"):
         np.testing.assert_array_equal(getattr(buffers[0], name), getattr(buffers[1], name), err_msg=name)
-    assert without_wall_time(run / "monitor.csv") == without_wall_time(expected / "monitor.csv")
-    assert logged_timesteps(run / "progress.csv") == logged_timesteps(expected / "progress.csv")
-    with np.load(expected / "evaluations.npz") as want_evals, np.load(run / "evaluations.npz") as got_evals:
-        for key in want_evals:
-            np.testing.assert_array_equal(got_evals[key], want_evals[key], err_msg=key)
 
 
 @pytest.fixture(scope="module")
@@ -203,6 +194,28 @@ def test_a_ladder_stopped_by_sigterm_in_rung_two_resumes_to_the_uninterrupted_ru
     assert not (run / f"{ENV_ID}.zip").exists()
 
     assert train.main(["--resume", str(run), "--verbose", "0"]) == 0
-    assert_equal_runs(run, uninterrupted)
+    assert_equal_runs(run, uninterrupted, ENV_ID)  # weights, episodes, logged rows, evaluations
+    assert_equal_buffers(run, uninterrupted)
     with np.load(run / "evaluations.npz") as evaluations:
         assert evaluations["ticks"][-1] == 900 and evaluations["timesteps"][-1] == 300 * 2 + 600 * 4
+
+
+# ---------------------------------------------------------------------------------------------- learning
+RUNG_TICKS = (20_000, 5_000)  # 2 robots, then 4
+EPISODES = 40
+# Greedy team success on the 4-robot world, 40 episodes, GDQ's package defaults with the pooled head, 4 worlds per
+# rung, measured on seeds 220-224 before this test was written (2026-12-03, 2-core VM):
+# MEASURED
+MIN_SUCCESS = THRESHOLD
+
+
+def test_a_two_then_four_robot_ladder_learns_what_the_four_robot_rung_alone_does_not() -> None:
+    th.set_num_threads(1)
+    seed = 220
+    two = make_vec_env("MultiRobotNav-2-v0", n_envs=4, seed=seed)
+    four = make_vec_env("MultiRobotNav-4-v0", n_envs=4, seed=seed + 1)
+    model = GDQ("MlpPolicy", two, seed=seed, policy_kwargs={"global_head": "pooled"})
+    learn_ladder(model, [(two, RUNG_TICKS[0]), (four, RUNG_TICKS[1])])
+    summary = evaluate_team(model, "MultiRobotNav-4-v0", EPISODES, n_envs=4, seed=10_000 + seed)
+    assert model.ticks >= sum(RUNG_TICKS) and model.n_agents == 4
+    assert summary["success_rate"] >= MIN_SUCCESS, summary
