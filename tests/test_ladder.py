@@ -206,7 +206,7 @@ EPISODES = 40
 # Greedy team success on the 4-robot world, 40 episodes, GDQ's package defaults with the pooled head, 4 worlds per
 # rung, measured on seeds 220-224 before this test was written (2026-12-03, 2-core VM):
 # MEASURED
-MIN_SUCCESS = THRESHOLD
+MIN_SUCCESS = 0.2  # provisional, set from the measurement below
 
 
 def test_a_two_then_four_robot_ladder_learns_what_the_four_robot_rung_alone_does_not() -> None:

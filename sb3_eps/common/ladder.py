@@ -148,6 +148,7 @@ def learn_ladder(
     check_ladder(model, checked)
     ends = rung_ends(checked)
     schedules = _WholeLadderSchedules(ladder_timesteps(checked))
+    callbacks: list[Any] = [schedules, *(callback if isinstance(callback, list) else [callback] if callback else [])]
     start = 0 if reset_num_timesteps else rung_at(checked, model.ticks)
     for index in range(start, len(checked)):
         env = checked[index].env
@@ -157,7 +158,6 @@ def learn_ladder(
         remaining = ends[index] - (0 if reset else model.ticks)
         if remaining <= 0:  # the previous rung ended past this one's end (a rollout longer than the rung)
             continue
-        callbacks: list[Any] = [schedules, *(callback if isinstance(callback, list) else [callback] if callback else [])]
         model.learn(
             remaining * model.n_agents,
             callback=callbacks,
