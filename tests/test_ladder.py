@@ -205,8 +205,12 @@ RUNG_TICKS = (20_000, 5_000)  # 2 robots, then 4
 EPISODES = 40
 # Greedy team success on the 4-robot world, 40 episodes, GDQ's package defaults with the pooled head, 4 worlds per
 # rung, measured on seeds 220-224 before this test was written (2026-12-03, 2-core VM):
-# MEASURED
-MIN_SUCCESS = 0.2  # provisional, set from the measurement below
+# the ladder 50 / 40 / 40 / 32.5 / 15 % (seeds 220-224; this test runs seed 220); untrained, 0 % on every seed;
+# the 4-robot rung alone from scratch (the same 5k ticks, a reset policy), 0 % on every seed (2.5 % with 10k ticks on
+# seed 220). The threshold sits between: 5 points (2 episodes) under the weakest seed, 10 points (4 episodes) over
+# the controls; 40 points under this test's seed.
+# This test: 74 s of wall time, 54 s of CPU, on the 2-core VM under a load of about 4.
+MIN_SUCCESS = 0.1
 
 
 def test_a_two_then_four_robot_ladder_learns_what_the_four_robot_rung_alone_does_not() -> None:
