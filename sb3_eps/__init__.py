@@ -2,6 +2,7 @@
 
 from sb3_eps.common.evaluation import evaluate_team
 from sb3_eps.common.export import export_policy
+from sb3_eps.common.ladder import learn_ladder
 from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env
 from sb3_eps.eps import EPSSettings, EvolutionCallback
 from sb3_eps.gdq import GDQ
@@ -20,5 +21,6 @@ __all__ = [
     "__version__",
     "evaluate_team",
     "export_policy",
+    "learn_ladder",
     "make_vec_env",
 ]

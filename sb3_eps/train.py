@@ -5,6 +5,8 @@ Examples::
     python -m sb3_eps.train --algo gdq --env MultiRobotNav-4-v0 -n 400000 --seed 0 -f logs --progress
     python -m sb3_eps.train --algo eps_gdq --env MultiRobotNav-4-v0 --hyperparams learning_rate:lin_1e-3
     python -m sb3_eps.train --resume logs/gdq/MultiRobotNav-4-v0_1
+    python -m sb3_eps.train --algo gdq --ladder MultiRobotNav-4-v0:150000 MultiRobotNav-8-v0:150000 \
+        --hyperparams policy_kwargs.global_head:pooled
     python -m sb3_eps.train --algo gdq --env MultiRobotNav-4-v0 -optimize --n-trials 20 --n-jobs 2
 
 Counts (``-n``, ``--eval-freq``, ``--save-freq``) are SB3 timesteps = agent-steps (ticks x robots), as in
@@ -24,6 +26,7 @@ from sb3_eps.zoo.run_folder import command_line
 from sb3_eps.zoo.schema import ALGORITHMS
 
 PROG = "python -m sb3_eps.train"
+DEFAULT_ENV = "MultiRobotNav-4-v0"
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -32,7 +35,9 @@ def make_parser() -> argparse.ArgumentParser:
         prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--algo", choices=list(ALGORITHMS), default="gdq", help="algorithm (default gdq)")
-    parser.add_argument("--env", default="MultiRobotNav-4-v0", help="env id (default MultiRobotNav-4-v0)")
+    parser.add_argument(
+        "--env", default=None, help=f"env id (default {DEFAULT_ENV}, or the last rung of --ladder)"
+    )
     parser.add_argument(
         "-conf", "--conf-file", default=None, help="config YAML (default zoo_configs/<algo>.yml)"
     )
@@ -74,6 +79,13 @@ def make_parser() -> argparse.ArgumentParser:
         default=[],
         metavar="KEY:VALUE",
         help="config overrides, e.g. learning_rate:1e-4 policy_kwargs.net_arch:[64,64]",
+    )
+    parser.add_argument(
+        "--ladder",
+        nargs="+",
+        default=[],
+        metavar="ENV:TICKS",
+        help="train one model on these worlds in turn, e.g. MultiRobotNav-4-v0:150000 MultiRobotNav-8-v0:150000",
     )
     parser.add_argument(
         "--env-kwargs", nargs="+", default=[], metavar="KEY:VALUE", help="env constructor overrides"
@@ -144,6 +156,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     if args.verbose is None:
         args.verbose = 1
+    if args.ladder:
+        from sb3_eps.zoo.ladder import ladder_option
+
+        args.hyperparams = [*args.hyperparams, ladder_option(args.ladder)]
+    if args.env is None:
+        args.env = args.ladder[-1].rpartition(":")[0] if args.ladder else DEFAULT_ENV
     options = TrainOptions.from_namespace(args)
     options.command = command_line(PROG, sys.argv[1:] if argv is None else argv)
     if args.optimize_hyperparameters:

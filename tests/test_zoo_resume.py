@@ -70,10 +70,10 @@ def worker_processes(parent_pid: int) -> list[int]:
     return found
 
 
-def assert_equal_runs(run: Path, expected: Path) -> None:
+def assert_equal_runs(run: Path, expected: Path, env_id: str = ENV_ID) -> None:
     """Two runs are equal: final weights, episodes (without wall time), logged rows, evaluations."""
-    _, expected_params, _ = load_from_zip_file(expected / f"{ENV_ID}.zip")
-    _, params, _ = load_from_zip_file(run / f"{ENV_ID}.zip")
+    _, expected_params, _ = load_from_zip_file(expected / f"{env_id}.zip")
+    _, params, _ = load_from_zip_file(run / f"{env_id}.zip")
     for key, value in expected_params["policy"].items():
         assert th.equal(params["policy"][key], value), key
     assert without_wall_time(run / "monitor.csv") == without_wall_time(expected / "monitor.csv")

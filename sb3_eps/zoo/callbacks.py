@@ -332,6 +332,7 @@ class TrainingStateCallback(BaseCallback):
     :param verbose: 1 prints a line per checkpoint
     :param snapshot_dir: where each periodic checkpoint also writes the model alone (RL Zoo's
         ``rl_model_<timesteps>_steps.zip``); None: nowhere
+    :param extra_meta: returns more facts for ``meta.json`` at each checkpoint (a ladder's rung and its progress)
     """
 
     def __init__(
@@ -343,8 +344,10 @@ class TrainingStateCallback(BaseCallback):
         restore: dict[str, Any] | None = None,
         verbose: int = 0,
         snapshot_dir: str | Path | None = None,
+        extra_meta: Callable[[], dict[str, Any]] | None = None,
     ) -> None:
         super().__init__(verbose=verbose)
+        self.extra_meta = extra_meta
         self.path = Path(path)
         self.snapshot_dir = None if snapshot_dir is None else Path(snapshot_dir)
         self.save_freq = int(save_freq)
@@ -404,6 +407,7 @@ class TrainingStateCallback(BaseCallback):
             "complete": complete,
             "algorithm": type(self.model).__name__,
             "time": time.strftime("%Y-%m-%d %H:%M:%S"),
+            **(self.extra_meta() if self.extra_meta is not None else {}),
         }
         try:
             save_checkpoint(self.path, self.model, states, meta)  # type: ignore[arg-type]

@@ -25,6 +25,7 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList, Progr
 from stable_baselines3.common.logger import HumanOutputFormat, KVWriter, Logger, TensorBoardOutputFormat
 from stable_baselines3.common.save_util import load_from_zip_file
 
+from sb3_eps.common.ladder import Rung, learn_ladder, rung_at
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.subproc_vec_env import VecEnvWorkerError, overlap_layout
 from sb3_eps.common.utils import describe_space
@@ -64,6 +65,7 @@ from sb3_eps.zoo.config import (
 )
 from sb3_eps.zoo.errors import ConfigError, RunFailed
 from sb3_eps.zoo.evaluation import check_spaces
+from sb3_eps.zoo.ladder import LADDER_KEY, build_rungs, check_ladder_run, check_rungs, ladder_progress
 from sb3_eps.zoo.schema import algorithm_kwargs, algorithm_spec, build_callbacks, check_complete
 
 #: The evaluation worlds are seeded ``seed + EVAL_SEED_OFFSET``: other worlds than the training ones.
@@ -192,12 +194,18 @@ class PreparedRun:
     eval_env: MultiAgentVecEnv | None
     model: MultiAgentOffPolicyAlgorithm
     user_callbacks: list[tuple[str, BaseCallback]]
+    # a ladder run's worlds (sb3_eps.zoo.ladder), the first is env
+    rungs: list[Rung] = field(default_factory=list)
 
     def close(self) -> None:
         """Close the envs."""
-        self.env.close()
-        if self.eval_env is not None:
-            self.eval_env.close()
+        close_envs([self.env, self.eval_env, *(rung.env for rung in self.rungs)])
+
+
+def close_envs(vec_envs: Sequence[Any]) -> None:
+    """Close each of ``vec_envs`` once (None and repeats skipped)."""
+    for vec_env in {id(vec_env): vec_env for vec_env in vec_envs if vec_env is not None}.values():
+        vec_env.close()
 
 
 def env_kwargs_of(config: ResolvedConfig) -> dict[str, Any]:
@@ -338,20 +346,33 @@ def prepare_run(
         config = resolve_config(
             options.algo, options.env, options.conf_file, hyperparams, options.n_timesteps
         )
+        if LADDER_KEY in config.entry:
+            check_ladder_run(config.entry, config.env_id, options.n_timesteps, options.algo, config.source)
     eval_env_id = options.eval_env or config.env_id
     check_env_id(eval_env_id, "--eval-env")
     if options.seed is None:
         options.seed = random.SystemRandom().randrange(2**31 - 1)
     if options.num_threads > 0:
         th.set_num_threads(options.num_threads)
-    env = build_env(config, options.seed, vec_env=options.vec_env)
+    ladder = config.entry.get(LADDER_KEY)
+    env = build_env(config, options.seed, ladder[0]["env"] if ladder else None, vec_env=options.vec_env)
     model: Any = None
     eval_env = None
+    rungs: list[Rung] = []
     try:
+        if ladder:
+            rungs = build_rungs(
+                config.entry,
+                env,
+                options.seed,
+                lambda env_id, seed: build_env(config, seed, env_id, vec_env=options.vec_env),
+            )
         if build_model_now:
             model = build_model(config, env, options.seed, options.device, options.verbose)
             if options.init_from is not None:
                 load_agent_weights(model, options.init_from)
+            if ladder:
+                config.entry["n_timesteps"] = check_rungs(model, rungs, config.source)
         if options.eval_freq > 0:
             eval_env = build_env(
                 config, options.seed + EVAL_SEED_OFFSET, eval_env_id, options.n_eval_envs, options.vec_env
@@ -361,11 +382,9 @@ def prepare_run(
         user_callbacks = build_callbacks(config.entry, config.env_id, options.verbose, config.source)
         check_callback_worlds(user_callbacks, env, config.source)
     except BaseException:
-        env.close()
-        if eval_env is not None:
-            eval_env.close()
+        close_envs([env, eval_env, *(rung.env for rung in rungs)])
         raise
-    return PreparedRun(options, config, env, eval_env, model, user_callbacks)
+    return PreparedRun(options, config, env, eval_env, model, user_callbacks, rungs)
 
 
 # ---------------------------------------------------------------------------------------------- run folders
@@ -488,12 +507,16 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
         )
     prepared = prepare_run(options, config, build_model_now=False)
     try:
-        prepared.env.close()  # the training worlds come back from the checkpoint, mid-episode
         try:
             checkpoint = load_checkpoint(checkpoint_path)
         except CorruptCheckpoint as error:
             raise ConfigError(f"--resume: {error}") from None
+        # The training worlds come back from the checkpoint, mid-episode (a ladder's: those of its rung).
+        rung = resumed_rung(prepared, checkpoint.meta, checkpoint_path)
+        close_envs([prepared.rungs[rung].env if prepared.rungs else prepared.env])
         prepared.env = checkpoint.training["env"]
+        if prepared.rungs:
+            prepared.rungs[rung] = Rung(prepared.env, prepared.rungs[rung].ticks)
         prepared.model = restore_model(checkpoint, spec.algorithm_class, options.device)
         prepared.model.verbose = options.verbose
         restore = {
@@ -510,6 +533,22 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
         return _run(prepared, run_dir, restore)
     finally:
         prepared.close()
+
+
+def resumed_rung(prepared: PreparedRun, meta: dict[str, Any], checkpoint_path: Path) -> int:
+    """:return: the ladder rung a checkpoint was taken in (0 without a ladder).
+
+    :raises ConfigError: when the run's ladder puts its ticks in another rung than the checkpoint records
+    """
+    if not prepared.rungs:
+        return 0
+    rung = rung_at(prepared.rungs, int(meta["ticks"]))
+    if meta.get("rung") != rung:
+        raise ConfigError(
+            f"--resume: {checkpoint_path} was taken in ladder rung {meta.get('rung')}, but the run's config.yml puts "
+            f"its {meta['ticks']} ticks in rung {rung}: the run folder was mixed with another one"
+        )
+    return rung
 
 
 def _run(
@@ -548,6 +587,7 @@ def _run(
     for index, (name, callback) in enumerate(prepared.user_callbacks):
         callbacks.append(callback)
         stateful[f"{index}:{name}"] = callback
+    rungs = prepared.rungs
     checkpoint = TrainingStateCallback(
         run_dir / CHECKPOINT_NAME,
         options.save_freq,
@@ -556,6 +596,7 @@ def _run(
         restore,
         options.verbose,
         snapshot_dir=run_dir,
+        extra_meta=(lambda: ladder_progress(rungs, model.ticks)) if rungs else None,
     )
     if options.progress:
         callbacks.append(ProgressBarCallback())
@@ -571,12 +612,16 @@ def _run(
     # The signal handlers stay until the final model is written: a signal after learn() only lets it finish.
     with stop_on_signals(checkpoint):
         try:
-            model.learn(
-                total - model.num_timesteps,
-                callback=callback_list,
-                log_interval=options.log_interval if options.log_interval > 0 else 4,
-                reset_num_timesteps=restore is None,
-            )
+            log_interval = options.log_interval if options.log_interval > 0 else 4
+            if rungs:
+                learn_ladder(model, rungs, callback_list, log_interval, reset_num_timesteps=restore is None)
+            else:
+                model.learn(
+                    total - model.num_timesteps,
+                    callback=callback_list,
+                    log_interval=log_interval,
+                    reset_num_timesteps=restore is None,
+                )
         except VecEnvWorkerError as error:
             kept = (
                 f"its last checkpoint ({checkpoint.saved_at} timesteps) is kept: continue with "

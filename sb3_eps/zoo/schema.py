@@ -1,8 +1,8 @@
 """The schema of a config entry: which keys exist, what each may hold, and how an entry becomes objects.
 
 An entry (one env id of a ``zoo_configs/<algo>.yml`` file, ``docs/usage.md``) holds run keys (:data:`RUN_PARAMS`,
-``callback``) and the algorithm's constructor arguments, ``policy_kwargs`` among them, read from the signatures;
-an unknown key is an error that lists the allowed ones. :func:`normalize_entry` returns an entry in canonical form
+``callback``, ``ladder``: :mod:`sb3_eps.zoo.ladder`) and the algorithm's constructor arguments, ``policy_kwargs``
+among them, read from the signatures; an unknown key is an error that lists the allowed ones. :func:`normalize_entry` returns an entry in canonical form
 (plain YAML data, what ``config.yml`` holds); :func:`algorithm_kwargs` and :func:`build_callbacks` make objects
 of it.
 """
@@ -34,6 +34,7 @@ from sb3_eps.gdq import GDQ
 from sb3_eps.iql import IQL
 from sb3_eps.qmix import QMIX, VDN
 from sb3_eps.zoo.errors import ConfigError, allowed
+from sb3_eps.zoo.ladder import LADDER_KEY, normalize_ladder
 from sb3_eps.zoo.literal import parse_literal
 
 # ---------------------------------------------------------------------------------------------- allow-lists
@@ -429,7 +430,7 @@ def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, An
         raise ConfigError(
             f"{where}: an entry must be a mapping of keys to values, got {type(entry).__name__}"
         )
-    keys = [*RUN_PARAMS, *spec.params, POLICY_KWARGS_KEY, CALLBACK_KEY]
+    keys = [*RUN_PARAMS, *spec.params, POLICY_KWARGS_KEY, CALLBACK_KEY, LADDER_KEY]
     for key in entry:
         if key not in keys:
             raise ConfigError(f"{where}: unknown key {key!r}; allowed keys: {allowed(keys)}")
@@ -444,6 +445,8 @@ def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, An
             result[key] = normalize_callbacks(value, f"{where}: callback")
         elif key == POLICY_KWARGS_KEY:
             result[key] = normalize_policy_kwargs(value, spec, f"{where}: policy_kwargs")
+        elif key == LADDER_KEY:
+            result[key] = normalize_ladder(value, f"{where}: ladder")
         else:
             param = RUN_PARAMS.get(key) or spec.params[key]
             result[key] = normalize_value(value, param, f"{where}: {key}")
@@ -456,7 +459,7 @@ def check_complete(entry: Mapping[str, Any], spec: AlgorithmSpec, where: str) ->
     :raises ConfigError: when ``n_timesteps`` is missing, or an ``eps_*`` algorithm has no ``EvolutionCallback``
         (or another algorithm has one)
     """
-    if "n_timesteps" not in entry:
+    if "n_timesteps" not in entry and LADDER_KEY not in entry:  # a ladder's total is its rungs
         raise ConfigError(f"{where}: n_timesteps is missing; give it in the entry, its default, or with -n")
     names = [next(iter(item)) for item in entry.get(CALLBACK_KEY, [])]
     if spec.eps and EVOLUTION_CALLBACK not in names:
@@ -687,7 +690,7 @@ def with_package_defaults(entry: Mapping[str, Any], spec: AlgorithmSpec) -> dict
     defaults = package_defaults(spec)
     merged = {**defaults, **entry}
     merged[POLICY_KWARGS_KEY] = {**defaults[POLICY_KWARGS_KEY], **entry.get(POLICY_KWARGS_KEY, {})}
-    order = [*RUN_PARAMS, *spec.params, POLICY_KWARGS_KEY, CALLBACK_KEY]
+    order = [*RUN_PARAMS, *spec.params, POLICY_KWARGS_KEY, CALLBACK_KEY, LADDER_KEY]
     return {key: merged[key] for key in order if key in merged}
 
 
@@ -732,7 +735,7 @@ def algorithm_kwargs(entry: Mapping[str, Any]) -> dict[str, Any]:
     """
     kwargs: dict[str, Any] = {}
     for key, value in entry.items():
-        if key in RUN_PARAMS or key in (POLICY_KWARGS_KEY, CALLBACK_KEY):
+        if key in RUN_PARAMS or key in (POLICY_KWARGS_KEY, CALLBACK_KEY, LADDER_KEY):
             continue
         if key == "learning_rate" and isinstance(value, str):
             # RL Zoo's lin_<x>: x at the start, decreasing linearly to 0 at the end of training.

@@ -389,6 +389,10 @@ def tune(options: TrainOptions, tuning: TuningOptions) -> Path:
     check_env_id(options.env)
     hyperparams = [*options.hyperparams, *(f"env_kwargs.{item}" for item in options.env_kwargs)]
     config = resolve_config(options.algo, options.env, options.conf_file, hyperparams, options.n_timesteps)
+    if "ladder" in config.entry:
+        raise ConfigError(
+            f"-optimize tunes on one world; {config.source} has a ladder: tune its last rung's world"
+        )
     if tuning.eps_only and not config.spec.eps:
         raise ConfigError(
             f"--eps-only searches the EPS arguments: {options.algo} has none; use eps_{options.algo}"
