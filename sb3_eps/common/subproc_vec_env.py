@@ -472,9 +472,8 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
     def _join(self, parts: list[np.ndarray]) -> np.ndarray:
         if len(parts) > 1:
             return np.concatenate(parts)
-        return (
-            parts[0] if parts[0].flags.writeable else parts[0].copy()
-        )  # a step reply's arrays are read-only
+        # a step reply's arrays are read-only
+        return parts[0] if parts[0].flags.writeable else parts[0].copy()
 
     def _join_states(self, parts: list[np.ndarray | None]) -> np.ndarray | None:
         return None if any(part is None for part in parts) else self._join(parts)  # type: ignore[arg-type]

@@ -70,9 +70,8 @@ class EPSRound:
         theta = network_parameters(q_net)  # line 5: the copies of theta^e
         observations = self.visited_observations(None)
         assert observations is not None
-        sensitivities = (
-            self._sensitivities(q_net, observations) if settings.mutation == "safe" else None
-        )  # 7-8
+        # lines 7-8
+        sensitivities = self._sensitivities(q_net, observations) if settings.mutation == "safe" else None
         directions = mutation_directions(  # lines 6 and 9 at unit scale: G ~ N(0, 1), G / omega
             theta,
             settings.population_size,

@@ -232,9 +232,8 @@ def build_env(
         mode = vec_env_mode(vec_env or config.entry.get("vec_env"))
         vec_env_kwargs = None
         if mode == "subproc" and n_envs is None and config.entry.get("overlap_training"):
-            vec_env_kwargs = overlap_layout(
-                n_worlds
-            )  # the training worlds: the main process learns beside them
+            # the training worlds: the main process learns beside them
+            vec_env_kwargs = overlap_layout(n_worlds)
         return make_vec_env(
             env_id, n_envs=n_worlds, seed=seed, env_kwargs=env_kwargs_of(config), vec_env_cls=mode,
             vec_env_kwargs=vec_env_kwargs,
