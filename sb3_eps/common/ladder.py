@@ -106,9 +106,10 @@ def check_ladder(model: MultiAgentOffPolicyAlgorithm, rungs: Sequence[Rung]) -> 
             )
 
 
-class _WholeLadderSchedules(BaseCallback):
-    """Points SB3's progress (``_total_timesteps``, which ``_current_progress_remaining`` counts down to) at the
-    ladder's end instead of the rung's, so the schedules run once over the ladder."""
+class ScheduleHorizon(BaseCallback):
+    """Points SB3's progress (``_total_timesteps``, which ``_current_progress_remaining`` counts down to) at
+    ``total_timesteps`` instead of the ``learn`` call's own end, so the schedules (learning rate, exploration, PER)
+    run once over a run made of several calls: a ladder's rungs, a population learner's turns."""
 
     def __init__(self, total_timesteps: int) -> None:
         super().__init__()
@@ -147,7 +148,7 @@ def learn_ladder(
     checked = as_rungs(rungs)
     check_ladder(model, checked)
     ends = rung_ends(checked)
-    schedules = _WholeLadderSchedules(ladder_timesteps(checked))
+    schedules = ScheduleHorizon(ladder_timesteps(checked))
     callbacks: list[Any] = [
         schedules,
         *(callback if isinstance(callback, list) else [callback] if callback else []),

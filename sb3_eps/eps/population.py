@@ -24,10 +24,10 @@ from typing import Any
 
 import numpy as np
 import torch as th
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.utils import FloatSchedule, LinearSchedule
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_eps.common.ladder import ScheduleHorizon
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.snapshots import rng_states, set_rng_states, snapshot_dumps
 from sb3_eps.eps.callback import VALUE_STREAM
@@ -44,6 +44,7 @@ from sb3_eps.eps.mutations import (
     population_outputs,
 )
 from sb3_eps.eps.round import sample_visited_observations
+from sb3_eps.eps.settings import DEFAULT_SIGMA, EPSSettings
 
 FITNESS_KINDS = ("success", "return")
 CROSSOVERS = ("copy", "distill")
@@ -52,8 +53,9 @@ PERTURBABLE = ("learning_rate", "exploration_final_eps")
 #: Visited states of Eq. 6 and of the mutation's calibration; replay states per parent of a distillation.
 SENSITIVITY_BATCH_SIZE = 128
 DISTILLATION_STATES = 512
-#: EPS's defaults for the safe step (EPSSettings: sensitivity_floor, max_step, the mutation's first scale).
-SENSITIVITY_FLOOR, MAX_STEP, INITIAL_SCALE = 0.01, 0.2, 0.001
+#: The safe step of EPS's defaults (sensitivity floor, per-weight clip, the calibration's first scale).
+_SAFE = EPSSettings()
+INITIAL_SCALE = DEFAULT_SIGMA["safe"]
 
 
 class ScaledSchedule:
@@ -71,21 +73,6 @@ class ScaledSchedule:
 
     def __repr__(self) -> str:
         return f"ScaledSchedule({self.schedule}, {self.factor:g})"
-
-
-class _RunHorizon(BaseCallback):
-    """Gives a learner's turn the schedules of its whole share of the run: SB3's ``learn`` sets the horizon of the
-    exploration, learning-rate and PER schedules to the call's own steps, and a turn is a short call."""
-
-    def __init__(self, total_timesteps: int) -> None:
-        super().__init__()
-        self.total_timesteps = total_timesteps
-
-    def _on_training_start(self) -> None:
-        self.model._total_timesteps = self.total_timesteps
-
-    def _on_step(self) -> bool:
-        return True
 
 
 class PopulationTrainer:
@@ -170,9 +157,8 @@ class PopulationTrainer:
         self.history: list[dict[str, Any]] = []
         self.last_selection_ticks = 0
         self.next_learner = 0
-        self.scale: float | None = (
-            None  # the last calibrated mutation scale: the next calibration starts there
-        )
+        # the last calibrated mutation scale: the next calibration starts there
+        self.scale: float | None = None
         self.interrupted = False
         self._stop_requested = False
         self.learners: list[MultiAgentOffPolicyAlgorithm] = []
@@ -229,7 +215,7 @@ class PopulationTrainer:
                 learner = self.learners[self.next_learner]
                 remaining = share - learner.ticks
                 if remaining > 0:
-                    horizon = _RunHorizon(share * learner.n_agents)
+                    horizon = ScheduleHorizon(share * learner.n_agents)
                     turn = min(self.settings["turn_ticks"], remaining) * learner.n_agents
                     learner.learn(turn, callback=horizon, reset_num_timesteps=False)
                 self.next_learner = (self.next_learner + 1) % self.settings["k"]
@@ -345,16 +331,21 @@ class PopulationTrainer:
         frozen = [VALUE_STREAM] if any(name.startswith(f"{VALUE_STREAM}.") for name in theta) else []
         sensitivity = output_sensitivity(q_net, observations)
         directions = mutation_directions(
-            theta, 1, self.generator, [sensitivity], SENSITIVITY_FLOOR, evolved_parameter_names(q_net, frozen)
+            theta,
+            1,
+            self.generator,
+            [sensitivity],
+            _SAFE.sensitivity_floor,
+            evolved_parameter_names(q_net, frozen),
         )
 
         def flip_share_at(scale: float) -> float:
-            population = population_from_directions(theta, directions, scale, MAX_STEP)
+            population = population_from_directions(theta, directions, scale, _SAFE.max_step)
             return float(policy_change(population_outputs(q_net, population, observations))[0][1])
 
         target_share = self.settings["target_flip_share"]
         self.scale, share = calibrate_scale(flip_share_at, target_share, self.scale or INITIAL_SCALE)
-        mutant = individual(population_from_directions(theta, directions, self.scale, MAX_STEP), 1)
+        mutant = individual(population_from_directions(theta, directions, self.scale, _SAFE.max_step), 1)
         target = learner.policy.q_net_target
         with th.no_grad():
             for name, param in q_net.named_parameters():
