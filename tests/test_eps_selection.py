@@ -451,6 +451,8 @@ def test_the_pillars_world_has_robot_sized_obstacles_and_the_training_spaces() -
         ({"frozen_groups": "value_stream"}, "frozen_groups"),
         ({"alpha_schedule": "cosine"}, "alpha_schedule"),
         ({"max_eps_share": 0.0}, "max_eps_share"),
+        ({"rounds_until": 0}, "rounds_until"),
+        ({"rounds_until": 2.5}, "rounds_until"),
         ({"n_team_check_episodes": -2}, "n_team_check_episodes"),
     ],
 )
@@ -513,3 +515,18 @@ def test_a_run_whose_budget_allows_no_round_warns_once() -> None:
         budgeted = new_callback(max_eps_share=0.1, period=2)
         tiny_model(IQL).learn(6000, callback=budgeted)  # 2,000 ticks: a round fits after 1,500
     assert budgeted.n_rounds >= 1 and not [warning for warning in caught if "no EPS round" in str(warning.message)]
+
+
+def test_rounds_until_keeps_rounds_early() -> None:
+    """Rounds every 50 ticks; with ``rounds_until=150`` none starts after 150 training ticks, and a run continued
+    past it plays none and says so once."""
+    model = tiny_model(IQL)
+    early = new_callback(period=50, rounds_until=150)
+    model.learn(1200, callback=early)  # 400 ticks of three agents
+    assert early.n_rounds >= 1
+    assert all(record["model_ticks"] <= 150 + 25 for record in early.history)  # a round starts at a rollout end
+    unbounded = new_callback(period=50)
+    tiny_model(IQL).learn(1200, callback=unbounded)
+    assert max(record["model_ticks"] for record in unbounded.history) > 175
+    with pytest.warns(UserWarning, match=r"rounds_until=150 ticks is not after this run's start"):
+        model.learn(300, callback=early, reset_num_timesteps=False)

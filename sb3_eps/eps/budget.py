@@ -41,8 +41,11 @@ class RoundBudget:
             self.last_round_mark = self.progress(model)
 
     def due(self, model: Any) -> bool:
-        """:return: whether ``period`` units have passed since the previous round."""
+        """:return: whether ``period`` units have passed since the previous round (and ``rounds_until`` has not)."""
         assert self.last_round_mark is not None
+        until = self.settings.rounds_until
+        if until is not None and model_ticks(model) > until:
+            return False
         return self.progress(model) - self.last_round_mark >= self.settings.period
 
     def mark(self, model: Any) -> None:
@@ -81,6 +84,8 @@ class RoundBudget:
         """:return: why no round can play between ``start_ticks`` and ``end_ticks`` training ticks (None when one
         can): the tick budget never covers a round's expected cost, or a period in ticks is longer than the run."""
         settings = self.settings
+        if settings.rounds_until is not None and start_ticks >= settings.rounds_until:
+            return f"rounds_until={settings.rounds_until} ticks is not after this run's start ({start_ticks} ticks)"
         if settings.period_unit == "ticks" and self.last_round_mark is not None:
             if end_ticks - self.last_round_mark < settings.period:
                 return (

@@ -40,6 +40,7 @@ PAPER_SETTINGS: dict[str, Any] = {
     "min_gain": 0.0,
     "n_reevaluation_episodes": 0,
     "max_eps_share": None,
+    "rounds_until": None,
     "eval_env_kwargs": {},
 }
 #: The evaluation world's options when ``eval_env_kwargs`` is None, by evaluation env id: the default EPS world
@@ -112,6 +113,8 @@ class EPSSettings:
     :param max_eps_share: a round starts only if the EPS ticks so far plus its expected cost stay within this share
         of the training ticks; None: no budget. A run too short for one round warns once
         (:class:`~sb3_eps.eps.budget.RoundBudget`)
+    :param rounds_until: no round starts after this many training world ticks (``model.ticks``): early rounds only,
+        while single-robot skill lags the team's (``docs/results/eps.md``); None: rounds all run long
     :param sensitivity_batch_size: ``|b|``, visited observations sampled from the replay buffer for Eq. 6
     :param sensitivity_floor: lower bound on the sensitivity ``omega`` (Lehman et al.'s reference implementation)
     :param max_step: per-weight clip on the safe mutation's step (Lehman et al.); ``float("inf")`` disables it
@@ -149,6 +152,7 @@ class EPSSettings:
     min_gain: float = 0.05
     n_reevaluation_episodes: int = 8
     max_eps_share: float | None = 0.1
+    rounds_until: int | None = None
     sensitivity_batch_size: int = 128
     sensitivity_floor: float = 0.01
     max_step: float = 0.2
@@ -252,6 +256,9 @@ def _check(settings: EPSSettings) -> None:
         )
     if not np.isfinite(values["min_gain"]) or values["min_gain"] < 0:
         raise ValueError(f"min_gain must be a finite number >= 0, got {values['min_gain']!r}")
+    until = values["rounds_until"]
+    if until is not None and (isinstance(until, bool) or not isinstance(until, int) or until < 1):
+        raise ValueError(f"rounds_until must be None or an int >= 1 (training world ticks), got {until!r}")
     max_share = values["max_eps_share"]
     if max_share is not None and not max_share > 0:
         raise ValueError(f"max_eps_share must be > 0 or None (no budget), got {max_share!r}")
