@@ -1,11 +1,13 @@
 """The README's main job (``make run``): train EPS-GDQ on ``MultiRobotNav-4-v0`` with ``zoo_configs/eps_gdq.yml``
 for 800,000 timesteps (200,000 ticks), then draw its learning curve and its greedy evaluations beside the committed
-5-seed curves of GDQ and EPS-GDQ (:data:`REFERENCES`) and print where everything is. SIGINT / SIGTERM stop it with a
+5-seed curves of GDQ and EPS-GDQ (:data:`REFERENCES`), print where everything is, and end with one line on what the
+committed records say of EPS-GDQ against GDQ on this world (:func:`reference_summary`). SIGINT / SIGTERM stop it with a
 checkpoint; ``python -m sb3_eps.train --resume <run folder>`` continues it.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -27,6 +29,20 @@ REFERENCES = {
     "GDQ, seeds 0-4": "docs/results/baselines/gdq4_lambda_report",
     "EPS-GDQ, seeds 0-4": "docs/results/eps/eps_gdq4_lambda",
 }
+#: Committed (GDQ, EPS-GDQ) record folders of the package defaults on this world at equal total world ticks
+#: (training plus EPS ticks): the report seeds of :data:`REFERENCES` and five held-out seeds, paired seed by seed.
+#: Both arms ran GDQ with prioritized replay, its default when they were measured.
+PAIRED_REFERENCES = (
+    tuple(REFERENCES.values()),
+    (
+        "docs/results/baselines/gdq4_lambda_changes_heldout/defaults",
+        "docs/results/eps/eps_gdq4_pairs_heldout",
+    ),
+)
+#: Total world ticks the pairs are compared at, their evaluation spacing, and how many last evaluations make a score.
+REFERENCE_BUDGET = 150_000
+REFERENCE_EVAL_EVERY = 10_000
+REFERENCE_LAST = 3
 
 
 def reference_curves(root: Path | None = None) -> list[RunCurve]:
@@ -40,6 +56,58 @@ def reference_curves(root: Path | None = None) -> list[RunCurve]:
         if (root / folder).is_dir():
             curves.extend(curve for curve in record_curves([root / folder], label) if curve.env_id == ENV_ID)
     return curves
+
+
+def reference_scores(folder: Path) -> dict[int, float]:
+    """:return: seed -> mean greedy team success of the last :data:`REFERENCE_LAST` evaluations scheduled at or
+    before :data:`REFERENCE_BUDGET` total ticks (an evaluation a round carried past its point counts for that
+    point), from the records in ``folder``."""
+    from sb3_eps.zoo.plotting import RECORD_FILE, record_curves
+
+    scores = {}
+    for curve in record_curves([folder]):
+        within = curve.x // REFERENCE_EVAL_EVERY * REFERENCE_EVAL_EVERY <= REFERENCE_BUDGET
+        seed = int(RECORD_FILE.match(curve.run_dir.name)["seed"])
+        scores[seed] = float(curve.values["success"][within][-REFERENCE_LAST:].mean())
+    return scores
+
+
+def reference_difference(root: Path | None = None) -> dict[str, float] | None:
+    """The seed-by-seed difference EPS-GDQ minus GDQ over :data:`PAIRED_REFERENCES` under ``root`` (default: the
+    repository).
+
+    :return: ``mean`` and ``sem`` (points of team success), ``n`` (pairs), ``ahead`` (pairs EPS-GDQ leads); None where
+        the records are not there (an installed package)
+    """
+    root = Path(__file__).resolve().parents[1] if root is None else root
+    differences = []
+    for base, eps in PAIRED_REFERENCES:
+        if not ((root / base).is_dir() and (root / eps).is_dir()):
+            return None
+        base_scores, eps_scores = reference_scores(root / base), reference_scores(root / eps)
+        differences += [
+            100 * (eps_scores[seed] - base_scores[seed])
+            for seed in sorted(set(base_scores) & set(eps_scores))
+        ]
+    if len(differences) < 2:
+        return None
+    mean = sum(differences) / len(differences)
+    sd = math.sqrt(sum((d - mean) ** 2 for d in differences) / (len(differences) - 1))
+    ahead = sum(d > 0 for d in differences)
+    return {"mean": mean, "sem": sd / math.sqrt(len(differences)), "n": len(differences), "ahead": ahead}
+
+
+def reference_summary(difference: dict[str, float]) -> str:
+    """:return: the main job's summary line: the measured difference of EPS-GDQ from GDQ and whether EPS helps on
+    this world (ahead by more than two standard errors), from :func:`reference_difference`."""
+    helps = difference["mean"] - 2 * difference["sem"] > 0
+    verdict = "EPS-GDQ is ahead of GDQ on 4 robots" if helps else "EPS has not been found to help on 4 robots"
+    return (
+        f"EPS-GDQ against GDQ, committed records (GDQ with prioritized replay) at {REFERENCE_BUDGET // 1000}k total "
+        "world ticks: "
+        f"{difference['mean']:+.1f} points of greedy team success (SE {difference['sem']:.1f}, "
+        f"{difference['n']} paired seeds, EPS-GDQ ahead on {difference['ahead']}): {verdict} (docs/results/eps.md)."
+    )
 
 
 def main_algorithm() -> str:
@@ -114,6 +182,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(
         f"Evaluate it:     python -m sb3_eps.evaluate --run {run_dir} --eval-env MultiRobotNavUnseen-4-v0 -n 100"
     )
+    difference = reference_difference()
+    if difference is not None:
+        print(reference_summary(difference))
     return 0
 
 
