@@ -100,7 +100,7 @@ VARIANTS: tuple[Variant, ...] = (
             (f"{EPS}/eps_gdq4_lambda", f"{EPS}/eps_gdq4_pairs_heldout"), 150_000, section="4-robots"),
     Variant("EPS-GDQ, package defaults, held-out seeds", GDQ_PAPER, (f"{BASELINES}/gdq4_lambda_ho/gdq",),
             (f"{EPS}/eps_gdq4_ho138",), 150_000, section="4-robots"),
-    Variant("EPS-IQL, package defaults", "IQL", (f"{BASELINES}/iql4_final",), (f"{EPS}/eps_iql4",), 100_000,
+    Variant("EPS-IQL, package defaults, schedules over the nominal budget", "IQL", (f"{BASELINES}/iql4_final",), (f"{EPS}/eps_iql4",), 100_000,
             section="4-robots"),
     Variant("EPS-IQL, package defaults, schedules ending with the budget", "IQL", (f"{BASELINES}/iql4_final",),
             (f"{EPS}/eps_iql4_budget",), 100_000, section="4-robots"),
@@ -216,10 +216,14 @@ def paper_algorithm_row(root: Path = ROOT) -> Row:
 
 
 def seeds_text(seeds: Sequence[int]) -> str:
-    """:return: ``0-4`` for a run of consecutive seeds, else the seeds joined by commas."""
-    if len(seeds) > 2 and list(seeds) == list(range(seeds[0], seeds[-1] + 1)):
-        return f"{seeds[0]}-{seeds[-1]}"
-    return ", ".join(map(str, seeds))
+    """:return: the seeds with runs of three or more consecutive ones joined by a dash: ``0-4, 146-150``."""
+    runs: list[list[int]] = []
+    for seed in seeds:
+        if runs and seed == runs[-1][-1] + 1:
+            runs[-1].append(seed)
+        else:
+            runs.append([seed])
+    return ", ".join(f"{r[0]}-{r[-1]}" if len(r) > 2 else ", ".join(map(str, r)) for r in runs)
 
 
 def difference_text(pairs: dict[str, float]) -> str:
@@ -260,7 +264,7 @@ def search_summary(study: str, algo: str) -> str:
         f"{algo}: {len(trials)} complete trials on seeds 110, 111; the base (trials without a round) scores "
         f"{base:.1f}, the best trial {scores.max():.1f} ({scores.max() - base:+.1f} points, selected among "
         f"{len(trials)}), the median {np.median(scores):.1f}; {len(no_round)} trials never ran a round; "
-        f"{rounds} rounds ({crossovers} crossovers) in the {len(recorded)} trials that recorded them."
+        f"{rounds} rounds with {crossovers} crossover(s) in the {len(recorded)} trials that recorded them."
     )
 
 
