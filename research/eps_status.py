@@ -74,6 +74,14 @@ class Variant:
 
 GDQ_PAPER = "GDQ, paper's target"
 GDQ_LAMBDA = "GDQ-lambda 0.1"
+
+
+def team_world_screen(name: str, folder: str) -> Variant:
+    """:return: a 2-seed screen of ``docs/results/eps/screens/<folder>`` against the screens' GDQ runs (4 robots)."""
+    return Variant(name, GDQ_PAPER, (f"{EPS}/screens/gdq4_screen",), (f"{EPS}/screens/{folder}",), 150_000,
+                   section="team-world")  # fmt: skip
+
+
 #: Every EPS variant with committed records of both arms, in the order of the page's table.
 VARIANTS: tuple[Variant, ...] = (
     # 2 robots
@@ -100,23 +108,18 @@ VARIANTS: tuple[Variant, ...] = (
             (f"{EPS}/eps_gdq4_lambda", f"{EPS}/eps_gdq4_pairs_heldout"), 150_000, section="4-robots"),
     Variant("EPS-GDQ, package defaults, held-out seeds", GDQ_PAPER, (f"{BASELINES}/gdq4_lambda_ho/gdq",),
             (f"{EPS}/eps_gdq4_ho138",), 150_000, section="4-robots"),
-    Variant("EPS-IQL, package defaults, schedules over the nominal budget", "IQL", (f"{BASELINES}/iql4_final",), (f"{EPS}/eps_iql4",), 100_000,
-            section="4-robots"),
+    Variant("EPS-IQL, package defaults, schedules over the nominal budget", "IQL", (f"{BASELINES}/iql4_final",),
+            (f"{EPS}/eps_iql4",), 100_000, section="4-robots"),
     Variant("EPS-IQL, package defaults, schedules ending with the budget", "IQL", (f"{BASELINES}/iql4_final",),
             (f"{EPS}/eps_iql4_budget",), 100_000, section="4-robots"),
     # team worlds for fitness and shared experience, 4 robots
-    Variant("EPS-GDQ, 4-robot team world", GDQ_PAPER, (f"{EPS}/screens/gdq4_screen",),
-            (f"{EPS}/screens/eps_team_gdq4_screen",), 150_000, section="team-world"),
-    Variant("EPS-GDQ, team world + shared experience", GDQ_PAPER, (f"{EPS}/screens/gdq4_screen",),
-            (f"{EPS}/screens/eps_team_share_gdq4_screen",), 150_000, section="team-world"),
+    team_world_screen("EPS-GDQ, 4-robot team world", "eps_team_gdq4_screen"),
+    team_world_screen("EPS-GDQ, team world + shared experience", "eps_team_share_gdq4_screen"),
     Variant("EPS-GDQ, team world + shared experience", GDQ_PAPER, (f"{BASELINES}/gdq4_final",),
             (f"{EPS}/eps_gdq4_share",), 150_000, section="team-world"),
-    Variant("EPS-GDQ, team world + shared experience, EPS share 0.2", GDQ_PAPER, (f"{EPS}/screens/gdq4_screen",),
-            (f"{EPS}/screens/eps_team_share02_gdq4_screen",), 150_000, section="team-world"),
-    Variant("EPS-GDQ, team world + shared rows trained on at once", GDQ_PAPER, (f"{EPS}/screens/gdq4_screen",),
-            (f"{EPS}/screens/eps_team_share_train_gdq4_screen",), 150_000, section="team-world"),
-    Variant("EPS-GDQ, team world + shared rows trained on, spread", GDQ_PAPER, (f"{EPS}/screens/gdq4_screen",),
-            (f"{EPS}/screens/eps_team_share_spread_gdq4_screen",), 150_000, section="team-world"),
+    team_world_screen("EPS-GDQ, team world + shared experience, EPS share 0.2", "eps_team_share02_gdq4_screen"),
+    team_world_screen("EPS-GDQ, team world + shared rows trained on at once", "eps_team_share_train_gdq4_screen"),
+    team_world_screen("EPS-GDQ, team world + shared rows trained on, spread", "eps_team_share_spread_gdq4_screen"),
     Variant("EPS-GDQ, free EPS (team world, shared rows and their gradient steps)", GDQ_PAPER,
             (f"{EPS}/free_eps_heldout/gdq",), (f"{EPS}/free_eps_heldout/eps_gdq_free",), 150_000,
             section="team-world"),
