@@ -3,7 +3,7 @@
 Examples::
 
     python -m sb3_eps.grid --algos gdq qmix --envs MultiRobotNav-2-v0 MultiRobotNav-4-v0 --seeds 0 1 2 -f logs/grid
-    python -m sb3_eps.grid --grid my_grid.yml                       # the grid in a YAML file (keys: GRID_KEYS)
+    python -m sb3_eps.grid --grid my_grid.yml                       # the grid in a YAML file (keys: the fields of Grid)
     python -m sb3_eps.grid --grid my_grid.yml --backend ray --address auto --shared-folder /mnt/shared/grid
 
 Every run is a ``python -m sb3_eps.train`` process with its folder in ``<folder>/<algo>/<env id>_seed<seed>/``.
@@ -26,9 +26,10 @@ import tarfile
 import tempfile
 import threading
 import time
+import typing
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -41,16 +42,6 @@ RESERVED_TRAIN_FLAGS = (
     "--algo", "--env", "--seed", "-f", "--log-folder", "--run-name", "--resume", "-n", "--n-timesteps",
     "-conf", "--conf-file", "-params", "--hyperparams", "-optimize", "--optimize-hyperparameters",
 )  # fmt: skip
-GRID_KEYS = (
-    "algos",
-    "envs",
-    "seeds",
-    "n_timesteps",
-    "conf_file",
-    "hyperparams",
-    "train_args",
-    "cpus_per_run",
-)
 
 
 # ---------------------------------------------------------------------------------------------- the grid
@@ -94,70 +85,46 @@ def load_grid_file(path: str | Path) -> dict[str, Any]:
     from sb3_eps.zoo.config import load_yaml
 
     data = load_yaml(path)
+    keys = [field.name for field in fields(Grid)]
     if not isinstance(data, dict):
-        raise _error(f"{path}: a grid file maps keys ({', '.join(GRID_KEYS)}) to values")
-    unknown = sorted(set(data) - set(GRID_KEYS))
+        raise _error(f"{path}: a grid file maps keys ({', '.join(keys)}) to values")
+    unknown = sorted(set(data) - set(keys))
     if unknown:
-        raise _error(f"{path}: unknown key(s) {unknown}; allowed: {', '.join(GRID_KEYS)}")
+        raise _error(f"{path}: unknown key(s) {unknown}; allowed: {', '.join(keys)}")
     return data
 
 
-def _str_list(value: Any, key: str) -> list[str]:
-    if isinstance(value, str):
-        return [value]
-    if not isinstance(value, list) or not all(isinstance(item, str | int | float) for item in value):
-        raise _error(f"grid: {key} must be a list of strings, got {value!r}")
-    return [str(item) for item in value]
-
-
 def make_grid(values: dict[str, Any]) -> Grid:
-    """Check the grid's keys (from a file and the command line) and return the :class:`Grid`.
+    """Check the grid's keys (from a file and the command line) against the types of :class:`Grid` and return it.
 
     :raises ConfigError: naming the key and what is allowed
     """
-    from sb3_eps.zoo.schema import ALGORITHMS
+    from sb3_eps.zoo.schema import ALGORITHMS, normalize_value
 
     if not values.get("algos"):
         raise _error("grid: no algorithms; give --algos (e.g. --algos gdq qmix) or algos: in the grid file")
-    algos = _str_list(values["algos"], "algos")
-    for algo in algos:
+    values = {key: [value] if isinstance(value, str) and key != "conf_file" else value
+              for key, value in values.items() if value is not None}  # fmt: skip
+    if isinstance(values.get("seeds"), int) and not isinstance(values["seeds"], bool):
+        values["seeds"] = list(range(values["seeds"]))  # a count
+    hints = typing.get_type_hints(Grid)
+    grid = Grid(
+        **{key: normalize_value(value, hints[key], f"grid: {key}", key) for key, value in values.items()}
+    )
+    for algo in grid.algos:
         if algo not in ALGORITHMS:
             raise _error(f"grid: unknown algorithm {algo!r}; allowed: {', '.join(ALGORITHMS)}")
-    seeds = values.get("seeds", [0])
-    if isinstance(seeds, int) and not isinstance(seeds, bool):
-        seeds = list(range(seeds))
-    if (
-        not isinstance(seeds, list)
-        or not seeds
-        or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds)
-    ):
-        raise _error(f"grid: seeds must be non-negative ints (or a count), got {seeds!r}")
-    cpus = values.get("cpus_per_run", 1)
-    if isinstance(cpus, bool) or not isinstance(cpus, int) or cpus < 1:
-        raise _error(f"grid: cpus_per_run must be an int >= 1, got {cpus!r}")
-    n_timesteps = values.get("n_timesteps")
-    if n_timesteps is not None and (
-        isinstance(n_timesteps, bool) or not isinstance(n_timesteps, int) or n_timesteps < 1
-    ):
-        raise _error(f"grid: n_timesteps must be an int >= 1, got {n_timesteps!r}")
-    train_args = _str_list(values.get("train_args") or [], "train_args")
-    for arg in train_args:
+    if not grid.seeds:
+        raise _error("grid: seeds is empty; give at least one seed (or a count)")
+    for arg in grid.train_args:
         if arg.split("=")[0] in RESERVED_TRAIN_FLAGS:
             raise _error(
                 f"grid: train_args may not hold {arg.split('=')[0]}: the grid sets it (use the grid's algos, envs, "
                 "seeds, n_timesteps, conf_file, hyperparams keys)"
             )
-    envs_value = values.get("envs")
-    return Grid(
-        algos=algos,
-        envs=None if not envs_value else _str_list(envs_value, "envs"),
-        seeds=list(dict.fromkeys(seeds)),
-        n_timesteps=n_timesteps,
-        conf_file=None if values.get("conf_file") is None else str(values["conf_file"]),
-        hyperparams=_str_list(values.get("hyperparams") or [], "hyperparams"),
-        train_args=train_args,
-        cpus_per_run=cpus,
-    )
+    grid.envs = grid.envs or None
+    grid.seeds = list(dict.fromkeys(grid.seeds))
+    return grid
 
 
 def grid_runs(grid: Grid) -> list[RunSpec]:

@@ -112,7 +112,7 @@ def test_local_grid_skips_resumes_and_gathers(tmp_path) -> None:
         (["--envs", ENV_ID], "no algorithms"),
         (["--algos", "dqn"], "unknown algorithm 'dqn'"),
         (["--algos", "gdq", "--envs", "Nope-v0"], "unknown env id 'Nope-v0'"),
-        (["--algos", "gdq", "--envs", ENV_ID, "--seeds", "-1"], "seeds must be non-negative"),
+        (["--algos", "gdq", "--envs", ENV_ID, "--seeds", "-1"], "seeds must be a list, each an int >= 0"),
         (["--algos", "gdq", "--envs", ENV_ID, "--train-args", "--seed 3"], "train_args may not hold --seed"),
         (["--algos", "gdq", "--envs", ENV_ID, "--train-args=--no-such-flag"], "not flags of"),
         (["--algos", "gdq", "--envs", ENV_ID, "--hyperparams", "gamma:7"], "gamma"),

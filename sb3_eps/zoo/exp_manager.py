@@ -11,7 +11,6 @@ import importlib.util
 import random
 import sys
 import time
-import types
 import typing
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -66,7 +65,13 @@ from sb3_eps.zoo.config import (
 from sb3_eps.zoo.errors import ConfigError, RunFailed
 from sb3_eps.zoo.evaluation import check_spaces
 from sb3_eps.zoo.ladder import LADDER_KEY, build_rungs, check_ladder_run, check_rungs, ladder_progress
-from sb3_eps.zoo.schema import algorithm_kwargs, algorithm_spec, build_callbacks, check_complete
+from sb3_eps.zoo.schema import (
+    algorithm_kwargs,
+    algorithm_spec,
+    build_callbacks,
+    check_complete,
+    normalize_value,
+)
 
 #: The evaluation worlds are seeded ``seed + EVAL_SEED_OFFSET``: other worlds than the training ones.
 EVAL_SEED_OFFSET = 10_000
@@ -115,16 +120,11 @@ class TrainOptions(NamespaceOptions):
         if not isinstance(record, dict):
             raise ConfigError(f"{source} is not a mapping of options: not a run folder of sb3_eps.train")
         options = cls(**{key: value for key, value in record.items() if key in cls.__dataclass_fields__})
-        for key, hint in typing.get_type_hints(
-            cls
-        ).items():  # the fields' own annotations say what each holds
-            value = getattr(options, key)
-            members = typing.get_args(hint) if isinstance(hint, types.UnionType) else (hint,)
-            kinds = tuple(typing.get_origin(kind) or kind for kind in members)
-            if not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds):
-                raise ConfigError(
-                    f"{source}: {key} is {value!r}, not a {kinds[0].__name__}: not a run of sb3_eps.train"
-                )
+        try:  # the fields' own annotations say what each holds
+            for key, hint in typing.get_type_hints(cls).items():
+                normalize_value(getattr(options, key), hint, f"{source}: {key}")
+        except ConfigError as error:
+            raise ConfigError(f"{error}: not a run of sb3_eps.train") from None
         return options
 
     def check(self) -> None:

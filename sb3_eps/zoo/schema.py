@@ -80,7 +80,7 @@ RANGES: dict[str, str] = {
     "prioritized_replay_beta0": "[0, 1]", "exploration_fraction": "[0, 1]", "exploration_initial_eps": "[0, 1]",
     "exploration_final_eps": "[0, 1]", "max_grad_norm": "(0, inf)", "stats_window_size": "[1, inf)",
     "net_arch": "[1, inf)", "stream_arch": "[1, inf)", "weight_average_tau": "(0, 1]", "n_timesteps": "[1, inf)",
-    "n_envs": "[1, inf)", "train_freq": "[1, inf)",
+    "n_envs": "[1, inf)", "train_freq": "[1, inf)", "seeds": "[0, inf)", "cpus_per_run": "[1, inf)",
 }  # fmt: skip
 #: The strings a plain ``str`` inside a key's hint may hold (SB3's ``train_freq`` unit).
 CHOICES: dict[str, tuple[str, ...]] = {"train_freq": tuple(unit.value for unit in TrainFrequencyUnit)}
