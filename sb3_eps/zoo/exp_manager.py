@@ -27,7 +27,6 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from sb3_eps.common.ladder import Rung, learn_ladder, rung_at
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.subproc_vec_env import VecEnvWorkerError, overlap_layout
-from sb3_eps.common.utils import describe_space
 from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env, vec_env_mode
 from sb3_eps.eps import EvolutionCallback, eps_env_id_for
 from sb3_eps.eps.evaluation import agent_space, make_eval_env
@@ -275,21 +274,15 @@ def check_callback_worlds(
     :raises ConfigError: naming the callback, both worlds and their spaces
     """
     for name, callback in callbacks:
-        if not isinstance(callback, EvolutionCallback):
-            continue
-        eval_env_id = callback.settings.eval_env_id
-        eval_env = make_eval_env(eval_env_id, callback.settings.eval_env_kwargs)
-        try:
-            for kind in ("observation_space", "action_space"):
-                theirs, ours = agent_space(eval_env, kind), getattr(env, kind)
-                if theirs != ours:
-                    raise ConfigError(
-                        f"{source}: callback {name}: eval_env_id {eval_env_id} has {kind} {describe_space(theirs)}, "
-                        f"the training world {env.env_id} {describe_space(ours)}; use eval_env_id "
-                        f"{eps_env_id_for(str(env.env_id))} (or leave it out: it defaults to the matching world)"
-                    )
-        finally:
+        if isinstance(callback, EvolutionCallback):
+            eval_env = make_eval_env(callback.settings.eval_env_id, callback.settings.eval_env_kwargs)
+            kinds = ("observation_space", "action_space")
+            spaces = SimpleNamespace(**{kind: agent_space(eval_env, kind) for kind in kinds})
             eval_env.close()
+            whose = f"the training world {env.env_id} (its EPS world, the default, is {eps_env_id_for(str(env.env_id))})"
+            check_spaces(
+                env, spaces, callback.settings.eval_env_id, whose, f"{source}: callback {name}: eval_env_id "
+            )
 
 
 def load_agent_weights(model: MultiAgentOffPolicyAlgorithm, path: str | Path) -> None:

@@ -26,7 +26,7 @@ from sb3_eps.gdq import GDQ
 from sb3_eps.zoo.callbacks import TeamEvalCallback, TickBudgetCallback
 from sb3_eps.zoo.checkpoint import write_text_atomic
 from sb3_eps.zoo.cli import NamespaceOptions
-from sb3_eps.zoo.config import ResolvedConfig, check_env_id, entry_yaml, resolve_config
+from sb3_eps.zoo.config import ResolvedConfig, apply_overrides, check_env_id, entry_yaml, resolve_config
 from sb3_eps.zoo.errors import ConfigError
 from sb3_eps.zoo.exp_manager import EVAL_SEED_OFFSET, TrainOptions, build_env, build_model, prepare_run
 from sb3_eps.zoo.run_folder import ARGS_NAME, CONFIG_NAME, create_run_folder
@@ -37,7 +37,6 @@ from sb3_eps.zoo.schema import (
     AlgorithmSpec,
     build_callbacks,
     check_complete,
-    normalize_entry,
 )
 
 BEST_PARAMS_NAME = "best_params.yml"
@@ -192,24 +191,21 @@ SEARCH_SPACES: dict[type, Callable[[Any, AlgorithmSpec, int], dict[str, Any]]] =
 
 
 def merge_overrides(base: dict[str, Any], overrides: dict[str, Any], spec: AlgorithmSpec) -> dict[str, Any]:
-    """The base entry updated with a trial's overrides (``policy_kwargs`` and callback arguments merged per key).
+    """The base entry updated with a trial's overrides (``policy_kwargs`` and the callback's arguments merged per key,
+    as ``--hyperparams`` does: :func:`~sb3_eps.zoo.config.apply_overrides`).
 
     :return: the canonical entry
     :raises ConfigError: when the result is not a valid entry
     """
-    entry = dict(base)
+    pairs: list[tuple[tuple[str, ...], Any]] = []
     for key, value in overrides.items():
         if key == POLICY_KWARGS_KEY:
-            entry[key] = {**base.get(key, {}), **value}
-        elif key == CALLBACK_KEY:
-            base_callbacks = {next(iter(item)): next(iter(item.values())) for item in base.get(key, [])}
-            for item in value:
-                name, kwargs = next(iter(item.items()))
-                base_callbacks[name] = {**base_callbacks.get(name, {}), **kwargs}
-            entry[key] = [{name: kwargs} for name, kwargs in base_callbacks.items()]
+            pairs += [((key, name), item) for name, item in value.items()]
+        elif key == CALLBACK_KEY:  # sample_hyperparams's [{EvolutionCallback: arguments}]
+            pairs += [((key, name), item) for name, item in value[0][EVOLUTION_CALLBACK].items()]
         else:
-            entry[key] = value
-    return normalize_entry(entry, spec, "sampled hyper-parameters")
+            pairs.append(((key,), value))
+    return apply_overrides(base, pairs, spec, "sampled hyper-parameters")
 
 
 def objective_score(summary: dict[str, Any], n_eval_episodes: int) -> float:
