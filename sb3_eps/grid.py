@@ -27,6 +27,7 @@ import tempfile
 import threading
 import time
 import typing
+from collections import Counter
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field, fields
@@ -170,7 +171,7 @@ def grid_runs(grid: Grid) -> list[RunSpec]:
 def run_state(run_dir: Path, env_id: str) -> str:
     """:return: ``"new"`` (no folder), ``"complete"``, ``"interrupted"`` (a checkpoint to resume from) or
     ``"incomplete"`` (stopped before its first checkpoint: nothing to resume)."""
-    from sb3_eps.zoo.checkpoint import CHECKPOINT_NAME, read_checkpoint_meta
+    from sb3_eps.zoo.checkpoint import CHECKPOINT_NAME, CorruptCheckpoint, verify_checkpoint
     from sb3_eps.zoo.run_folder import final_model_name
 
     if not run_dir.is_dir():
@@ -178,8 +179,8 @@ def run_state(run_dir: Path, env_id: str) -> str:
     checkpoint, final = run_dir / CHECKPOINT_NAME, run_dir / final_model_name(env_id)
     if checkpoint.is_file():
         try:
-            complete = bool(read_checkpoint_meta(checkpoint).get("complete"))
-        except (OSError, ValueError, KeyError):
+            complete = bool(verify_checkpoint(checkpoint).get("complete"))
+        except CorruptCheckpoint:
             return "incomplete"
         return "complete" if complete and final.is_file() else "interrupted"
     return "complete" if final.is_file() else "incomplete"
@@ -212,12 +213,9 @@ def execute_run(
     run_dir = folder / spec.algo / spec.name
     log_path = folder / spec.algo / f"{spec.name}.log"
     before = run_state(run_dir, spec.env)
-    report: dict[str, Any] = {
-        "algo": spec.algo, "env": spec.env, "seed": spec.seed, "run_dir": str(run_dir), "before": before,
-        "host": os.uname().nodename, "returncode": None, "seconds": 0.0,
-    }  # fmt: skip
+    report = _skipped(spec, folder, before)
     if before == "complete":
-        return {**report, "action": "skipped", "status": "complete"}
+        return report
     if before == "incomplete":
         number = 1
         while (aside := run_dir.with_name(f"{spec.name}.incomplete-{number}")).exists():
@@ -349,7 +347,7 @@ class RayBackend:
             pending = {}
             for spec in runs:
                 if target is None and run_state(folder / spec.algo / spec.name, spec.env) == "complete":
-                    report({**_skipped(spec, folder)})  # sent back earlier: nothing to send to a node
+                    report(_skipped(spec, folder))  # sent back earlier: nothing to send to a node
                     continue
                 pending[task.remote(spec, target)] = spec
             while pending:
@@ -373,10 +371,11 @@ class RayBackend:
                 ray.shutdown()
 
 
-def _skipped(spec: RunSpec, folder: Path) -> dict[str, Any]:
+def _skipped(spec: RunSpec, folder: Path, before: str = "complete") -> dict[str, Any]:
+    """:return: the report of a run left as it is (its ``action`` and ``status`` replaced when it runs)."""
     return {
         "algo": spec.algo, "env": spec.env, "seed": spec.seed, "run_dir": str(folder / spec.algo / spec.name),
-        "before": "complete", "action": "skipped", "status": "complete", "returncode": None, "seconds": 0.0,
+        "before": before, "action": "skipped", "status": "complete", "returncode": None, "seconds": 0.0,
         "host": os.uname().nodename,
     }  # fmt: skip
 
@@ -471,9 +470,7 @@ def run_grid(
 
     write_text_atomic(folder / SUMMARY_NAME, yaml.safe_dump(summary, sort_keys=False))
     if verbose >= 1:
-        counts: dict[str, int] = {}
-        for entry in ordered:
-            counts[entry["status"]] = counts.get(entry["status"], 0) + 1
+        counts = Counter(entry["status"] for entry in ordered)
         status = ", ".join(f"{n} {name}" for name, n in counts.items())
         print(
             f"Grid of {len(runs)} runs in {summary['wall_seconds']:.0f} s: {status}; summary {folder / SUMMARY_NAME}"

@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 from sb3_eps import grid as grid_module
-from sb3_eps.zoo.checkpoint import read_checkpoint_meta
+from sb3_eps.zoo.checkpoint import verify_checkpoint
 from sb3_eps.zoo.errors import ConfigError
 
 ENV_ID = "Corridor-2-v0"
@@ -71,7 +71,7 @@ def test_local_grid_skips_resumes_and_gathers(tmp_path) -> None:
     interrupted = [seed for seed, run in first.items() if run["status"] == "interrupted"]
     assert interrupted, first
     stopped_at = {
-        seed: read_checkpoint_meta(folder / "gdq" / f"{ENV_ID}_seed{seed}" / "checkpoint.zip")[
+        seed: verify_checkpoint(folder / "gdq" / f"{ENV_ID}_seed{seed}" / "checkpoint.zip")[
             "num_timesteps"
         ]
         for seed in interrupted

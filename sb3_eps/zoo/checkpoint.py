@@ -163,11 +163,6 @@ def previous_checkpoint_path(path: str | Path) -> Path:
     return path.with_name(f"{path.stem}.prev{path.suffix}")
 
 
-def checkpoint_paths(path: str | Path) -> list[Path]:
-    """:return: ``path`` and its previous checkpoint, those that exist, newest first."""
-    return [candidate for candidate in (Path(path), previous_checkpoint_path(path)) if candidate.is_file()]
-
-
 def remove_checkpoints(path: str | Path) -> None:
     """Delete a checkpoint, its previous one and temporary files a killed writer left beside it."""
     path = Path(path)
@@ -211,7 +206,9 @@ def latest_good_checkpoint(path: str | Path) -> tuple[Path, dict[str, Any], list
     :raises CorruptCheckpoint: when every existing one is damaged (the message lists why)
     """
     problems: list[str] = []
-    for candidate in checkpoint_paths(path):
+    for candidate in (Path(path), previous_checkpoint_path(path)):
+        if not candidate.is_file():
+            continue
         try:
             return candidate, verify_checkpoint(candidate), problems
         except CorruptCheckpoint as error:
@@ -219,12 +216,6 @@ def latest_good_checkpoint(path: str | Path) -> tuple[Path, dict[str, Any], list
     if not problems:
         raise FileNotFoundError(path)
     raise CorruptCheckpoint("; ".join(problems))
-
-
-def read_checkpoint_meta(path: str | Path) -> dict[str, Any]:
-    """:return: only the ``meta.json`` of a checkpoint."""
-    with zipfile.ZipFile(path) as archive:
-        return json.loads(archive.read("meta.json"))
 
 
 def load_checkpoint(path: str | Path) -> Checkpoint:
