@@ -455,7 +455,7 @@ def stop_on_signals(callback: TrainingStateCallback) -> Iterator[None]:
 # ---------------------------------------------------------------------------------------------- logs
 class ResumableCSVOutputFormat(CSVOutputFormat):
     """SB3's CSV log that continues an existing file: the rows logged after ``max_timesteps`` (after the checkpoint
-    being resumed) are dropped, the others written again through SB3's own ``write``.
+    being resumed) are dropped, the others kept as they were written.
 
     :param filename: the CSV file
     :param max_timesteps: keep rows whose ``time/total_timesteps`` is at most this; None starts a new file
@@ -463,28 +463,14 @@ class ResumableCSVOutputFormat(CSVOutputFormat):
 
     def __init__(self, filename: str | Path, max_timesteps: int | None = None) -> None:
         path = Path(filename)
-        rows = []
-        if max_timesteps is not None and path.is_file():
-            with path.open(newline="") as file:
-                rows = [row for row in csv.DictReader(file) if _row_timesteps(row) <= max_timesteps]
+        resumed = max_timesteps is not None and path.is_file()
+        lines = path.read_text().splitlines(keepends=True) if resumed else []
         super().__init__(str(path))
-        for row in rows:
-            values = {key: _number(value) for key, value in row.items() if key and value not in ("", None)}
-            self.write(values, dict.fromkeys(values, ()))  # nothing excluded
-
-
-def _row_timesteps(row: dict[str, str]) -> float:
-    try:
-        return float(row.get("time/total_timesteps") or "")
-    except ValueError:
-        return -1.0  # rows without the count (none are written that way) are kept
-
-
-def _number(text: str) -> int | float | str:
-    """A CSV field as SB3 logged it: ints and floats written with ``str()`` read back exactly."""
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            continue
-    return text
+        if lines:
+            self.keys = lines[0].rstrip("\n").split(self.separator)  # SB3 writes the keys unquoted
+            column = self.keys.index("time/total_timesteps")
+            kept = [
+                line for line in lines[1:] if float(next(csv.reader([line]))[column] or -1) <= max_timesteps
+            ]  # type: ignore[operator]
+            self.file.writelines([lines[0], *kept])
+            self.file.flush()
