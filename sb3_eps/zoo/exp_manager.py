@@ -258,7 +258,7 @@ def build_model(
             seed=seed,
             device=device,
             verbose=verbose,
-            **algorithm_kwargs(config.entry),
+            **algorithm_kwargs(config.entry, config.spec),
         )
     except (TypeError, ValueError) as error:
         raise ConfigError(f"{config.source}: building {cls.__name__}: {error}") from None

@@ -596,36 +596,34 @@ def _config_value(value: Any) -> Any:
 
 
 # ---------------------------------------------------------------------------------------------- building
-def algorithm_kwargs(entry: Mapping[str, Any]) -> dict[str, Any]:
+def algorithm_kwargs(entry: Mapping[str, Any], spec: AlgorithmSpec) -> dict[str, Any]:
     """The algorithm constructor's keyword arguments of a canonical entry (schedules and classes built).
 
     :param entry: a canonical entry (:func:`normalize_entry`)
+    :param spec: the algorithm it configures
     """
-    kwargs: dict[str, Any] = {}
-    for key, value in entry.items():
-        if key in RUN_PARAMS or key in (POLICY_KWARGS_KEY, CALLBACK_KEY, LADDER_KEY):
-            continue
-        if key == "learning_rate" and isinstance(value, str):
-            # RL Zoo's lin_<x>: x at the start, decreasing linearly to 0 at the end of training.
-            value = LinearSchedule(float(value[4:]), 0.0, 1.0)
-        elif key == "train_freq" and isinstance(value, list):
-            value = (value[0], value[1])
-        elif key == "replay_buffer_class" and value is not None:
-            value = REPLAY_BUFFER_CLASSES[value]
-        kwargs[key] = value
+    kwargs = {key: to_object(value, spec.params[key]) for key, value in entry.items() if key in spec.params}
     if POLICY_KWARGS_KEY in entry:
-        kwargs[POLICY_KWARGS_KEY] = policy_kwargs_objects(entry[POLICY_KWARGS_KEY])
+        policy_kwargs = entry[POLICY_KWARGS_KEY].items()
+        kwargs[POLICY_KWARGS_KEY] = {
+            key: to_object(value, spec.policy_params[key]) for key, value in policy_kwargs
+        }
     return kwargs
 
 
-def policy_kwargs_objects(policy_kwargs: Mapping[str, Any]) -> dict[str, Any]:
-    """:return: canonical ``policy_kwargs`` with the class names replaced by the classes."""
-    result = dict(policy_kwargs)
-    if "activation_fn" in result:
-        result["activation_fn"] = ACTIVATIONS[result["activation_fn"]]
-    if "optimizer_class" in result:
-        result["optimizer_class"] = OPTIMIZERS[result["optimizer_class"]]
-    return result
+def to_object(value: Any, hint: Any) -> Any:
+    """:return: a canonical config value as its constructor takes it: RL Zoo's ``lin_<x>`` as SB3's
+    ``LinearSchedule(x, 0, 1)`` (x at the start, decreasing linearly to 0 at the end of training), a class name as
+    the class, a list as a tuple where the hint says ``tuple``."""
+    for member in _hint_members(hint):
+        origin, arguments = typing.get_origin(member), typing.get_args(member)
+        if isinstance(value, str) and origin is collections.abc.Callable:
+            return LinearSchedule(float(value[4:]), 0.0, 1.0)
+        if isinstance(value, str) and origin is type:
+            return CLASS_NAMES[arguments[0]][value]
+        if isinstance(value, list) and origin is tuple:
+            return tuple(value)
+    return value
 
 
 def build_callbacks(
