@@ -7,6 +7,7 @@ the result equals an uninterrupted run with the same seed (:mod:`sb3_eps.zoo.che
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import random
 import sys
@@ -16,7 +17,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any
+from typing import Any, ClassVar
 
 import torch as th
 import yaml
@@ -109,6 +110,9 @@ class TrainOptions(NamespaceOptions):
     run_name: str | None = None
     gym_packages: list[str] = field(default_factory=list)
     command: str | None = None  # the command line as typed (RL Zoo's command.txt)
+    minimums: ClassVar[dict[str, int]] = {
+        "eval_freq": 0, "eval_episodes": 1, "n_eval_envs": 1, "save_freq": 0, "seed": 0, "num_threads": 0,
+    }  # fmt: skip
 
     @classmethod
     def from_record(cls, record: Any, source: str | Path) -> TrainOptions:
@@ -118,34 +122,25 @@ class TrainOptions(NamespaceOptions):
         """
         if not isinstance(record, dict):
             raise ConfigError(f"{source} is not a mapping of options: not a run folder of sb3_eps.train")
-        options = cls(**{key: value for key, value in record.items() if key in cls.__dataclass_fields__})
+        names = [field.name for field in dataclasses.fields(cls)]
+        options = cls(**{key: value for key, value in record.items() if key in names})
         try:  # the fields' own annotations say what each holds
-            for key, hint in typing.get_type_hints(cls).items():
-                normalize_value(getattr(options, key), hint, f"{source}: {key}")
+            hints = typing.get_type_hints(cls)
+            for key in names:
+                normalize_value(getattr(options, key), hints[key], f"{source}: {key}")
         except ConfigError as error:
             raise ConfigError(f"{error}: not a run of sb3_eps.train") from None
         return options
 
     def check(self) -> None:
         """:raises ConfigError: for a count or flag out of range."""
-        for flag, value, low in (
-            ("--eval-freq", self.eval_freq, 0),
-            ("--eval-episodes", self.eval_episodes, 1),
-            ("--n-eval-envs", self.n_eval_envs, 1),
-            ("--save-freq", self.save_freq, 0),
-        ):
-            if value < low:
-                raise ConfigError(f"{flag} must be >= {low}, got {value} (use 0 to turn off a *-freq)")
+        self.check_minimums()
         if self.run_name is not None and (
             not self.run_name or self.run_name in (".", "..") or "/" in self.run_name or "\\" in self.run_name
         ):
             raise ConfigError(f"--run-name must be a plain folder name (no slashes), got {self.run_name!r}")
         if self.vec_env not in (None, "dummy", "subproc"):
             raise ConfigError(f"--vec-env must be dummy or subproc, got {self.vec_env!r}")
-        if self.seed is not None and self.seed < 0:
-            raise ConfigError(f"--seed must be a non-negative int, got {self.seed}")
-        if self.num_threads < 0:
-            raise ConfigError(f"--num-threads must be >= 0 (0: torch's default), got {self.num_threads}")
         check_device(self.device)
         if self.init_from is not None and not Path(self.init_from).is_file():
             raise ConfigError(

@@ -16,7 +16,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import yaml
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
@@ -62,19 +62,9 @@ class TuningOptions(NamespaceOptions):
     sampler_seed: int | None = None
     n_seeds_per_trial: int = 1
     eps_only: bool = False
-
-    def check(self) -> None:
-        """:raises ConfigError: for a count out of range."""
-        for flag, value in (
-            ("--n-trials", self.n_trials),
-            ("--n-jobs", self.n_jobs),
-            ("--n-evaluations", self.n_evaluations),
-            ("--n-seeds-per-trial", self.n_seeds_per_trial),
-        ):
-            if value < 1:
-                raise ConfigError(f"{flag} must be >= 1, got {value}")
-        if self.n_startup_trials < 0:
-            raise ConfigError(f"--n-startup-trials must be >= 0, got {self.n_startup_trials}")
+    minimums: ClassVar[dict[str, int]] = {
+        "n_trials": 1, "n_jobs": 1, "n_evaluations": 1, "n_seeds_per_trial": 1, "n_startup_trials": 0,
+    }  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------- search spaces
@@ -380,7 +370,7 @@ def tune(options: TrainOptions, tuning: TuningOptions) -> Path:
     :raises ConfigError: for any mistake, before anything is written
     """
     optuna = _import_optuna()
-    tuning.check()
+    tuning.check_minimums()
     options.check()
     check_env_id(options.env)
     hyperparams = [*options.hyperparams, *(f"env_kwargs.{item}" for item in options.env_kwargs)]
