@@ -6,6 +6,7 @@ also on SIGINT / SIGTERM)."""
 from __future__ import annotations
 
 import csv
+import io
 import json
 import signal
 import time
@@ -254,8 +255,9 @@ class TeamEvalCallback(BaseCallback):
 
     def _write_records(self) -> None:
         if self.folder is not None and self.records["timesteps"]:
-            arrays = {key: np.array(value) for key, value in self.records.items()}
-            write_bytes_atomic(self.folder / run_folder.EVALUATIONS_NAME, _npz_bytes(arrays))
+            buffer = io.BytesIO()
+            np.savez(buffer, **{key: np.array(value) for key, value in self.records.items()})  # type: ignore[arg-type]
+            write_bytes_atomic(self.folder / run_folder.EVALUATIONS_NAME, buffer.getvalue())
 
     def _log(self, summary: dict[str, Any]) -> None:
         logger = self.logger
@@ -307,14 +309,6 @@ class TickBudgetCallback(BaseCallback):
 
 
 _RECORD_KEYS = ("timesteps", "ticks", "eps_ticks", "results", "ep_lengths", "successes", "collisions")
-
-
-def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
-    import io
-
-    buffer = io.BytesIO()
-    np.savez(buffer, **arrays)  # type: ignore[arg-type]
-    return buffer.getvalue()
 
 
 # ---------------------------------------------------------------------------------------------- checkpoints

@@ -375,24 +375,17 @@ def prepare_run(
 
 
 # ---------------------------------------------------------------------------------------------- run folders
-def make_logger(
-    run_dir: Path, tensorboard_dir: str | None, verbose: int, resume_timesteps: int | None
-) -> Logger:
-    """SB3 logger writing ``progress.csv`` (continued when resuming), TensorBoard and, if verbose, stdout."""
-    formats: list[KVWriter] = []
-    if verbose >= 1:
-        formats.append(HumanOutputFormat(sys.stdout))
-    formats.append(ResumableCSVOutputFormat(run_dir / run_folder.PROGRESS_NAME, resume_timesteps))
-    if tensorboard_dir is not None:
-        formats.append(TensorBoardOutputFormat(tensorboard_dir))
+def make_logger(options: TrainOptions, run_dir: Path, resume_timesteps: int | None) -> Logger:
+    """SB3 logger writing ``progress.csv`` (continued when resuming), if verbose stdout, and with
+    ``--tensorboard-log`` TensorBoard in ``<tensorboard_log>/<algo>/<run folder name>``."""
+    formats: list[KVWriter] = [ResumableCSVOutputFormat(run_dir / run_folder.PROGRESS_NAME, resume_timesteps)]
+    if options.verbose >= 1:
+        formats.insert(0, HumanOutputFormat(sys.stdout))
+    if options.tensorboard_log is not None:
+        formats.append(
+            TensorBoardOutputFormat(str(Path(options.tensorboard_log) / options.algo / run_dir.name))
+        )
     return Logger(folder=str(run_dir), output_formats=formats)
-
-
-def tensorboard_dir_of(options: TrainOptions, run_dir: Path) -> str | None:
-    """:return: the run's TensorBoard folder, ``<tensorboard_log>/<algo>/<run folder name>``, or None."""
-    if options.tensorboard_log is None:
-        return None
-    return str(Path(options.tensorboard_log) / options.algo / run_dir.name)
 
 
 # ---------------------------------------------------------------------------------------------- training
@@ -550,9 +543,7 @@ def _run(
     resume_timesteps = None if restore is None else int(restore["num_timesteps"])
     if restore is not None:
         TeamMonitor.truncate_after(run_dir / run_folder.MONITOR_NAME, int(restore["ticks"]))
-    model.set_logger(
-        make_logger(run_dir, tensorboard_dir_of(options, run_dir), options.verbose, resume_timesteps)
-    )
+    model.set_logger(make_logger(options, run_dir, resume_timesteps))
     eps_callbacks = [callback for _, callback in prepared.user_callbacks]
     header = {
         "env_id": config.env_id,
