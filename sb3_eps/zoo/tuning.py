@@ -11,6 +11,7 @@ one study. At the end the best trial is written as a ready-to-use config entry, 
 from __future__ import annotations
 
 import csv
+import io
 import math
 import time
 from collections.abc import Callable
@@ -422,34 +423,19 @@ PER_SEED_COLUMNS = ("ticks", "eps_ticks", "eps_rounds", "eps_crossovers")
 
 
 def write_trials_csv(study: Any, path: Path) -> None:
-    """One row per trial: number, state, value, duration, :data:`PER_SEED_COLUMNS` and every sampled parameter (no
-    pandas needed)."""
-    trials = list(study.trials)
-    param_names = sorted({name for trial in trials for name in trial.params})
-    temporary = path.with_name(path.name + ".tmp")
-
-    def per_seed(trial: Any, key: str) -> str:
-        return "/".join(str(value) for value in trial.user_attrs.get(key, []))
-
-    with temporary.open("w", newline="") as file:
-        writer = csv.writer(file)
-        writer.writerow(
-            [
-                "number",
-                "state",
-                "value",
-                "duration_s",
-                *PER_SEED_COLUMNS,
-                *(f"params_{name}" for name in param_names),
-            ]
-        )
-        for trial in trials:
-            duration = trial.duration.total_seconds() if trial.duration is not None else ""
-            writer.writerow(
-                [trial.number, trial.state.name, "" if trial.value is None else trial.value, duration,
-                 *(per_seed(trial, key) for key in PER_SEED_COLUMNS), *(trial.params.get(name, "") for name in param_names)]
-            )  # fmt: skip
-    temporary.replace(path)
+    """One row per trial: number, state, value, duration, :data:`PER_SEED_COLUMNS` (``/``-joined) and every sampled
+    parameter (``params_<name>``)."""
+    names = sorted({name for trial in study.trials for name in trial.params})
+    rows = [
+        [trial.number, trial.state.name, trial.value, trial.duration.total_seconds() if trial.duration else None,
+         *("/".join(map(str, trial.user_attrs.get(key, []))) for key in PER_SEED_COLUMNS),
+         *(trial.params.get(name) for name in names)]
+        for trial in study.trials
+    ]  # fmt: skip
+    text = io.StringIO()
+    csv.writer(text).writerows([["number", "state", "value", "duration_s", *PER_SEED_COLUMNS,
+                                 *(f"params_{name}" for name in names)], *rows])  # fmt: skip
+    write_text_atomic(path, text.getvalue())
 
 
 def write_results(
