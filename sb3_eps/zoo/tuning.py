@@ -427,7 +427,7 @@ def write_trials_csv(study: Any, path: Path) -> None:
     parameter (``params_<name>``)."""
     names = sorted({name for trial in study.trials for name in trial.params})
     rows = [
-        [trial.number, trial.state.name, trial.value, trial.duration.total_seconds() if trial.duration else None,
+        [trial.number, trial.state.name, trial.value, trial.duration.total_seconds() if trial.duration is not None else None,
          *("/".join(map(str, trial.user_attrs.get(key, []))) for key in PER_SEED_COLUMNS),
          *(trial.params.get(name) for name in names)]
         for trial in study.trials
