@@ -26,7 +26,13 @@ from sb3_eps.common.evaluation import evaluate_team
 from sb3_eps.common.vec_env import MultiAgentVecEnv
 from sb3_eps.eps import EvolutionCallback
 from sb3_eps.zoo import run_folder
-from sb3_eps.zoo.checkpoint import save_checkpoint, save_model_atomic, set_rng_states, write_bytes_atomic
+from sb3_eps.zoo.checkpoint import (
+    Checkpoint,
+    save_checkpoint,
+    save_model_atomic,
+    set_rng_states,
+    write_bytes_atomic,
+)
 
 #: Columns every monitor row has; the env's team metrics (``success``, ``collision``...) follow.
 MONITOR_COLUMNS = ("r", "l", "t", "ticks", "eps_ticks", "world")
@@ -321,8 +327,8 @@ class TrainingStateCallback(BaseCallback):
     :param save_freq: timesteps between checkpoints; 0 saves only on a signal
     :param total_timesteps: the run's total, recorded in the checkpoint
     :param stateful_callbacks: name -> callback whose state goes into the checkpoint
-    :param restore: when resuming: ``{"callbacks": states, "rng": states, "next_save": int}``, applied at the
-        start of training, after every callback's initialisation
+    :param restore: when resuming, the checkpoint: its callback states, random states and ``next_save`` are
+        applied at the start of training, after every callback's initialisation
     :param verbose: 1 prints a line per checkpoint
     :param snapshot_dir: where each periodic checkpoint also writes the model alone (RL Zoo's
         ``rl_model_<timesteps>_steps.zip``); None: nowhere
@@ -335,7 +341,7 @@ class TrainingStateCallback(BaseCallback):
         save_freq: int,
         total_timesteps: int,
         stateful_callbacks: dict[str, BaseCallback],
-        restore: dict[str, Any] | None = None,
+        restore: Checkpoint | None = None,
         verbose: int = 0,
         snapshot_dir: str | Path | None = None,
         extra_meta: Callable[[], dict[str, Any]] | None = None,
@@ -355,10 +361,10 @@ class TrainingStateCallback(BaseCallback):
     def _on_training_start(self) -> None:
         if self.restore is None:
             return
-        for name, state in self.restore["callbacks"].items():
+        for name, state in self.restore.callbacks.items():
             self.stateful_callbacks[name].load_state_dict(state)  # type: ignore[attr-defined]
-        self.next_save = self.restore["next_save"]
-        set_rng_states(self.restore["rng"])
+        self.next_save = self.restore.meta["next_save"]
+        set_rng_states(self.restore.rng)
         self.restore = None
 
     def _on_step(self) -> bool:

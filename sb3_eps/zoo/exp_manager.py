@@ -44,6 +44,7 @@ from sb3_eps.zoo.callbacks import (
 )
 from sb3_eps.zoo.checkpoint import (
     CHECKPOINT_NAME,
+    Checkpoint,
     CorruptCheckpoint,
     latest_good_checkpoint,
     load_checkpoint,
@@ -499,18 +500,11 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
             prepared.rungs[rung] = Rung(prepared.env, prepared.rungs[rung].ticks)
         prepared.model = restore_model(checkpoint, spec.algorithm_class, options.device)
         prepared.model.verbose = options.verbose
-        restore = {
-            "callbacks": checkpoint.callbacks,
-            "rng": checkpoint.rng,
-            "next_save": checkpoint.meta["next_save"],
-            "num_timesteps": checkpoint.meta["num_timesteps"],
-            "ticks": checkpoint.meta["ticks"],
-        }
         if options.verbose >= 1:
             print(
                 f"Resuming {run_dir} at {checkpoint.meta['num_timesteps']} of {options.n_timesteps} timesteps"
             )
-        return _run(prepared, run_dir, restore)
+        return _run(prepared, run_dir, checkpoint)
     finally:
         prepared.close()
 
@@ -534,15 +528,15 @@ def resumed_rung(prepared: PreparedRun, meta: dict[str, Any], checkpoint_path: P
 def _run(
     prepared: PreparedRun,
     run_dir: Path,
-    restore: dict[str, Any] | None,
+    restore: Checkpoint | None,
     extra_callbacks: Sequence[BaseCallback] = (),
 ) -> TrainResult:
     """Train a prepared run in its folder; write the final model. ``restore`` continues a checkpoint."""
     options, config, model = prepared.options, prepared.config, prepared.model
     total = int(config.entry["n_timesteps"])
-    resume_timesteps = None if restore is None else int(restore["num_timesteps"])
+    resume_timesteps = None if restore is None else int(restore.meta["num_timesteps"])
     if restore is not None:
-        TeamMonitor.truncate_after(run_dir / run_folder.MONITOR_NAME, int(restore["ticks"]))
+        TeamMonitor.truncate_after(run_dir / run_folder.MONITOR_NAME, int(restore.meta["ticks"]))
     model.set_logger(make_logger(options, run_dir, resume_timesteps))
     eps_callbacks = [callback for _, callback in prepared.user_callbacks]
     header = {
