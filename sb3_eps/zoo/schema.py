@@ -364,7 +364,9 @@ def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, An
         elif key == CALLBACK_KEY:
             result[key] = normalize_callbacks(value, f"{where}: callback")
         elif key == POLICY_KWARGS_KEY:
-            result[key] = normalize_policy_kwargs(value, spec, f"{where}: policy_kwargs")
+            result[key] = normalize_arguments(
+                value, spec.policy_params, f"{where}: policy_kwargs", NAME_SPELLINGS
+            )
         elif key == LADDER_KEY:
             result[key] = normalize_ladder(value, f"{where}: ladder")
         else:
@@ -475,23 +477,22 @@ def _check_policy(value: Any, spec: AlgorithmSpec, where: str) -> str:
     return value
 
 
-def normalize_policy_kwargs(value: Any, spec: AlgorithmSpec, where: str) -> dict[str, Any]:
-    """Check ``policy_kwargs``: a mapping, or RL Zoo's ``"dict(...)"`` string (parsed, never evaluated).
+def normalize_arguments(
+    value: Any, params: Mapping[str, Any], where: str, names: Mapping[str, str] | None = None
+) -> dict[str, Any]:
+    """Check keyword arguments (``policy_kwargs``, a callback's) against the type hints of ``params``: a mapping, or
+    RL Zoo's ``"dict(...)"`` string (parsed, never evaluated; ``names`` are the class names it may hold).
 
-    :raises ConfigError: for an unknown key (listing the algorithm's keys) or a wrong value
+    :raises ConfigError: for an unknown key (listing the allowed ones) or a wrong value
     """
     if isinstance(value, str):
-        value = parse_literal(value, NAME_SPELLINGS, where)
+        value = parse_literal(value, names or {}, where)
     if not isinstance(value, Mapping):
         raise ConfigError(f"{where} must be a mapping or a 'dict(...)' string, got {value!r}")
-    result: dict[str, Any] = {}
-    for key, item in value.items():
-        if key not in spec.policy_params:
-            raise ConfigError(
-                f"{where}: unknown key {key!r} for {spec.name}; allowed keys: {allowed(spec.policy_params)}"
-            )
-        result[key] = normalize_value(item, spec.policy_params[key], f"{where}: {key}", key)
-    return result
+    for key in value:
+        if key not in params:
+            raise ConfigError(f"{where}: unknown key {key!r}; allowed keys: {allowed(params)}")
+    return {key: normalize_value(item, params[key], f"{where}: {key}", key) for key, item in value.items()}
 
 
 def normalize_callbacks(value: Any, where: str) -> list[dict[str, dict[str, Any]]]:
@@ -517,21 +518,8 @@ def normalize_callbacks(value: Any, where: str) -> list[dict[str, dict[str, Any]
             raise ConfigError(f"{where}: a callback name must be a string, got {name!r}")
         cls = callback_class(name, where)
         canonical = _CALLBACK_SPELLINGS[name]
-        result.append({canonical: _check_callback_kwargs(cls, kwargs, f"{where}: {canonical}")})
-    return result
-
-
-def _check_callback_kwargs(cls: type[BaseCallback], kwargs: Any, where: str) -> dict[str, Any]:
-    if isinstance(kwargs, str):
-        kwargs = parse_literal(kwargs, {}, where)
-    if not isinstance(kwargs, Mapping):
-        raise ConfigError(f"{where}: the arguments must be a mapping, got {kwargs!r}")
-    params = params_from_signature(cls.__init__, every=True)
-    result: dict[str, Any] = {}
-    for key, value in kwargs.items():
-        if key not in params:
-            raise ConfigError(f"{where}: unknown argument {key!r}; allowed: {allowed(params)}")
-        result[key] = normalize_value(value, params[key], f"{where}: {key}", key)
+        params = params_from_signature(cls.__init__, every=True)
+        result.append({canonical: normalize_arguments(kwargs, params, f"{where}: {canonical}")})
     return result
 
 
