@@ -285,13 +285,9 @@ def algorithm_spec(name: str) -> AlgorithmSpec:
 
 # ---------------------------------------------------------------------------------------------- callbacks
 #: Callbacks a config may name: canonical name -> class. Nothing else is ever built from a config.
-CALLBACKS: dict[str, type[BaseCallback]] = {"sb3_eps.EvolutionCallback": EvolutionCallback}
+CALLBACKS: dict[str, type[BaseCallback]] = {}
 EVOLUTION_CALLBACK = "sb3_eps.EvolutionCallback"
-_CALLBACK_SPELLINGS: dict[str, str] = {
-    "sb3_eps.EvolutionCallback": EVOLUTION_CALLBACK,
-    "sb3_eps.eps.EvolutionCallback": EVOLUTION_CALLBACK,
-    "EvolutionCallback": EVOLUTION_CALLBACK,
-}
+_CALLBACK_SPELLINGS: dict[str, str] = {"sb3_eps.eps.EvolutionCallback": EVOLUTION_CALLBACK}
 
 
 def register_callback(callback_class: type[BaseCallback], name: str | None = None) -> str:
@@ -501,24 +497,17 @@ def normalize_callbacks(value: Any, where: str) -> list[dict[str, dict[str, Any]
     :return: a list of ``{canonical name: kwargs}``
     :raises ConfigError: for an unknown callback, an unknown argument or a value of the wrong type
     """
-    items = value if isinstance(value, list) else [value]
     result: list[dict[str, dict[str, Any]]] = []
-    for item in items:
-        kwargs: Any
-        if isinstance(item, str):
-            name, kwargs = item, {}
-        elif isinstance(item, Mapping) and len(item) == 1:
-            name, kwargs = next(iter(item.items()))
-            kwargs = {} if kwargs is None else kwargs
-        else:
+    for item in value if isinstance(value, list) else [value]:
+        item = {item: None} if isinstance(item, str) else item
+        if not (isinstance(item, Mapping) and len(item) == 1):
             raise ConfigError(
                 f"{where}: each callback must be a name or {{name: {{arguments}}}}, got {item!r}"
             )
-        if not isinstance(name, str):
-            raise ConfigError(f"{where}: a callback name must be a string, got {name!r}")
-        cls = callback_class(name, where)
+        name, kwargs = next(iter(item.items()))
+        params = params_from_signature(callback_class(name, where).__init__, every=True)
         canonical = _CALLBACK_SPELLINGS[name]
-        params = params_from_signature(cls.__init__, every=True)
+        kwargs = {} if kwargs is None else kwargs
         result.append({canonical: normalize_arguments(kwargs, params, f"{where}: {canonical}")})
     return result
 
@@ -638,7 +627,7 @@ def build_callbacks(
     return callbacks
 
 
-# The package's own algorithms, registered as a plug-in's would be (their config keys read from the signatures).
+# The package's own algorithms and callback, registered as a plug-in's would be (keys read from the signatures).
 for _name, _class, _label in (
     ("iql", IQL, "IL"),
     ("gdq", GDQ, "GDQ"),
@@ -648,3 +637,4 @@ for _name, _class, _label in (
     register_algorithm(_name, _class, label=_label)
 for _name, _class, _label in (("eps_iql", IQL, "EPS-IL"), ("eps_gdq", GDQ, "EPS-GDQ")):
     register_algorithm(_name, _class, label=_label, eps=True)
+register_callback(EvolutionCallback, EVOLUTION_CALLBACK)
