@@ -36,25 +36,17 @@ class LoadedRun:
     """A run folder and the model chosen from it.
 
     :param run_dir: the folder
-    :param args: its ``args.yml``
+    :param algo: the run's algorithm name
+    :param env_id: the env id the run trained on
     :param model: the loaded model (no env: it predicts on any world with the same spaces)
     :param model_path: the file it came from
     """
 
     run_dir: Path
-    args: dict[str, Any]
+    algo: str
+    env_id: str
     model: MultiAgentOffPolicyAlgorithm
     model_path: Path
-
-    @property
-    def algo(self) -> str:
-        """The run's algorithm name."""
-        return str(self.args["algo"])
-
-    @property
-    def env_id(self) -> str:
-        """The env id the run trained on."""
-        return str(self.args["env"])
 
 
 def load_run(run_dir: str | Path, which: str | int = "final", device: str = "auto") -> LoadedRun:
@@ -85,7 +77,7 @@ def load_run(run_dir: str | Path, which: str | int = "final", device: str = "aut
     cls = algorithm_spec(str(args["algo"])).algorithm_class
     # buffer_size=1: no replay memory is needed to predict.
     model = cls.load(path, env=None, device=device, buffer_size=1)
-    return LoadedRun(run_dir, args, model, path)
+    return LoadedRun(run_dir, str(args["algo"]), str(args["env"]), model, path)
 
 
 def evaluate_run(
