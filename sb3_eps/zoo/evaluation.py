@@ -148,16 +148,10 @@ def format_summary(summary: dict[str, Any]) -> str:
 def save_summary(summary: dict[str, Any], path: str | Path) -> Path:
     """Write an evaluation summary (episodes included) as JSON, atomically."""
     path = Path(path)
-    write_text_atomic(path, json.dumps(summary, indent=2, default=_json_default))
+    write_text_atomic(
+        path, json.dumps(summary, indent=2, default=lambda value: value.tolist())
+    )  # NumPy values
     return path
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
 
 
 def record_gif(

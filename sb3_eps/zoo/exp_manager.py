@@ -203,11 +203,6 @@ def close_envs(vec_envs: Sequence[Any]) -> None:
         vec_env.close()
 
 
-def env_kwargs_of(config: ResolvedConfig) -> dict[str, Any]:
-    """:return: the env constructor arguments of a run."""
-    return dict(config.entry.get("env_kwargs", {}))
-
-
 def build_env(
     config: ResolvedConfig,
     seed: int | None,
@@ -223,6 +218,7 @@ def build_env(
     """
     env_id = env_id or config.env_id
     n_worlds = n_envs or config.entry.get("n_envs", 1)
+    env_kwargs = dict(config.entry.get("env_kwargs", {}))
     try:
         mode = vec_env_mode(vec_env or config.entry.get("vec_env"))
         vec_env_kwargs = None
@@ -230,13 +226,11 @@ def build_env(
             # the training worlds: the main process learns beside them
             vec_env_kwargs = overlap_layout(n_worlds)
         return make_vec_env(
-            env_id, n_envs=n_worlds, seed=seed, env_kwargs=env_kwargs_of(config), vec_env_cls=mode,
+            env_id, n_envs=n_worlds, seed=seed, env_kwargs=env_kwargs, vec_env_cls=mode,
             vec_env_kwargs=vec_env_kwargs,
         )  # fmt: skip
     except (TypeError, ValueError) as error:
-        raise ConfigError(
-            f"{config.source}: env_kwargs {env_kwargs_of(config)} for {env_id}: {error}"
-        ) from None
+        raise ConfigError(f"{config.source}: env_kwargs {env_kwargs} for {env_id}: {error}") from None
 
 
 def build_model(
