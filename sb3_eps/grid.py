@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import io
 import os
+import shlex
 import shutil
 import signal
 import subprocess
@@ -496,6 +497,7 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument("-params", "--hyperparams", nargs="+", default=None, metavar="KEY:VALUE")
     parser.add_argument(
         "--train-args",
+        type=shlex.split,
         default=None,
         help='other flags of sb3_eps.train, one string: "--eval-freq 0 --vec-env subproc"',
     )
@@ -520,16 +522,10 @@ def make_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line. :return: the exit status (1 when a run failed)."""
-    import shlex
-
     args = make_parser().parse_args(argv)
     values: dict[str, Any] = load_grid_file(args.grid) if args.grid else {}
-    overrides = {
-        "algos": args.algos, "envs": args.envs, "seeds": args.seeds, "n_timesteps": args.n_timesteps,
-        "conf_file": args.conf_file, "hyperparams": args.hyperparams, "cpus_per_run": args.cpus_per_run,
-        "train_args": None if args.train_args is None else shlex.split(args.train_args),
-    }  # fmt: skip
-    values.update((key, value) for key, value in overrides.items() if value is not None)
+    flags = {field.name: getattr(args, field.name) for field in fields(Grid)}  # the flags override the file
+    values.update((key, value) for key, value in flags.items() if value is not None)
     if args.max_retries < 0:
         raise _error(f"--max-retries must be >= 0, got {args.max_retries}")
     results = run_grid(
