@@ -23,6 +23,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import CSVOutputFormat
 
 from sb3_eps.common.evaluation import evaluate_team
+from sb3_eps.common.snapshots import set_rng_states
 from sb3_eps.common.vec_env import MultiAgentVecEnv
 from sb3_eps.eps import EvolutionCallback
 from sb3_eps.zoo import run_folder
@@ -30,7 +31,6 @@ from sb3_eps.zoo.checkpoint import (
     Checkpoint,
     save_checkpoint,
     save_model_atomic,
-    set_rng_states,
     write_bytes_atomic,
 )
 

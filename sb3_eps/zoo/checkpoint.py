@@ -39,17 +39,16 @@ from typing import Any
 
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.snapshots import rng_states, snapshot_dumps
-from sb3_eps.common.snapshots import (
-    set_rng_states as set_rng_states,  # restored by the command line's callbacks
-)
+from sb3_eps.zoo.errors import ConfigError
 
 CHECKPOINT_NAME = "checkpoint.zip"
 #: The checkpoint before the newest one, kept until a newer one is written and verified.
 PREVIOUS_CHECKPOINT_NAME = "checkpoint.prev.zip"
 
 
-class CorruptCheckpoint(ValueError):
-    """A checkpoint file that cannot be read back: truncated, corrupt, or not written by ``sb3_eps.train``."""
+class CorruptCheckpoint(ConfigError):
+    """A checkpoint file that cannot be read back: truncated, corrupt, or not written by ``sb3_eps.train`` (one line
+    on the command line, as a configuration mistake)."""
 
 
 def _file_mode() -> int:
@@ -246,7 +245,7 @@ def restore_model(
 ) -> MultiAgentOffPolicyAlgorithm:
     """Rebuild the model of a checkpoint with its env, replay buffer and n-step windows, ready to
     ``learn(remaining, reset_num_timesteps=False)``. The global random states are restored separately
-    (:func:`set_rng_states`), right before training goes on, because loading re-seeds them.
+    (:func:`~sb3_eps.common.snapshots.set_rng_states`), right before training goes on, because loading re-seeds them.
 
     :param checkpoint: the loaded checkpoint
     :param algorithm_class: the model's class

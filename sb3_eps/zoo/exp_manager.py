@@ -440,9 +440,8 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
         if not path.is_file():
             raise ConfigError(f"--resume: {run_dir} is not a run folder of sb3_eps.train (no {path.name})")
     options = TrainOptions.from_record(load_yaml(args_path), f"--resume: {args_path}")
-    import_gym_packages(
-        [], options.gym_packages
-    )  # the run's plug-ins, before its algorithm and world are named
+    # The run's plug-ins, before its algorithm and world are named.
+    import_gym_packages([], options.gym_packages)
     spec = algorithm_spec(options.algo)
     check_env_id(options.env, f"--resume: {args_path}: env")
     options.init_from = None  # the warm-start weights are in the checkpoint already
@@ -454,12 +453,12 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
     try:
         checkpoint_path, meta, skipped = latest_good_checkpoint(run_dir / CHECKPOINT_NAME)
     except FileNotFoundError:
-        if final_model.is_file():
-            print(f"{run_dir} has finished already: its final model is {final_model}")
-            return TrainResult(run_dir, "already complete", int(options.n_timesteps or 0))
-        raise ConfigError(
-            f"--resume: {run_dir} has no {CHECKPOINT_NAME} (it stopped before its first checkpoint); start a new run"
-        ) from None
+        if not final_model.is_file():
+            raise ConfigError(
+                f"--resume: {run_dir} has no {CHECKPOINT_NAME} (it stopped before its first checkpoint); start a "
+                "new run"
+            ) from None
+        checkpoint_path, meta, skipped = final_model, {"complete": True}, []
     except CorruptCheckpoint as error:
         raise ConfigError(f"--resume: no usable checkpoint in {run_dir}: {error}; start a new run") from None
     for problem in skipped:
@@ -482,10 +481,7 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
         )
     prepared = prepare_run(options, config, build_model_now=False)
     try:
-        try:
-            checkpoint = load_checkpoint(checkpoint_path)
-        except CorruptCheckpoint as error:
-            raise ConfigError(f"--resume: {error}") from None
+        checkpoint = load_checkpoint(checkpoint_path)
         # The training worlds come back from the checkpoint, mid-episode (a ladder's: those of its rung).
         rung = resumed_rung(prepared, checkpoint.meta, checkpoint_path)
         close_envs([prepared.rungs[rung].env if prepared.rungs else prepared.env])
