@@ -16,10 +16,9 @@ seeds. ``--aggregate`` prints mean, median and IQM of the runs' final scores wit
 from __future__ import annotations
 
 import argparse
+import csv
 from collections.abc import Sequence
 from pathlib import Path
-
-import pandas
 
 from sb3_eps.zoo.cli import OneLineArgumentParser, positive_int
 from sb3_eps.zoo.errors import run_command
@@ -89,7 +88,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         rows = [row for key in ("success", "r") for row in aggregate_table(curves, key, args.window)]
         print(format_aggregates(rows))
         table = Path(output).with_suffix(".aggregate.csv")
-        pandas.DataFrame(rows).to_csv(table, index=False)
+        with table.open("w", newline="") as file:
+            writer = csv.DictWriter(file, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
         print(f"Aggregates: {table}")
     return 0
 

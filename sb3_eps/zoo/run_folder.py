@@ -14,6 +14,7 @@ Every reader here also finds ``args.yml`` and ``config.yml`` at a run folder's r
 
 from __future__ import annotations
 
+import csv
 import json
 import re
 import shlex
@@ -23,7 +24,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas
 
 from sb3_eps.zoo.errors import ConfigError
 
@@ -163,10 +163,18 @@ def find_run(folder: str | Path, algo: str, env_id: str, exp_id: int = 0) -> Pat
 def read_monitor(path: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """Read a ``monitor.csv``.
 
-    :return: ``(header, columns)``; the numeric columns as float arrays (booleans as 0/1)
+    :return: ``(header, columns)``; columns as float arrays (booleans as 0/1)
     """
-    with Path(path).open() as file:
+    path = Path(path)
+    with path.open() as file:
         first = file.readline()
         header = json.loads(first[1:]) if first.startswith("#") else {}
-        frame = pandas.read_csv(file).select_dtypes("number")
-    return header, {key: frame[key].to_numpy(dtype=float) for key in frame}
+        rows = list(csv.DictReader(file))
+    columns: dict[str, np.ndarray] = {}
+    if rows:
+        for key in rows[0]:
+            try:
+                columns[key] = np.array([float(row[key]) if row[key] != "" else np.nan for row in rows])
+            except ValueError:
+                continue
+    return header, columns
