@@ -82,11 +82,9 @@ def sample_hyperparams(
     :param spec: the algorithm
     :param n_timesteps: the trial budget (bounds ``learning_starts``)
     :param env_id: the training env id: EPS may then also search its team world (None: its default world only)
-    :param eps_only: sample the EPS arguments alone (``--eps-only``): the base algorithm keeps the entry's settings
-    :raises ConfigError: ``eps_only`` for an algorithm without EPS
+    :param eps_only: sample the EPS arguments alone (``--eps-only``, an ``eps_*`` algorithm's): the base algorithm
+        keeps the entry's settings
     """
-    if eps_only and not spec.eps:
-        raise ConfigError("--eps-only searches the EPS arguments: use it with an eps_* algorithm")
     space = next(
         (SEARCH_SPACES[cls] for cls in spec.algorithm_class.__mro__ if cls in SEARCH_SPACES), sample_common
     )
