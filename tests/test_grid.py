@@ -71,9 +71,7 @@ def test_local_grid_skips_resumes_and_gathers(tmp_path) -> None:
     interrupted = [seed for seed, run in first.items() if run["status"] == "interrupted"]
     assert interrupted, first
     stopped_at = {
-        seed: verify_checkpoint(folder / "gdq" / f"{ENV_ID}_seed{seed}" / "checkpoint.zip")[
-            "num_timesteps"
-        ]
+        seed: verify_checkpoint(folder / "gdq" / f"{ENV_ID}_seed{seed}" / "checkpoint.zip")["num_timesteps"]
         for seed in interrupted
     }
     assert all(0 < timesteps < 3000 for timesteps in stopped_at.values())
