@@ -134,7 +134,7 @@ class TeamMonitor(BaseCallback):
 
     def _write(self, episode: dict[str, Any], world: int) -> None:
         row = {
-            **{key: value for key, value in episode.items() if _is_scalar(value)},
+            **{key: value for key, value in episode.items() if isinstance(value, _SCALARS)},
             "ticks": int(self.model.ticks),  # type: ignore[attr-defined]
             "eps_ticks": eps_ticks_of(self.eps_callbacks),
             "world": world,
@@ -162,8 +162,7 @@ class TeamMonitor(BaseCallback):
             self._file = None
 
 
-def _is_scalar(value: Any) -> bool:
-    return isinstance(value, bool | int | float | str | np.integer | np.floating | np.bool_)
+_SCALARS = (bool, int, float, str, np.integer, np.floating, np.bool_)
 
 
 # ---------------------------------------------------------------------------------------------- evaluation
@@ -389,7 +388,10 @@ class TrainingStateCallback(BaseCallback):
 
         :return: whether a checkpoint was written
         """
-        broken = non_finite_parameters(self.model)
+        tensors = [*self.model.policy.named_parameters(), *self.model.policy.named_buffers()]
+        broken = [
+            name for name, tensor in tensors if tensor.is_floating_point() and not th.isfinite(tensor).all()
+        ]
         if broken:
             warnings.warn(
                 f"checkpoint at {self.model.num_timesteps} timesteps refused: non-finite values in {', '.join(broken)}; "
@@ -423,12 +425,6 @@ class TrainingStateCallback(BaseCallback):
         if self.verbose >= 1:
             print(f"Checkpoint at {self.saved_at} timesteps: {self.path}", flush=True)
         return True
-
-
-def non_finite_parameters(model: Any) -> list[str]:
-    """:return: the names of the policy's parameters and buffers that hold NaN or inf (empty when all finite)."""
-    tensors = [*model.policy.named_parameters(), *model.policy.named_buffers()]
-    return [name for name, tensor in tensors if tensor.is_floating_point() and not th.isfinite(tensor).all()]
 
 
 @contextmanager

@@ -356,7 +356,8 @@ def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, An
             continue
         value = entry[key]
         if key == "policy":
-            result[key] = _check_policy(value, spec, f"{where}: policy")
+            policies = Literal[tuple(sorted(spec.algorithm_class.policy_aliases))]  # type: ignore[valid-type]
+            result[key] = normalize_value(value, policies, f"{where}: policy")
         elif key == CALLBACK_KEY:
             result[key] = normalize_callbacks(value, f"{where}: callback")
         elif key == POLICY_KWARGS_KEY:
@@ -464,13 +465,6 @@ def _is_plain_data(value: Any, depth: int = 0) -> bool:
     if isinstance(value, Mapping):
         return all(isinstance(key, str) and _is_plain_data(item, depth + 1) for key, item in value.items())
     return False
-
-
-def _check_policy(value: Any, spec: AlgorithmSpec, where: str) -> str:
-    aliases = sorted(spec.algorithm_class.policy_aliases)
-    if not isinstance(value, str) or value not in aliases:
-        raise ConfigError(f"{where} must be one of {allowed(aliases)}, got {value!r}")
-    return value
 
 
 def normalize_arguments(
