@@ -323,7 +323,6 @@ class RayBackend:
         cpus_per_run: int,
         shared_folder: str | None,
         max_retries: int = 3,
-        init_kwargs: dict[str, Any] | None = None,
     ) -> None:
         try:
             import ray
@@ -334,14 +333,13 @@ class RayBackend:
         self.cpus_per_run = cpus_per_run
         self.shared_folder = shared_folder
         self.max_retries = max_retries
-        self.init_kwargs = dict(init_kwargs or {})
 
     def run(self, runs: Sequence[RunSpec], folder: Path, report: Callable[[dict[str, Any]], None]) -> None:
         """Submit one task per run, gather the results as they come (unpacking runs sent back into ``folder``)."""
         ray = self.ray
         started_here = not ray.is_initialized()
         if started_here:
-            ray.init(address=self.address, **self.init_kwargs)
+            ray.init(address=self.address)
         try:
             task = ray.remote(num_cpus=self.cpus_per_run, max_retries=self.max_retries)(_ray_task)
             target = None if self.shared_folder is None else str(Path(self.shared_folder).resolve())
@@ -399,7 +397,6 @@ def run_grid(
     address: str | None = None,
     shared_folder: str | None = None,
     max_retries: int = 3,
-    ray_init_kwargs: dict[str, Any] | None = None,
     verbose: int = 1,
 ) -> list[dict[str, Any]]:
     """Run a grid to its end (see the module docstring) and write ``<folder>/grid.yml``.
@@ -411,14 +408,13 @@ def run_grid(
     :param address: ray backend: the cluster address (None: a local Ray instance)
     :param shared_folder: ray backend: a folder every node sees at the same path; the runs are written there
     :param max_retries: ray backend: retries of a task lost with its worker or node
-    :param ray_init_kwargs: ray backend: more arguments of ``ray.init`` (e.g. ``num_cpus`` of a local instance)
     :param verbose: 0: silent; 1: one line per finished run and a summary
     :return: the report of every run, in grid order
     :raises ConfigError: for a mistake in the grid, before any run starts
     """
     runs = grid_runs(grid)
     if backend == "ray":
-        runner: Any = RayBackend(address, grid.cpus_per_run, shared_folder, max_retries, ray_init_kwargs)
+        runner: Any = RayBackend(address, grid.cpus_per_run, shared_folder, max_retries)
         if shared_folder is not None:
             folder = shared_folder
     elif backend == "local":

@@ -161,12 +161,10 @@ def record_gif(
     n_episodes: int = 1,
     seed: int = 0,
     env_kwargs: dict[str, Any] | None = None,
-    max_frames: int = 3_000,
-    fps: int = 20,
 ) -> Path:
-    """Play ``n_episodes`` greedy episodes in one world drawn as ``rgb_array`` and write them as an animated GIF.
+    """Play ``n_episodes`` greedy episodes (3,000 frames at most) in one world drawn as ``rgb_array`` and write them
+    as an animated GIF at 20 frames per second (the robots decide at 20 Hz: it plays in real time).
 
-    :param fps: frames per second of the GIF (the robots decide at 20 Hz: 20 plays in real time)
     :return: the GIF's path
     """
     from envs.turtlebot3 import save_gif
@@ -177,7 +175,7 @@ def record_gif(
     )
     try:
         check_spaces(run.model, venv, env_id, f"the model of {run.run_dir}")
-        frames, _ = record_frames(run.model, venv, n_episodes, max_frames=max_frames)
+        frames, _ = record_frames(run.model, venv, n_episodes, max_frames=3_000)
     finally:
         venv.close()
-    return save_gif(frames, path, fps=fps)
+    return save_gif(frames, path, fps=20)
