@@ -3,7 +3,7 @@
 Examples::
 
     python -m sb3_eps.grid --algos gdq qmix --envs MultiRobotNav-2-v0 MultiRobotNav-4-v0 --seeds 0 1 2 -f logs/grid
-    python -m sb3_eps.grid --grid my_grid.yml                       # the grid in a YAML file (keys: GRID_KEYS)
+    python -m sb3_eps.grid --grid my_grid.yml                       # the grid in a YAML file (keys: the fields of Grid)
     python -m sb3_eps.grid --grid my_grid.yml --backend ray --address auto --shared-folder /mnt/shared/grid
 
 Every run is a ``python -m sb3_eps.train`` process with its folder in ``<folder>/<algo>/<env id>_seed<seed>/``.
@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import io
 import os
+import shlex
 import shutil
 import signal
 import subprocess
@@ -26,9 +27,11 @@ import tarfile
 import tempfile
 import threading
 import time
+import typing
+from collections import Counter
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -41,16 +44,6 @@ RESERVED_TRAIN_FLAGS = (
     "--algo", "--env", "--seed", "-f", "--log-folder", "--run-name", "--resume", "-n", "--n-timesteps",
     "-conf", "--conf-file", "-params", "--hyperparams", "-optimize", "--optimize-hyperparameters",
 )  # fmt: skip
-GRID_KEYS = (
-    "algos",
-    "envs",
-    "seeds",
-    "n_timesteps",
-    "conf_file",
-    "hyperparams",
-    "train_args",
-    "cpus_per_run",
-)
 
 
 # ---------------------------------------------------------------------------------------------- the grid
@@ -94,70 +87,46 @@ def load_grid_file(path: str | Path) -> dict[str, Any]:
     from sb3_eps.zoo.config import load_yaml
 
     data = load_yaml(path)
+    keys = [field.name for field in fields(Grid)]
     if not isinstance(data, dict):
-        raise _error(f"{path}: a grid file maps keys ({', '.join(GRID_KEYS)}) to values")
-    unknown = sorted(set(data) - set(GRID_KEYS))
+        raise _error(f"{path}: a grid file maps keys ({', '.join(keys)}) to values")
+    unknown = sorted(set(data) - set(keys))
     if unknown:
-        raise _error(f"{path}: unknown key(s) {unknown}; allowed: {', '.join(GRID_KEYS)}")
+        raise _error(f"{path}: unknown key(s) {unknown}; allowed: {', '.join(keys)}")
     return data
 
 
-def _str_list(value: Any, key: str) -> list[str]:
-    if isinstance(value, str):
-        return [value]
-    if not isinstance(value, list) or not all(isinstance(item, str | int | float) for item in value):
-        raise _error(f"grid: {key} must be a list of strings, got {value!r}")
-    return [str(item) for item in value]
-
-
 def make_grid(values: dict[str, Any]) -> Grid:
-    """Check the grid's keys (from a file and the command line) and return the :class:`Grid`.
+    """Check the grid's keys (from a file and the command line) against the types of :class:`Grid` and return it.
 
     :raises ConfigError: naming the key and what is allowed
     """
-    from sb3_eps.zoo.schema import ALGORITHMS
+    from sb3_eps.zoo.schema import ALGORITHMS, normalize_value
 
     if not values.get("algos"):
         raise _error("grid: no algorithms; give --algos (e.g. --algos gdq qmix) or algos: in the grid file")
-    algos = _str_list(values["algos"], "algos")
-    for algo in algos:
+    values = {key: [value] if isinstance(value, str) and key != "conf_file" else value
+              for key, value in values.items() if value is not None}  # fmt: skip
+    if isinstance(values.get("seeds"), int) and not isinstance(values["seeds"], bool):
+        values["seeds"] = list(range(values["seeds"]))  # a count
+    hints = typing.get_type_hints(Grid)
+    grid = Grid(
+        **{key: normalize_value(value, hints[key], f"grid: {key}", key) for key, value in values.items()}
+    )
+    for algo in grid.algos:
         if algo not in ALGORITHMS:
             raise _error(f"grid: unknown algorithm {algo!r}; allowed: {', '.join(ALGORITHMS)}")
-    seeds = values.get("seeds", [0])
-    if isinstance(seeds, int) and not isinstance(seeds, bool):
-        seeds = list(range(seeds))
-    if (
-        not isinstance(seeds, list)
-        or not seeds
-        or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds)
-    ):
-        raise _error(f"grid: seeds must be non-negative ints (or a count), got {seeds!r}")
-    cpus = values.get("cpus_per_run", 1)
-    if isinstance(cpus, bool) or not isinstance(cpus, int) or cpus < 1:
-        raise _error(f"grid: cpus_per_run must be an int >= 1, got {cpus!r}")
-    n_timesteps = values.get("n_timesteps")
-    if n_timesteps is not None and (
-        isinstance(n_timesteps, bool) or not isinstance(n_timesteps, int) or n_timesteps < 1
-    ):
-        raise _error(f"grid: n_timesteps must be an int >= 1, got {n_timesteps!r}")
-    train_args = _str_list(values.get("train_args") or [], "train_args")
-    for arg in train_args:
+    if not grid.seeds:
+        raise _error("grid: seeds is empty; give at least one seed (or a count)")
+    for arg in grid.train_args:
         if arg.split("=")[0] in RESERVED_TRAIN_FLAGS:
             raise _error(
                 f"grid: train_args may not hold {arg.split('=')[0]}: the grid sets it (use the grid's algos, envs, "
                 "seeds, n_timesteps, conf_file, hyperparams keys)"
             )
-    envs_value = values.get("envs")
-    return Grid(
-        algos=algos,
-        envs=None if not envs_value else _str_list(envs_value, "envs"),
-        seeds=list(dict.fromkeys(seeds)),
-        n_timesteps=n_timesteps,
-        conf_file=None if values.get("conf_file") is None else str(values["conf_file"]),
-        hyperparams=_str_list(values.get("hyperparams") or [], "hyperparams"),
-        train_args=train_args,
-        cpus_per_run=cpus,
-    )
+    grid.envs = grid.envs or None
+    grid.seeds = list(dict.fromkeys(grid.seeds))
+    return grid
 
 
 def grid_runs(grid: Grid) -> list[RunSpec]:
@@ -203,7 +172,7 @@ def grid_runs(grid: Grid) -> list[RunSpec]:
 def run_state(run_dir: Path, env_id: str) -> str:
     """:return: ``"new"`` (no folder), ``"complete"``, ``"interrupted"`` (a checkpoint to resume from) or
     ``"incomplete"`` (stopped before its first checkpoint: nothing to resume)."""
-    from sb3_eps.zoo.checkpoint import CHECKPOINT_NAME, read_checkpoint_meta
+    from sb3_eps.zoo.checkpoint import CHECKPOINT_NAME, CorruptCheckpoint, verify_checkpoint
     from sb3_eps.zoo.run_folder import final_model_name
 
     if not run_dir.is_dir():
@@ -211,8 +180,8 @@ def run_state(run_dir: Path, env_id: str) -> str:
     checkpoint, final = run_dir / CHECKPOINT_NAME, run_dir / final_model_name(env_id)
     if checkpoint.is_file():
         try:
-            complete = bool(read_checkpoint_meta(checkpoint).get("complete"))
-        except (OSError, ValueError, KeyError):
+            complete = bool(verify_checkpoint(checkpoint).get("complete"))
+        except CorruptCheckpoint:
             return "incomplete"
         return "complete" if complete and final.is_file() else "interrupted"
     return "complete" if final.is_file() else "incomplete"
@@ -245,12 +214,9 @@ def execute_run(
     run_dir = folder / spec.algo / spec.name
     log_path = folder / spec.algo / f"{spec.name}.log"
     before = run_state(run_dir, spec.env)
-    report: dict[str, Any] = {
-        "algo": spec.algo, "env": spec.env, "seed": spec.seed, "run_dir": str(run_dir), "before": before,
-        "host": os.uname().nodename, "returncode": None, "seconds": 0.0,
-    }  # fmt: skip
+    report = _skipped(spec, folder, before)
     if before == "complete":
-        return {**report, "action": "skipped", "status": "complete"}
+        return report
     if before == "incomplete":
         number = 1
         while (aside := run_dir.with_name(f"{spec.name}.incomplete-{number}")).exists():
@@ -357,7 +323,6 @@ class RayBackend:
         cpus_per_run: int,
         shared_folder: str | None,
         max_retries: int = 3,
-        init_kwargs: dict[str, Any] | None = None,
     ) -> None:
         try:
             import ray
@@ -368,21 +333,20 @@ class RayBackend:
         self.cpus_per_run = cpus_per_run
         self.shared_folder = shared_folder
         self.max_retries = max_retries
-        self.init_kwargs = dict(init_kwargs or {})
 
     def run(self, runs: Sequence[RunSpec], folder: Path, report: Callable[[dict[str, Any]], None]) -> None:
         """Submit one task per run, gather the results as they come (unpacking runs sent back into ``folder``)."""
         ray = self.ray
         started_here = not ray.is_initialized()
         if started_here:
-            ray.init(address=self.address, **self.init_kwargs)
+            ray.init(address=self.address)
         try:
             task = ray.remote(num_cpus=self.cpus_per_run, max_retries=self.max_retries)(_ray_task)
             target = None if self.shared_folder is None else str(Path(self.shared_folder).resolve())
             pending = {}
             for spec in runs:
                 if target is None and run_state(folder / spec.algo / spec.name, spec.env) == "complete":
-                    report({**_skipped(spec, folder)})  # sent back earlier: nothing to send to a node
+                    report(_skipped(spec, folder))  # sent back earlier: nothing to send to a node
                     continue
                 pending[task.remote(spec, target)] = spec
             while pending:
@@ -406,10 +370,11 @@ class RayBackend:
                 ray.shutdown()
 
 
-def _skipped(spec: RunSpec, folder: Path) -> dict[str, Any]:
+def _skipped(spec: RunSpec, folder: Path, before: str = "complete") -> dict[str, Any]:
+    """:return: the report of a run left as it is (its ``action`` and ``status`` replaced when it runs)."""
     return {
         "algo": spec.algo, "env": spec.env, "seed": spec.seed, "run_dir": str(folder / spec.algo / spec.name),
-        "before": "complete", "action": "skipped", "status": "complete", "returncode": None, "seconds": 0.0,
+        "before": before, "action": "skipped", "status": "complete", "returncode": None, "seconds": 0.0,
         "host": os.uname().nodename,
     }  # fmt: skip
 
@@ -432,7 +397,6 @@ def run_grid(
     address: str | None = None,
     shared_folder: str | None = None,
     max_retries: int = 3,
-    ray_init_kwargs: dict[str, Any] | None = None,
     verbose: int = 1,
 ) -> list[dict[str, Any]]:
     """Run a grid to its end (see the module docstring) and write ``<folder>/grid.yml``.
@@ -444,14 +408,13 @@ def run_grid(
     :param address: ray backend: the cluster address (None: a local Ray instance)
     :param shared_folder: ray backend: a folder every node sees at the same path; the runs are written there
     :param max_retries: ray backend: retries of a task lost with its worker or node
-    :param ray_init_kwargs: ray backend: more arguments of ``ray.init`` (e.g. ``num_cpus`` of a local instance)
     :param verbose: 0: silent; 1: one line per finished run and a summary
     :return: the report of every run, in grid order
     :raises ConfigError: for a mistake in the grid, before any run starts
     """
     runs = grid_runs(grid)
     if backend == "ray":
-        runner: Any = RayBackend(address, grid.cpus_per_run, shared_folder, max_retries, ray_init_kwargs)
+        runner: Any = RayBackend(address, grid.cpus_per_run, shared_folder, max_retries)
         if shared_folder is not None:
             folder = shared_folder
     elif backend == "local":
@@ -504,9 +467,7 @@ def run_grid(
 
     write_text_atomic(folder / SUMMARY_NAME, yaml.safe_dump(summary, sort_keys=False))
     if verbose >= 1:
-        counts: dict[str, int] = {}
-        for entry in ordered:
-            counts[entry["status"]] = counts.get(entry["status"], 0) + 1
+        counts = Counter(entry["status"] for entry in ordered)
         status = ", ".join(f"{n} {name}" for name, n in counts.items())
         print(
             f"Grid of {len(runs)} runs in {summary['wall_seconds']:.0f} s: {status}; summary {folder / SUMMARY_NAME}"
@@ -532,6 +493,7 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument("-params", "--hyperparams", nargs="+", default=None, metavar="KEY:VALUE")
     parser.add_argument(
         "--train-args",
+        type=shlex.split,
         default=None,
         help='other flags of sb3_eps.train, one string: "--eval-freq 0 --vec-env subproc"',
     )
@@ -556,16 +518,10 @@ def make_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line. :return: the exit status (1 when a run failed)."""
-    import shlex
-
     args = make_parser().parse_args(argv)
     values: dict[str, Any] = load_grid_file(args.grid) if args.grid else {}
-    overrides = {
-        "algos": args.algos, "envs": args.envs, "seeds": args.seeds, "n_timesteps": args.n_timesteps,
-        "conf_file": args.conf_file, "hyperparams": args.hyperparams, "cpus_per_run": args.cpus_per_run,
-        "train_args": None if args.train_args is None else shlex.split(args.train_args),
-    }  # fmt: skip
-    values.update((key, value) for key, value in overrides.items() if value is not None)
+    flags = {field.name: getattr(args, field.name) for field in fields(Grid)}  # the flags override the file
+    values.update((key, value) for key, value in flags.items() if value is not None)
     if args.max_retries < 0:
         raise _error(f"--max-retries must be >= 0, got {args.max_retries}")
     results = run_grid(

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from sb3_eps.zoo.cli import OneLineArgumentParser, positive_int
-from sb3_eps.zoo.errors import ConfigError, run_command
+from sb3_eps.zoo.errors import run_command
 
 if TYPE_CHECKING:
     from sb3_eps.zoo.plotting import RunCurve
@@ -110,18 +110,6 @@ def reference_summary(difference: dict[str, float]) -> str:
     )
 
 
-def main_algorithm() -> str:
-    """:return: ``eps_gdq`` when the EvolutionCallback imports, else ``gdq``."""
-    from sb3_eps.zoo.schema import EVOLUTION_CALLBACK, callback_class
-
-    try:
-        callback_class(EVOLUTION_CALLBACK)
-    except ConfigError as error:
-        print(f"EPS is not available ({error}); training GDQ instead")
-        return "gdq"
-    return "eps_gdq"
-
-
 def draw_evaluations(run_dir: Path, output: Path, references: list[RunCurve] | None = None) -> Path | None:
     """Draw a run's greedy evaluations beside the reference curves (default :func:`reference_curves`), x axis =
     training + EPS ticks; the README's picture of the main job is drawn so.
@@ -149,16 +137,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("-tb", "--tensorboard-log", default="logs/tensorboard")
     parser.add_argument(
-        "--algo", choices=["eps_gdq", "gdq"], default=None, help="default: eps_gdq if available"
+        "--algo", choices=["eps_gdq", "gdq"], default="eps_gdq", help="EPS-GDQ (default) or GDQ alone"
     )
     args = parser.parse_args(argv)
 
     from sb3_eps.zoo.exp_manager import TrainOptions, train
     from sb3_eps.zoo.plotting import load_curve, plot_learning_curves
 
-    algo = args.algo or main_algorithm()
     options = TrainOptions(
-        algo=algo, env=ENV_ID, n_timesteps=args.n_timesteps, seed=args.seed, folder=args.folder,
+        algo=args.algo, env=ENV_ID, n_timesteps=args.n_timesteps, seed=args.seed, folder=args.folder,
         eval_freq=EVAL_FREQ, eval_episodes=EVAL_EPISODES, save_freq=SAVE_FREQ, progress=True,
         tensorboard_log=args.tensorboard_log, device="cpu", log_interval=200,
     )  # fmt: skip

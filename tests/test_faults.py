@@ -33,7 +33,6 @@ from sb3_eps.zoo.checkpoint import (
     CHECKPOINT_NAME,
     PREVIOUS_CHECKPOINT_NAME,
     CorruptCheckpoint,
-    read_checkpoint_meta,
     verify_checkpoint,
 )
 from sb3_eps.zoo.errors import run_command
@@ -114,7 +113,7 @@ def test_a_crash_at_any_point_resumes_to_the_uninterrupted_run(
     meta = verify_checkpoint(run / CHECKPOINT_NAME)
     assert 0 < meta["num_timesteps"] < N_TIMESTEPS
     if where == "checkpoint write":  # the interrupted third write (at 1800 timesteps) replaced nothing
-        previous = read_checkpoint_meta(run / PREVIOUS_CHECKPOINT_NAME)["num_timesteps"]
+        previous = verify_checkpoint(run / PREVIOUS_CHECKPOINT_NAME)["num_timesteps"]
         assert 600 <= previous < 1200 <= meta["num_timesteps"] < 1800
         assert not list(run.glob(".*.tmp"))
     assert train.main(["--resume", str(run), "--verbose", "0"]) == 0
@@ -126,8 +125,8 @@ def test_a_corrupt_checkpoint_is_reported_in_one_line_and_the_previous_one_is_us
     uninterrupted, tmp_path, monkeypatch, capsys, damage
 ) -> None:
     run = crashed_run(tmp_path, monkeypatch, "rollout")
-    latest = read_checkpoint_meta(run / CHECKPOINT_NAME)["num_timesteps"]
-    previous = read_checkpoint_meta(run / PREVIOUS_CHECKPOINT_NAME)["num_timesteps"]
+    latest = verify_checkpoint(run / CHECKPOINT_NAME)["num_timesteps"]
+    previous = verify_checkpoint(run / PREVIOUS_CHECKPOINT_NAME)["num_timesteps"]
     assert previous < latest
     data = (run / CHECKPOINT_NAME).read_bytes()
     if damage == "truncated":  # a copy cut short
@@ -199,7 +198,7 @@ def test_a_failed_checkpoint_write_keeps_the_previous_one_and_training_completes
         assert train.main([*ARGV, "-f", str(tmp_path), "--keep-checkpoint"]) == 0
     run = run_folder(tmp_path)
     assert (run / f"{ENV_ID}.zip").is_file() and len(written) >= 4
-    assert read_checkpoint_meta(run / CHECKPOINT_NAME)["complete"]
+    assert verify_checkpoint(run / CHECKPOINT_NAME)["complete"]
 
 
 # ---------------------------------------------------------------------------------------------- 2. EPS workers
@@ -405,8 +404,14 @@ def test_a_non_finite_mutant_is_disqualified_with_a_warning(monkeypatch) -> None
     monkeypatch.setattr(round_module, "population_from_directions", with_nan_mutant)
     model = mpe_model(GDQ)
     callback = EvolutionCallback(
-        eval_env_id="CooperativeNavigationSingle-v0", population_size=3, period=2, n_workers=0, seed=0,
-        period_unit="episodes", max_eps_share=None, target_flip_share=None,
+        eval_env_id="CooperativeNavigationSingle-v0",
+        population_size=3,
+        period=2,
+        n_workers=0,
+        seed=0,
+        period_unit="episodes",
+        max_eps_share=None,
+        target_flip_share=None,
     )
     with pytest.warns(
         RuntimeWarning, match=r"individuals \[2\] have non-finite weights; they are disqualified"
@@ -451,7 +456,7 @@ TRAIN_CASES = [
     ("float-budget", GOOD.replace("100", "1.5"), [], ["n_timesteps", "an int >= 1", "1.5"]),
     ("negative-learning-rate", GOOD + "  learning_rate: -0.001\n", [], ["learning_rate", "> 0"]),
     ("epsilon-above-one", GOOD + "  exploration_final_eps: 2\n", [], ["exploration_final_eps", "<= 1"]),
-    ("negative-layer", GOOD + '  policy_kwargs: "dict(net_arch=[-4])"\n', [], ["net_arch", "ints >= 1"]),
+    ("negative-layer", GOOD + '  policy_kwargs: "dict(net_arch=[-4])"\n', [], ["net_arch", "each an int >= 1"]),
     ("empty-buffer", GOOD + "  buffer_size: 0\n", [], ["buffer_size", ">= 1"]),
     ("eps-world-of-other-spaces", EPS_ENTRY, ["--algo", "eps_gdq"], ["eval_env_id SingleRobotNav-v0", "Box(30,)", "Box(18,)", "CooperativeNavigationSingle-v0"]),
     ("eps-sigma-not-a-number", GOOD + "  callback:\n    - sb3_eps.EvolutionCallback: {sigma: big}\n", ["--algo", "eps_gdq"], ["sigma", "a number"]),

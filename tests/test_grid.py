@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 from sb3_eps import grid as grid_module
-from sb3_eps.zoo.checkpoint import read_checkpoint_meta
+from sb3_eps.zoo.checkpoint import verify_checkpoint
 from sb3_eps.zoo.errors import ConfigError
 
 ENV_ID = "Corridor-2-v0"
@@ -71,9 +71,7 @@ def test_local_grid_skips_resumes_and_gathers(tmp_path) -> None:
     interrupted = [seed for seed, run in first.items() if run["status"] == "interrupted"]
     assert interrupted, first
     stopped_at = {
-        seed: read_checkpoint_meta(folder / "gdq" / f"{ENV_ID}_seed{seed}" / "checkpoint.zip")[
-            "num_timesteps"
-        ]
+        seed: verify_checkpoint(folder / "gdq" / f"{ENV_ID}_seed{seed}" / "checkpoint.zip")["num_timesteps"]
         for seed in interrupted
     }
     assert all(0 < timesteps < 3000 for timesteps in stopped_at.values())
@@ -112,7 +110,7 @@ def test_local_grid_skips_resumes_and_gathers(tmp_path) -> None:
         (["--envs", ENV_ID], "no algorithms"),
         (["--algos", "dqn"], "unknown algorithm 'dqn'"),
         (["--algos", "gdq", "--envs", "Nope-v0"], "unknown env id 'Nope-v0'"),
-        (["--algos", "gdq", "--envs", ENV_ID, "--seeds", "-1"], "seeds must be non-negative"),
+        (["--algos", "gdq", "--envs", ENV_ID, "--seeds", "-1"], "seeds must be a list, each an int >= 0"),
         (["--algos", "gdq", "--envs", ENV_ID, "--train-args", "--seed 3"], "train_args may not hold --seed"),
         (["--algos", "gdq", "--envs", ENV_ID, "--train-args=--no-such-flag"], "not flags of"),
         (["--algos", "gdq", "--envs", ENV_ID, "--hyperparams", "gamma:7"], "gamma"),

@@ -16,7 +16,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 import envs  # noqa: F401
 from sb3_eps import GDQ, QMIX, evaluate_team, learn_ladder, make_vec_env, train
-from sb3_eps.zoo.checkpoint import load_checkpoint, read_checkpoint_meta
+from sb3_eps.zoo.checkpoint import load_checkpoint, verify_checkpoint
 from sb3_eps.zoo.config import config_file, resolve_config
 from sb3_eps.zoo.errors import run_command
 from tests.test_zoo_resume import assert_equal_runs
@@ -49,7 +49,9 @@ def test_a_ladder_counts_every_rungs_ticks_and_runs_the_schedules_once() -> None
     # The schedules run once over the ladder's 800 agent-steps (read before each step of 4, then 8 agent-steps):
     # they do not end with rung 1 and start again on rung 2.
     remaining = [row[2] for row in progress.rows]
-    expected = [1 - 4 * step / 800 for step in range(100)] + [1 - (400 + 8 * step) / 800 for step in range(50)]
+    expected = [1 - 4 * step / 800 for step in range(100)] + [
+        1 - (400 + 8 * step) / 800 for step in range(50)
+    ]
     assert remaining == pytest.approx(expected)
     assert model.replay_buffer.n_agents == 4 and model.replay_buffer.size() > 0
 
@@ -116,7 +118,9 @@ ERROR_CASES = [
 ]  # fmt: skip
 
 
-@pytest.mark.parametrize(("case", "rungs", "flags", "words"), ERROR_CASES, ids=[case[0] for case in ERROR_CASES])
+@pytest.mark.parametrize(
+    ("case", "rungs", "flags", "words"), ERROR_CASES, ids=[case[0] for case in ERROR_CASES]
+)
 def test_a_bad_ladder_gives_one_line_and_no_run_folder(case, rungs, flags, words, tmp_path, capsys) -> None:
     argv = ["--env", "MultiRobotNav-4-v0", "-f", str(tmp_path / "logs"), "--seed", "0", *flags]
     if "--algo" not in flags:
@@ -175,21 +179,25 @@ def uninterrupted(tmp_path_factory) -> Path:
     return the_run(folder)
 
 
-def test_a_ladder_stopped_by_sigterm_in_rung_two_resumes_to_the_uninterrupted_run(uninterrupted, tmp_path) -> None:
+def test_a_ladder_stopped_by_sigterm_in_rung_two_resumes_to_the_uninterrupted_run(
+    uninterrupted, tmp_path
+) -> None:
     folder = tmp_path / "interrupted"
     process = subprocess.Popen([sys.executable, "-m", "sb3_eps.train", *ARGV, "-f", str(folder)])
     deadline = time.time() + 180
     while True:  # a periodic checkpoint inside rung 2 (not at its start): the 4-robot world trains
         found = list(folder.glob("gdq/*/checkpoint.zip"))
-        meta = read_checkpoint_meta(found[0]) if found else {}
+        meta = verify_checkpoint(found[0]) if found else {}
         if meta.get("rung") == 1 and meta["rung_ticks"] > 0:
             break
-        assert process.poll() is None and time.time() < deadline, "training ended before rung 2 could be stopped"
+        assert process.poll() is None and time.time() < deadline, (
+            "training ended before rung 2 could be stopped"
+        )
         time.sleep(0.02)
     process.send_signal(signal.SIGTERM)
     assert process.wait(timeout=120) == 0
     run = the_run(folder)
-    meta = read_checkpoint_meta(run / "checkpoint.zip")
+    meta = verify_checkpoint(run / "checkpoint.zip")
     assert meta["rung"] == 1 and 0 < meta["rung_ticks"] < 600 and meta["ticks"] == 300 + meta["rung_ticks"]
     assert not (run / f"{ENV_ID}.zip").exists()
 

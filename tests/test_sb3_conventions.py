@@ -10,7 +10,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from sb3_eps import GDQ, IQL
 from sb3_eps.common.buffers import JointReplayBuffer, PrioritizedJointReplayBuffer
 from sb3_eps.zoo.config import resolve_config
-from sb3_eps.zoo.schema import algorithm_kwargs
+from sb3_eps.zoo.schema import algorithm_kwargs, algorithm_spec
 from tests.test_algorithms import tiny_model
 
 
@@ -33,7 +33,7 @@ def test_every_zoo_config_keeps_one_target_update_per_gradient_step(algo) -> Non
     """The shipped configs gave target_update_interval: 1 (gradient steps); they now say it under the new name."""
     entry = resolve_config(algo, "MultiRobotNav-4-v0").entry
     assert "target_update_interval" not in entry
-    assert algorithm_kwargs(entry)["gradient_steps_per_target_update"] == 1
+    assert algorithm_kwargs(entry, algorithm_spec(algo))["gradient_steps_per_target_update"] == 1
 
 
 def test_gradient_steps_per_target_update_counts_gradient_steps() -> None:
@@ -43,8 +43,6 @@ def test_gradient_steps_per_target_update_counts_gradient_steps() -> None:
     # The default: one Polyak step after every gradient step, none during the random warm-up.
     default = tiny_model(IQL)
     assert _update_schedule(default) == list(range(1, default._n_updates + 1))
-
-
 
 
 # ---------------------------------------------------------------------------------------------- replay buffers
@@ -65,12 +63,18 @@ def test_replay_buffer_class_and_kwargs_as_sb3() -> None:
     assert isinstance(tiny_model(IQL).replay_buffer, PrioritizedJointReplayBuffer)
     uniform = tiny_model(IQL, replay_buffer_class=JointReplayBuffer)
     assert type(uniform.replay_buffer) is JointReplayBuffer and not uniform.prioritized_replay
-    alpha = tiny_model(IQL, replay_buffer_class=PrioritizedJointReplayBuffer, replay_buffer_kwargs={"alpha": 0.3})
+    alpha = tiny_model(
+        IQL, replay_buffer_class=PrioritizedJointReplayBuffer, replay_buffer_kwargs={"alpha": 0.3}
+    )
     assert alpha.replay_buffer.alpha == 0.3 and alpha.prioritized_replay
     model = tiny_model(GDQ, replay_buffer_class=CountingBuffer, replay_buffer_kwargs={"tag": "mine"})
     model.learn(150)
     buffer = model.replay_buffer
-    assert isinstance(buffer, CountingBuffer) and buffer.tag == "mine" and buffer.alpha == model.prioritized_replay_alpha
+    assert (
+        isinstance(buffer, CountingBuffer)
+        and buffer.tag == "mine"
+        and buffer.alpha == model.prioritized_replay_alpha
+    )
     assert buffer.n_added > 0 and buffer.size() > 0 and buffer.n_agents == model.n_agents
 
 
@@ -91,7 +95,7 @@ def test_the_config_names_a_replay_buffer_class() -> None:
     entry = resolve_config(
         "iql", "CooperativeNavigation-v0", hyperparams=["replay_buffer_class:JointReplayBuffer"]
     ).entry
-    assert algorithm_kwargs(entry)["replay_buffer_class"] is JointReplayBuffer
+    assert algorithm_kwargs(entry, algorithm_spec("iql"))["replay_buffer_class"] is JointReplayBuffer
     with pytest.raises(Exception, match="replay_buffer_class must be one of"):
         resolve_config("iql", "CooperativeNavigation-v0", hyperparams=["replay_buffer_class:ReplayBuffer"])
 
@@ -99,10 +103,16 @@ def test_the_config_names_a_replay_buffer_class() -> None:
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        ({"replay_buffer_class": ReplayBuffer}, "must be JointReplayBuffer, PrioritizedJointReplayBuffer or a subclass"),
+        (
+            {"replay_buffer_class": ReplayBuffer},
+            "must be JointReplayBuffer, PrioritizedJointReplayBuffer or a subclass",
+        ),
         ({"replay_buffer_class": "JointReplayBuffer"}, "must be JointReplayBuffer"),
         ({"replay_buffer_kwargs": {"n_agents": 2}}, r"cannot set \['n_agents'\]"),
-        ({"replay_buffer_class": JointReplayBuffer, "replay_buffer_kwargs": {"alpha": 0.5}}, "do not fit JointReplayBuffer"),
+        (
+            {"replay_buffer_class": JointReplayBuffer, "replay_buffer_kwargs": {"alpha": 0.5}},
+            "do not fit JointReplayBuffer",
+        ),
     ],
 )
 def test_an_incompatible_replay_buffer_is_one_clear_error(kwargs, message) -> None:
@@ -112,7 +122,9 @@ def test_an_incompatible_replay_buffer_is_one_clear_error(kwargs, message) -> No
 
 def test_prioritised_and_uniform_buffers_learn_the_same_as_before() -> None:
     """No class given: prioritized_replay chooses, as before (the same weights as naming the class)."""
-    implicit = tiny_model(IQL, prioritized_replay=False).learn(200)  # trained before the next one seeds the RNGs
+    implicit = tiny_model(IQL, prioritized_replay=False).learn(
+        200
+    )  # trained before the next one seeds the RNGs
     explicit = tiny_model(IQL, prioritized_replay=True, replay_buffer_class=JointReplayBuffer).learn(200)
     for name, tensor in implicit.policy.state_dict().items():
         assert np.array_equal(tensor.numpy(), explicit.policy.state_dict()[name].numpy()), name
@@ -120,8 +132,10 @@ def test_prioritised_and_uniform_buffers_learn_the_same_as_before() -> None:
 
 def test_gdq_options_belong_to_the_entry_not_to_policy_kwargs(tmp_path) -> None:
     path = tmp_path / "gdq.yml"
-    path.write_text("default:\n  n_timesteps: 1000\n  policy_kwargs: \"dict(net_arch=[16], global_values='stored')\"\n")
-    with pytest.raises(Exception, match="unknown key 'global_values' for gdq"):
+    path.write_text(
+        "default:\n  n_timesteps: 1000\n  policy_kwargs: \"dict(net_arch=[16], global_values='stored')\"\n"
+    )
+    with pytest.raises(Exception, match="policy_kwargs: unknown key 'global_values'"):
         resolve_config("gdq", "CooperativeNavigation-v0", conf_file=path)
     with pytest.raises(Exception, match="global_values must be one of recomputed, stored, target"):
         resolve_config("gdq", "CooperativeNavigation-v0", hyperparams=["global_values:cached"])

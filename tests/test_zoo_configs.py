@@ -10,7 +10,7 @@ import yaml
 
 import envs
 from sb3_eps.common.policies import DEFAULT_NET_ARCH, DEFAULT_STREAM_ARCH, MultiAgentQPolicy
-from sb3_eps.eps import eps_env_id_for
+from sb3_eps.eps import EPSSettings, EvolutionCallback, eps_env_id_for
 from sb3_eps.zoo.config import (
     DEFAULT_KEY,
     ResolvedConfig,
@@ -35,7 +35,6 @@ from sb3_eps.zoo.schema import (
     algorithm_spec,
     build_callbacks,
     callback_class,
-    callback_parameters,
     package_defaults,
 )
 
@@ -89,7 +88,7 @@ def test_a_resolved_entry_holds_every_constructor_default(algo) -> None:
     for name in spec.params:
         default = signature[name].default
         if name not in set_by_file and default is not None:
-            value = algorithm_kwargs(entry)[name]
+            value = algorithm_kwargs(entry, spec)[name]
             assert value == default or (callable(default) and value(0.5) == default(0.5)), (
                 name
             )  # lin_x: a schedule
@@ -106,7 +105,8 @@ def test_a_resolved_entry_holds_every_constructor_default(algo) -> None:
         if key not in set_by_file.get("policy_kwargs", {})
     )
     if spec.eps:  # the EPS arguments the files list are the callback's defaults
-        parameters = callback_parameters(callback_class(EVOLUTION_CALLBACK))
+        assert callback_class(EVOLUTION_CALLBACK) is EvolutionCallback
+        parameters = inspect.signature(EPSSettings).parameters
         (item,) = written[DEFAULT_KEY]["callback"]
         assert all(value == parameters[name].default for name, value in item[EVOLUTION_CALLBACK].items())
 
@@ -198,7 +198,7 @@ def test_hyperparams_override_and_round_trip(tmp_path) -> None:
     assert entry["callback"][0][EVOLUTION_CALLBACK]["sigma"] == 0.01
     assert entry["callback"][0][EVOLUTION_CALLBACK]["population_size"] == 5  # the others stay (the default)
     assert entry["env_kwargs"] == {"max_cycles": 10} and entry["gamma"] == 0.1 and entry["n_timesteps"] == 123
-    kwargs = algorithm_kwargs(entry)
+    kwargs = algorithm_kwargs(entry, config.spec)
     assert kwargs["learning_rate"](1.0) == pytest.approx(1e-3) and kwargs["learning_rate"](
         0.5
     ) == pytest.approx(5e-4)

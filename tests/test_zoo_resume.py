@@ -15,7 +15,7 @@ from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_eps import train
 from sb3_eps.eps.round_log import read_round_log
-from sb3_eps.zoo.checkpoint import read_checkpoint_meta
+from sb3_eps.zoo.checkpoint import verify_checkpoint
 from sb3_eps.zoo.errors import ConfigError
 
 ENV_ID = "CooperativeNavigation-v0"
@@ -93,7 +93,7 @@ def stop_and_resume(argv: list[str], folder: Path, stop: signal.Signals, vec_env
         assert process.poll() is None and time.time() < deadline, "training ended before it could be stopped"
         time.sleep(0.02)
     if stop == signal.SIGKILL:  # let it log episodes past the checkpoint, which the resume must cut back
-        checkpoint_ticks = read_checkpoint_meta(next(folder.glob("eps_gdq/*/checkpoint.zip")))["ticks"]
+        checkpoint_ticks = verify_checkpoint(next(folder.glob("eps_gdq/*/checkpoint.zip")))["ticks"]
         while max_monitor_ticks(next(folder.glob("eps_gdq/*/monitor.csv"))) <= checkpoint_ticks:
             assert process.poll() is None and time.time() < deadline, (
                 "training ended before it could be stopped"
@@ -106,7 +106,7 @@ def stop_and_resume(argv: list[str], folder: Path, stop: signal.Signals, vec_env
     process.send_signal(stop)
     assert process.wait(timeout=120) == (0 if stop == signal.SIGTERM else -signal.SIGKILL)
     run = run_folder(folder)
-    stopped_at = read_checkpoint_meta(run / "checkpoint.zip")["num_timesteps"]
+    stopped_at = verify_checkpoint(run / "checkpoint.zip")["num_timesteps"]
     assert 0 < stopped_at < N_TIMESTEPS
     assert not (run / f"{ENV_ID}.zip").exists()
     deadline = time.time() + 10  # the world workers exit with their run, even a killed one
@@ -182,7 +182,7 @@ def test_overlap_training_with_workers_resumes_to_the_in_process_run(tmp_path) -
     process.send_signal(signal.SIGTERM)
     assert process.wait(timeout=120) == 0
     run = run_folder(folder)
-    assert 0 < read_checkpoint_meta(run / "checkpoint.zip")["num_timesteps"] < N_TIMESTEPS
+    assert 0 < verify_checkpoint(run / "checkpoint.zip")["num_timesteps"] < N_TIMESTEPS
     assert train.main(["--resume", str(run), "--verbose", "0"]) == 0
     assert_equal_runs(run, run_folder(expected))
 

@@ -6,6 +6,7 @@ also on SIGINT / SIGTERM)."""
 from __future__ import annotations
 
 import csv
+import io
 import json
 import signal
 import time
@@ -22,10 +23,16 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import CSVOutputFormat
 
 from sb3_eps.common.evaluation import evaluate_team
+from sb3_eps.common.snapshots import set_rng_states
 from sb3_eps.common.vec_env import MultiAgentVecEnv
 from sb3_eps.eps import EvolutionCallback
 from sb3_eps.zoo import run_folder
-from sb3_eps.zoo.checkpoint import save_checkpoint, save_model_atomic, set_rng_states, write_bytes_atomic
+from sb3_eps.zoo.checkpoint import (
+    Checkpoint,
+    save_checkpoint,
+    save_model_atomic,
+    write_bytes_atomic,
+)
 
 #: Columns every monitor row has; the env's team metrics (``success``, ``collision``...) follow.
 MONITOR_COLUMNS = ("r", "l", "t", "ticks", "eps_ticks", "world")
@@ -127,7 +134,7 @@ class TeamMonitor(BaseCallback):
 
     def _write(self, episode: dict[str, Any], world: int) -> None:
         row = {
-            **{key: value for key, value in episode.items() if _is_scalar(value)},
+            **{key: value for key, value in episode.items() if isinstance(value, _SCALARS)},
             "ticks": int(self.model.ticks),  # type: ignore[attr-defined]
             "eps_ticks": eps_ticks_of(self.eps_callbacks),
             "world": world,
@@ -155,8 +162,7 @@ class TeamMonitor(BaseCallback):
             self._file = None
 
 
-def _is_scalar(value: Any) -> bool:
-    return isinstance(value, bool | int | float | str | np.integer | np.floating | np.bool_)
+_SCALARS = (bool, int, float, str, np.integer, np.floating, np.bool_)
 
 
 # ---------------------------------------------------------------------------------------------- evaluation
@@ -254,8 +260,9 @@ class TeamEvalCallback(BaseCallback):
 
     def _write_records(self) -> None:
         if self.folder is not None and self.records["timesteps"]:
-            arrays = {key: np.array(value) for key, value in self.records.items()}
-            write_bytes_atomic(self.folder / run_folder.EVALUATIONS_NAME, _npz_bytes(arrays))
+            buffer = io.BytesIO()
+            np.savez(buffer, **{key: np.array(value) for key, value in self.records.items()})  # type: ignore[arg-type]
+            write_bytes_atomic(self.folder / run_folder.EVALUATIONS_NAME, buffer.getvalue())
 
     def _log(self, summary: dict[str, Any]) -> None:
         logger = self.logger
@@ -309,14 +316,6 @@ class TickBudgetCallback(BaseCallback):
 _RECORD_KEYS = ("timesteps", "ticks", "eps_ticks", "results", "ep_lengths", "successes", "collisions")
 
 
-def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
-    import io
-
-    buffer = io.BytesIO()
-    np.savez(buffer, **arrays)  # type: ignore[arg-type]
-    return buffer.getvalue()
-
-
 # ---------------------------------------------------------------------------------------------- checkpoints
 class TrainingStateCallback(BaseCallback):
     """Writes the full training state every ``save_freq`` timesteps, at rollout starts (where every piece of state
@@ -327,8 +326,8 @@ class TrainingStateCallback(BaseCallback):
     :param save_freq: timesteps between checkpoints; 0 saves only on a signal
     :param total_timesteps: the run's total, recorded in the checkpoint
     :param stateful_callbacks: name -> callback whose state goes into the checkpoint
-    :param restore: when resuming: ``{"callbacks": states, "rng": states, "next_save": int}``, applied at the
-        start of training, after every callback's initialisation
+    :param restore: when resuming, the checkpoint: its callback states, random states and ``next_save`` are
+        applied at the start of training, after every callback's initialisation
     :param verbose: 1 prints a line per checkpoint
     :param snapshot_dir: where each periodic checkpoint also writes the model alone (RL Zoo's
         ``rl_model_<timesteps>_steps.zip``); None: nowhere
@@ -341,7 +340,7 @@ class TrainingStateCallback(BaseCallback):
         save_freq: int,
         total_timesteps: int,
         stateful_callbacks: dict[str, BaseCallback],
-        restore: dict[str, Any] | None = None,
+        restore: Checkpoint | None = None,
         verbose: int = 0,
         snapshot_dir: str | Path | None = None,
         extra_meta: Callable[[], dict[str, Any]] | None = None,
@@ -361,10 +360,10 @@ class TrainingStateCallback(BaseCallback):
     def _on_training_start(self) -> None:
         if self.restore is None:
             return
-        for name, state in self.restore["callbacks"].items():
+        for name, state in self.restore.callbacks.items():
             self.stateful_callbacks[name].load_state_dict(state)  # type: ignore[attr-defined]
-        self.next_save = self.restore["next_save"]
-        set_rng_states(self.restore["rng"])
+        self.next_save = self.restore.meta["next_save"]
+        set_rng_states(self.restore.rng)
         self.restore = None
 
     def _on_step(self) -> bool:
@@ -389,7 +388,10 @@ class TrainingStateCallback(BaseCallback):
 
         :return: whether a checkpoint was written
         """
-        broken = non_finite_parameters(self.model)
+        tensors = [*self.model.policy.named_parameters(), *self.model.policy.named_buffers()]
+        broken = [
+            name for name, tensor in tensors if tensor.is_floating_point() and not th.isfinite(tensor).all()
+        ]
         if broken:
             warnings.warn(
                 f"checkpoint at {self.model.num_timesteps} timesteps refused: non-finite values in {', '.join(broken)}; "
@@ -425,12 +427,6 @@ class TrainingStateCallback(BaseCallback):
         return True
 
 
-def non_finite_parameters(model: Any) -> list[str]:
-    """:return: the names of the policy's parameters and buffers that hold NaN or inf (empty when all finite)."""
-    tensors = [*model.policy.named_parameters(), *model.policy.named_buffers()]
-    return [name for name, tensor in tensors if tensor.is_floating_point() and not th.isfinite(tensor).all()]
-
-
 @contextmanager
 def stop_on_signals(callback: TrainingStateCallback) -> Iterator[None]:
     """While the block runs, SIGINT and SIGTERM ask ``callback`` to checkpoint and stop at the next rollout start;
@@ -455,7 +451,7 @@ def stop_on_signals(callback: TrainingStateCallback) -> Iterator[None]:
 # ---------------------------------------------------------------------------------------------- logs
 class ResumableCSVOutputFormat(CSVOutputFormat):
     """SB3's CSV log that continues an existing file: the rows logged after ``max_timesteps`` (after the checkpoint
-    being resumed) are dropped, the others written again through SB3's own ``write``.
+    being resumed) are dropped, the others kept as they were written.
 
     :param filename: the CSV file
     :param max_timesteps: keep rows whose ``time/total_timesteps`` is at most this; None starts a new file
@@ -463,28 +459,14 @@ class ResumableCSVOutputFormat(CSVOutputFormat):
 
     def __init__(self, filename: str | Path, max_timesteps: int | None = None) -> None:
         path = Path(filename)
-        rows = []
-        if max_timesteps is not None and path.is_file():
-            with path.open(newline="") as file:
-                rows = [row for row in csv.DictReader(file) if _row_timesteps(row) <= max_timesteps]
+        resumed = max_timesteps is not None and path.is_file()
+        lines = path.read_text().splitlines(keepends=True) if resumed else []
         super().__init__(str(path))
-        for row in rows:
-            values = {key: _number(value) for key, value in row.items() if key and value not in ("", None)}
-            self.write(values, dict.fromkeys(values, ()))  # nothing excluded
-
-
-def _row_timesteps(row: dict[str, str]) -> float:
-    try:
-        return float(row.get("time/total_timesteps") or "")
-    except ValueError:
-        return -1.0  # rows without the count (none are written that way) are kept
-
-
-def _number(text: str) -> int | float | str:
-    """A CSV field as SB3 logged it: ints and floats written with ``str()`` read back exactly."""
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            continue
-    return text
+        if lines:
+            self.keys = lines[0].rstrip("\n").split(self.separator)  # SB3 writes the keys unquoted
+            column = self.keys.index("time/total_timesteps")
+            kept = [
+                line for line in lines[1:] if float(next(csv.reader([line]))[column] or -1) <= max_timesteps
+            ]  # type: ignore[operator]
+            self.file.writelines([lines[0], *kept])
+            self.file.flush()

@@ -39,17 +39,16 @@ from typing import Any
 
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.snapshots import rng_states, snapshot_dumps
-from sb3_eps.common.snapshots import (
-    set_rng_states as set_rng_states,  # restored by the command line's callbacks
-)
+from sb3_eps.zoo.errors import ConfigError
 
 CHECKPOINT_NAME = "checkpoint.zip"
 #: The checkpoint before the newest one, kept until a newer one is written and verified.
 PREVIOUS_CHECKPOINT_NAME = "checkpoint.prev.zip"
 
 
-class CorruptCheckpoint(ValueError):
-    """A checkpoint file that cannot be read back: truncated, corrupt, or not written by ``sb3_eps.train``."""
+class CorruptCheckpoint(ConfigError):
+    """A checkpoint file that cannot be read back: truncated, corrupt, or not written by ``sb3_eps.train`` (one line
+    on the command line, as a configuration mistake)."""
 
 
 def _file_mode() -> int:
@@ -163,11 +162,6 @@ def previous_checkpoint_path(path: str | Path) -> Path:
     return path.with_name(f"{path.stem}.prev{path.suffix}")
 
 
-def checkpoint_paths(path: str | Path) -> list[Path]:
-    """:return: ``path`` and its previous checkpoint, those that exist, newest first."""
-    return [candidate for candidate in (Path(path), previous_checkpoint_path(path)) if candidate.is_file()]
-
-
 def remove_checkpoints(path: str | Path) -> None:
     """Delete a checkpoint, its previous one and temporary files a killed writer left beside it."""
     path = Path(path)
@@ -211,7 +205,9 @@ def latest_good_checkpoint(path: str | Path) -> tuple[Path, dict[str, Any], list
     :raises CorruptCheckpoint: when every existing one is damaged (the message lists why)
     """
     problems: list[str] = []
-    for candidate in checkpoint_paths(path):
+    for candidate in (Path(path), previous_checkpoint_path(path)):
+        if not candidate.is_file():
+            continue
         try:
             return candidate, verify_checkpoint(candidate), problems
         except CorruptCheckpoint as error:
@@ -219,12 +215,6 @@ def latest_good_checkpoint(path: str | Path) -> tuple[Path, dict[str, Any], list
     if not problems:
         raise FileNotFoundError(path)
     raise CorruptCheckpoint("; ".join(problems))
-
-
-def read_checkpoint_meta(path: str | Path) -> dict[str, Any]:
-    """:return: only the ``meta.json`` of a checkpoint."""
-    with zipfile.ZipFile(path) as archive:
-        return json.loads(archive.read("meta.json"))
 
 
 def load_checkpoint(path: str | Path) -> Checkpoint:
@@ -255,7 +245,7 @@ def restore_model(
 ) -> MultiAgentOffPolicyAlgorithm:
     """Rebuild the model of a checkpoint with its env, replay buffer and n-step windows, ready to
     ``learn(remaining, reset_num_timesteps=False)``. The global random states are restored separately
-    (:func:`set_rng_states`), right before training goes on, because loading re-seeds them.
+    (:func:`~sb3_eps.common.snapshots.set_rng_states`), right before training goes on, because loading re-seeds them.
 
     :param checkpoint: the loaded checkpoint
     :param algorithm_class: the model's class

@@ -8,7 +8,7 @@ import dataclasses
 import importlib
 import sys
 from collections.abc import Sequence
-from typing import Any, NoReturn, TypeVar
+from typing import Any, ClassVar, NoReturn, TypeVar
 
 from sb3_eps.zoo.errors import ConfigError
 
@@ -27,6 +27,16 @@ SelfOptions = TypeVar("SelfOptions", bound="NamespaceOptions")
 
 class NamespaceOptions:
     """Base of the option dataclasses of the command lines (training, tuning)."""
+
+    #: The smallest value of each count (a field named as its flag, ``eval_freq`` for ``--eval-freq``).
+    minimums: ClassVar[dict[str, int]] = {}
+
+    def check_minimums(self) -> None:
+        """:raises ConfigError: for a count below its :attr:`minimums`, naming the flag."""
+        for name, low in self.minimums.items():
+            value = getattr(self, name)
+            if value is not None and value < low:
+                raise ConfigError(f"--{name.replace('_', '-')} must be >= {low}, got {value}")
 
     @classmethod
     def from_namespace(cls: type[SelfOptions], namespace: argparse.Namespace) -> SelfOptions:

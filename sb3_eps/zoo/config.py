@@ -225,15 +225,18 @@ def parse_hyperparams(items: Sequence[str]) -> list[tuple[tuple[str, ...], Any]]
 
 
 def apply_overrides(
-    entry: dict[str, Any], overrides: Sequence[tuple[tuple[str, ...], Any]], spec: AlgorithmSpec
+    entry: dict[str, Any],
+    overrides: Sequence[tuple[tuple[str, ...], Any]],
+    spec: AlgorithmSpec,
+    where: str = "--hyperparams",
 ) -> dict[str, Any]:
-    """Apply parsed ``--hyperparams`` to a canonical entry; every override is checked on its own first.
+    """Apply parsed ``--hyperparams`` (or a trial's overrides) to a canonical entry; every override is checked on
+    its own first.
 
     :return: the new canonical entry
     """
     result = {key: (dict(value) if isinstance(value, dict) else value) for key, value in entry.items()}
     for path, value in overrides:
-        where = "--hyperparams"
         if len(path) == 1:
             result.update(normalize_entry({path[0]: value}, spec, where))
         elif path[0] == CALLBACK_KEY:
@@ -246,7 +249,7 @@ def apply_overrides(
         else:
             checked = normalize_entry({path[0]: {path[1]: value}}, spec, where)
             result[path[0]] = {**result.get(path[0], {}), **checked[path[0]]}
-    return normalize_entry(result, spec, "--hyperparams")
+    return normalize_entry(result, spec, where)
 
 
 class _EntryDumper(yaml.SafeDumper):

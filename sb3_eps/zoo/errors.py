@@ -40,13 +40,10 @@ def run_command(prog: str, main: Callable[[], int | None]) -> None:
     """
     try:
         status = main()
-    except ConfigError as error:
+    except (ConfigError, RunFailed) as error:
         message = " ".join(str(error).split())  # one line, whatever the message holds
         print(f"{prog}: error: {message}", file=sys.stderr)
-        sys.exit(USAGE_EXIT_CODE)
-    except RunFailed as error:
-        print(f"{prog}: error: {' '.join(str(error).split())}", file=sys.stderr)
-        sys.exit(RUN_FAILED_EXIT_CODE)
+        sys.exit(USAGE_EXIT_CODE if isinstance(error, ConfigError) else RUN_FAILED_EXIT_CODE)
     except KeyboardInterrupt as interrupt:
         print(f"{prog}: stopped ({interrupt or 'KeyboardInterrupt'}), without a checkpoint", file=sys.stderr)
         sys.exit(INTERRUPTED_EXIT_CODE)

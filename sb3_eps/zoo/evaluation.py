@@ -36,25 +36,17 @@ class LoadedRun:
     """A run folder and the model chosen from it.
 
     :param run_dir: the folder
-    :param args: its ``args.yml``
+    :param algo: the run's algorithm name
+    :param env_id: the env id the run trained on
     :param model: the loaded model (no env: it predicts on any world with the same spaces)
     :param model_path: the file it came from
     """
 
     run_dir: Path
-    args: dict[str, Any]
+    algo: str
+    env_id: str
     model: MultiAgentOffPolicyAlgorithm
     model_path: Path
-
-    @property
-    def algo(self) -> str:
-        """The run's algorithm name."""
-        return str(self.args["algo"])
-
-    @property
-    def env_id(self) -> str:
-        """The env id the run trained on."""
-        return str(self.args["env"])
 
 
 def load_run(run_dir: str | Path, which: str | int = "final", device: str = "auto") -> LoadedRun:
@@ -85,7 +77,7 @@ def load_run(run_dir: str | Path, which: str | int = "final", device: str = "aut
     cls = algorithm_spec(str(args["algo"])).algorithm_class
     # buffer_size=1: no replay memory is needed to predict.
     model = cls.load(path, env=None, device=device, buffer_size=1)
-    return LoadedRun(run_dir, args, model, path)
+    return LoadedRun(run_dir, str(args["algo"]), str(args["env"]), model, path)
 
 
 def evaluate_run(
@@ -156,16 +148,10 @@ def format_summary(summary: dict[str, Any]) -> str:
 def save_summary(summary: dict[str, Any], path: str | Path) -> Path:
     """Write an evaluation summary (episodes included) as JSON, atomically."""
     path = Path(path)
-    write_text_atomic(path, json.dumps(summary, indent=2, default=_json_default))
+    write_text_atomic(
+        path, json.dumps(summary, indent=2, default=lambda value: value.tolist())
+    )  # NumPy values
     return path
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
 
 
 def record_gif(
@@ -175,12 +161,10 @@ def record_gif(
     n_episodes: int = 1,
     seed: int = 0,
     env_kwargs: dict[str, Any] | None = None,
-    max_frames: int = 3_000,
-    fps: int = 20,
 ) -> Path:
-    """Play ``n_episodes`` greedy episodes in one world drawn as ``rgb_array`` and write them as an animated GIF.
+    """Play ``n_episodes`` greedy episodes (3,000 frames at most) in one world drawn as ``rgb_array`` and write them
+    as an animated GIF at 20 frames per second (the robots decide at 20 Hz: it plays in real time).
 
-    :param fps: frames per second of the GIF (the robots decide at 20 Hz: 20 plays in real time)
     :return: the GIF's path
     """
     from envs.turtlebot3 import save_gif
@@ -191,7 +175,7 @@ def record_gif(
     )
     try:
         check_spaces(run.model, venv, env_id, f"the model of {run.run_dir}")
-        frames, _ = record_frames(run.model, venv, n_episodes, max_frames=max_frames)
+        frames, _ = record_frames(run.model, venv, n_episodes, max_frames=3_000)
     finally:
         venv.close()
-    return save_gif(frames, path, fps=fps)
+    return save_gif(frames, path, fps=20)

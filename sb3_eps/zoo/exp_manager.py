@@ -7,17 +7,17 @@ the result equals an uninterrupted run with the same seed (:mod:`sb3_eps.zoo.che
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import random
 import sys
 import time
-import types
 import typing
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any
+from typing import Any, ClassVar
 
 import torch as th
 import yaml
@@ -28,7 +28,6 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from sb3_eps.common.ladder import Rung, learn_ladder, rung_at
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.subproc_vec_env import VecEnvWorkerError, overlap_layout
-from sb3_eps.common.utils import describe_space
 from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env, vec_env_mode
 from sb3_eps.eps import EvolutionCallback, eps_env_id_for
 from sb3_eps.eps.evaluation import agent_space, make_eval_env
@@ -45,6 +44,7 @@ from sb3_eps.zoo.callbacks import (
 )
 from sb3_eps.zoo.checkpoint import (
     CHECKPOINT_NAME,
+    Checkpoint,
     CorruptCheckpoint,
     latest_good_checkpoint,
     load_checkpoint,
@@ -66,7 +66,13 @@ from sb3_eps.zoo.config import (
 from sb3_eps.zoo.errors import ConfigError, RunFailed
 from sb3_eps.zoo.evaluation import check_spaces
 from sb3_eps.zoo.ladder import LADDER_KEY, build_rungs, check_ladder_run, check_rungs, ladder_progress
-from sb3_eps.zoo.schema import algorithm_kwargs, algorithm_spec, build_callbacks, check_complete
+from sb3_eps.zoo.schema import (
+    algorithm_kwargs,
+    algorithm_spec,
+    build_callbacks,
+    check_complete,
+    normalize_value,
+)
 
 #: The evaluation worlds are seeded ``seed + EVAL_SEED_OFFSET``: other worlds than the training ones.
 EVAL_SEED_OFFSET = 10_000
@@ -105,6 +111,9 @@ class TrainOptions(NamespaceOptions):
     run_name: str | None = None
     gym_packages: list[str] = field(default_factory=list)
     command: str | None = None  # the command line as typed (RL Zoo's command.txt)
+    minimums: ClassVar[dict[str, int]] = {
+        "eval_freq": 0, "eval_episodes": 1, "n_eval_envs": 1, "save_freq": 0, "seed": 0, "num_threads": 0,
+    }  # fmt: skip
 
     @classmethod
     def from_record(cls, record: Any, source: str | Path) -> TrainOptions:
@@ -114,39 +123,25 @@ class TrainOptions(NamespaceOptions):
         """
         if not isinstance(record, dict):
             raise ConfigError(f"{source} is not a mapping of options: not a run folder of sb3_eps.train")
-        options = cls(**{key: value for key, value in record.items() if key in cls.__dataclass_fields__})
-        for key, hint in typing.get_type_hints(
-            cls
-        ).items():  # the fields' own annotations say what each holds
-            value = getattr(options, key)
-            members = typing.get_args(hint) if isinstance(hint, types.UnionType) else (hint,)
-            kinds = tuple(typing.get_origin(kind) or kind for kind in members)
-            if not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds):
-                raise ConfigError(
-                    f"{source}: {key} is {value!r}, not a {kinds[0].__name__}: not a run of sb3_eps.train"
-                )
+        names = [field.name for field in dataclasses.fields(cls)]
+        options = cls(**{key: value for key, value in record.items() if key in names})
+        try:  # the fields' own annotations say what each holds
+            hints = typing.get_type_hints(cls)
+            for key in names:
+                normalize_value(getattr(options, key), hints[key], f"{source}: {key}")
+        except ConfigError as error:
+            raise ConfigError(f"{error}: not a run of sb3_eps.train") from None
         return options
 
     def check(self) -> None:
         """:raises ConfigError: for a count or flag out of range."""
-        for flag, value, low in (
-            ("--eval-freq", self.eval_freq, 0),
-            ("--eval-episodes", self.eval_episodes, 1),
-            ("--n-eval-envs", self.n_eval_envs, 1),
-            ("--save-freq", self.save_freq, 0),
-        ):
-            if value < low:
-                raise ConfigError(f"{flag} must be >= {low}, got {value} (use 0 to turn off a *-freq)")
+        self.check_minimums()
         if self.run_name is not None and (
             not self.run_name or self.run_name in (".", "..") or "/" in self.run_name or "\\" in self.run_name
         ):
             raise ConfigError(f"--run-name must be a plain folder name (no slashes), got {self.run_name!r}")
         if self.vec_env not in (None, "dummy", "subproc"):
             raise ConfigError(f"--vec-env must be dummy or subproc, got {self.vec_env!r}")
-        if self.seed is not None and self.seed < 0:
-            raise ConfigError(f"--seed must be a non-negative int, got {self.seed}")
-        if self.num_threads < 0:
-            raise ConfigError(f"--num-threads must be >= 0 (0: torch's default), got {self.num_threads}")
         check_device(self.device)
         if self.init_from is not None and not Path(self.init_from).is_file():
             raise ConfigError(
@@ -208,11 +203,6 @@ def close_envs(vec_envs: Sequence[Any]) -> None:
         vec_env.close()
 
 
-def env_kwargs_of(config: ResolvedConfig) -> dict[str, Any]:
-    """:return: the env constructor arguments of a run."""
-    return dict(config.entry.get("env_kwargs", {}))
-
-
 def build_env(
     config: ResolvedConfig,
     seed: int | None,
@@ -228,6 +218,7 @@ def build_env(
     """
     env_id = env_id or config.env_id
     n_worlds = n_envs or config.entry.get("n_envs", 1)
+    env_kwargs = dict(config.entry.get("env_kwargs", {}))
     try:
         mode = vec_env_mode(vec_env or config.entry.get("vec_env"))
         vec_env_kwargs = None
@@ -235,13 +226,11 @@ def build_env(
             # the training worlds: the main process learns beside them
             vec_env_kwargs = overlap_layout(n_worlds)
         return make_vec_env(
-            env_id, n_envs=n_worlds, seed=seed, env_kwargs=env_kwargs_of(config), vec_env_cls=mode,
+            env_id, n_envs=n_worlds, seed=seed, env_kwargs=env_kwargs, vec_env_cls=mode,
             vec_env_kwargs=vec_env_kwargs,
         )  # fmt: skip
     except (TypeError, ValueError) as error:
-        raise ConfigError(
-            f"{config.source}: env_kwargs {env_kwargs_of(config)} for {env_id}: {error}"
-        ) from None
+        raise ConfigError(f"{config.source}: env_kwargs {env_kwargs} for {env_id}: {error}") from None
 
 
 def build_model(
@@ -259,7 +248,7 @@ def build_model(
             seed=seed,
             device=device,
             verbose=verbose,
-            **algorithm_kwargs(config.entry),
+            **algorithm_kwargs(config.entry, config.spec),
         )
     except (TypeError, ValueError) as error:
         raise ConfigError(f"{config.source}: building {cls.__name__}: {error}") from None
@@ -275,21 +264,15 @@ def check_callback_worlds(
     :raises ConfigError: naming the callback, both worlds and their spaces
     """
     for name, callback in callbacks:
-        if not isinstance(callback, EvolutionCallback):
-            continue
-        eval_env_id = callback.settings.eval_env_id
-        eval_env = make_eval_env(eval_env_id, callback.settings.eval_env_kwargs)
-        try:
-            for kind in ("observation_space", "action_space"):
-                theirs, ours = agent_space(eval_env, kind), getattr(env, kind)
-                if theirs != ours:
-                    raise ConfigError(
-                        f"{source}: callback {name}: eval_env_id {eval_env_id} has {kind} {describe_space(theirs)}, "
-                        f"the training world {env.env_id} {describe_space(ours)}; use eval_env_id "
-                        f"{eps_env_id_for(str(env.env_id))} (or leave it out: it defaults to the matching world)"
-                    )
-        finally:
+        if isinstance(callback, EvolutionCallback):
+            eval_env = make_eval_env(callback.settings.eval_env_id, callback.settings.eval_env_kwargs)
+            kinds = ("observation_space", "action_space")
+            spaces = SimpleNamespace(**{kind: agent_space(eval_env, kind) for kind in kinds})
             eval_env.close()
+            whose = f"the training world {env.env_id} (its EPS world, the default, is {eps_env_id_for(str(env.env_id))})"
+            check_spaces(
+                env, spaces, callback.settings.eval_env_id, whose, f"{source}: callback {name}: eval_env_id "
+            )
 
 
 def load_agent_weights(model: MultiAgentOffPolicyAlgorithm, path: str | Path) -> None:
@@ -387,24 +370,17 @@ def prepare_run(
 
 
 # ---------------------------------------------------------------------------------------------- run folders
-def make_logger(
-    run_dir: Path, tensorboard_dir: str | None, verbose: int, resume_timesteps: int | None
-) -> Logger:
-    """SB3 logger writing ``progress.csv`` (continued when resuming), TensorBoard and, if verbose, stdout."""
-    formats: list[KVWriter] = []
-    if verbose >= 1:
-        formats.append(HumanOutputFormat(sys.stdout))
-    formats.append(ResumableCSVOutputFormat(run_dir / run_folder.PROGRESS_NAME, resume_timesteps))
-    if tensorboard_dir is not None:
-        formats.append(TensorBoardOutputFormat(tensorboard_dir))
+def make_logger(options: TrainOptions, run_dir: Path, resume_timesteps: int | None) -> Logger:
+    """SB3 logger writing ``progress.csv`` (continued when resuming), if verbose stdout, and with
+    ``--tensorboard-log`` TensorBoard in ``<tensorboard_log>/<algo>/<run folder name>``."""
+    formats: list[KVWriter] = [ResumableCSVOutputFormat(run_dir / run_folder.PROGRESS_NAME, resume_timesteps)]
+    if options.verbose >= 1:
+        formats.insert(0, HumanOutputFormat(sys.stdout))
+    if options.tensorboard_log is not None:
+        formats.append(
+            TensorBoardOutputFormat(str(Path(options.tensorboard_log) / options.algo / run_dir.name))
+        )
     return Logger(folder=str(run_dir), output_formats=formats)
-
-
-def tensorboard_dir_of(options: TrainOptions, run_dir: Path) -> str | None:
-    """:return: the run's TensorBoard folder, ``<tensorboard_log>/<algo>/<run folder name>``, or None."""
-    if options.tensorboard_log is None:
-        return None
-    return str(Path(options.tensorboard_log) / options.algo / run_dir.name)
 
 
 # ---------------------------------------------------------------------------------------------- training
@@ -464,9 +440,8 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
         if not path.is_file():
             raise ConfigError(f"--resume: {run_dir} is not a run folder of sb3_eps.train (no {path.name})")
     options = TrainOptions.from_record(load_yaml(args_path), f"--resume: {args_path}")
-    import_gym_packages(
-        [], options.gym_packages
-    )  # the run's plug-ins, before its algorithm and world are named
+    # The run's plug-ins, before its algorithm and world are named.
+    import_gym_packages([], options.gym_packages)
     spec = algorithm_spec(options.algo)
     check_env_id(options.env, f"--resume: {args_path}: env")
     options.init_from = None  # the warm-start weights are in the checkpoint already
@@ -478,12 +453,12 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
     try:
         checkpoint_path, meta, skipped = latest_good_checkpoint(run_dir / CHECKPOINT_NAME)
     except FileNotFoundError:
-        if final_model.is_file():
-            print(f"{run_dir} has finished already: its final model is {final_model}")
-            return TrainResult(run_dir, "already complete", int(options.n_timesteps or 0))
-        raise ConfigError(
-            f"--resume: {run_dir} has no {CHECKPOINT_NAME} (it stopped before its first checkpoint); start a new run"
-        ) from None
+        if not final_model.is_file():
+            raise ConfigError(
+                f"--resume: {run_dir} has no {CHECKPOINT_NAME} (it stopped before its first checkpoint); start a "
+                "new run"
+            ) from None
+        checkpoint_path, meta, skipped = final_model, {"complete": True}, []
     except CorruptCheckpoint as error:
         raise ConfigError(f"--resume: no usable checkpoint in {run_dir}: {error}; start a new run") from None
     for problem in skipped:
@@ -506,10 +481,7 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
         )
     prepared = prepare_run(options, config, build_model_now=False)
     try:
-        try:
-            checkpoint = load_checkpoint(checkpoint_path)
-        except CorruptCheckpoint as error:
-            raise ConfigError(f"--resume: {error}") from None
+        checkpoint = load_checkpoint(checkpoint_path)
         # The training worlds come back from the checkpoint, mid-episode (a ladder's: those of its rung).
         rung = resumed_rung(prepared, checkpoint.meta, checkpoint_path)
         close_envs([prepared.rungs[rung].env if prepared.rungs else prepared.env])
@@ -518,18 +490,11 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
             prepared.rungs[rung] = Rung(prepared.env, prepared.rungs[rung].ticks)
         prepared.model = restore_model(checkpoint, spec.algorithm_class, options.device)
         prepared.model.verbose = options.verbose
-        restore = {
-            "callbacks": checkpoint.callbacks,
-            "rng": checkpoint.rng,
-            "next_save": checkpoint.meta["next_save"],
-            "num_timesteps": checkpoint.meta["num_timesteps"],
-            "ticks": checkpoint.meta["ticks"],
-        }
         if options.verbose >= 1:
             print(
                 f"Resuming {run_dir} at {checkpoint.meta['num_timesteps']} of {options.n_timesteps} timesteps"
             )
-        return _run(prepared, run_dir, restore)
+        return _run(prepared, run_dir, checkpoint)
     finally:
         prepared.close()
 
@@ -553,18 +518,16 @@ def resumed_rung(prepared: PreparedRun, meta: dict[str, Any], checkpoint_path: P
 def _run(
     prepared: PreparedRun,
     run_dir: Path,
-    restore: dict[str, Any] | None,
+    restore: Checkpoint | None,
     extra_callbacks: Sequence[BaseCallback] = (),
 ) -> TrainResult:
     """Train a prepared run in its folder; write the final model. ``restore`` continues a checkpoint."""
     options, config, model = prepared.options, prepared.config, prepared.model
     total = int(config.entry["n_timesteps"])
-    resume_timesteps = None if restore is None else int(restore["num_timesteps"])
+    resume_timesteps = None if restore is None else int(restore.meta["num_timesteps"])
     if restore is not None:
-        TeamMonitor.truncate_after(run_dir / run_folder.MONITOR_NAME, int(restore["ticks"]))
-    model.set_logger(
-        make_logger(run_dir, tensorboard_dir_of(options, run_dir), options.verbose, resume_timesteps)
-    )
+        TeamMonitor.truncate_after(run_dir / run_folder.MONITOR_NAME, int(restore.meta["ticks"]))
+    model.set_logger(make_logger(options, run_dir, resume_timesteps))
     eps_callbacks = [callback for _, callback in prepared.user_callbacks]
     header = {
         "env_id": config.env_id,

@@ -12,17 +12,17 @@ from __future__ import annotations
 import collections.abc
 import dataclasses
 import inspect
-import math
 import re
 import sys
 import types
 import typing
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.type_aliases import TrainFrequencyUnit
 from stable_baselines3.common.utils import LinearSchedule
 from torch import nn
 
@@ -70,88 +70,36 @@ _FLOAT_PATTERN = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 
 
 # ---------------------------------------------------------------------------------------------- parameters
-@dataclass(frozen=True)
-class Param:
-    """What one key may hold, read from its constructor's type hint (:func:`params_from_signature`).
-
-    :param kind: ``int``, ``float``, ``bool``, ``str``, ``choice``, ``schedule``, ``train_freq``, ``int_list``,
-        ``list`` (of plain data), ``mapping``, ``activation``, ``optimizer``, ``any`` (plain data)
-    :param low: smallest allowed number (``int`` / ``float`` / ``int_list`` items)
-    :param high: largest allowed number
-    :param open_low: ``low`` itself is excluded
-    :param open_high: ``high`` itself is excluded
-    :param choices: the allowed strings of a ``choice``
-    :param nullable: ``null`` (None) is allowed too
-    """
-
-    kind: str
-    low: float | None = None
-    high: float | None = None
-    open_low: bool = False
-    open_high: bool = False
-    choices: tuple[str, ...] = field(default_factory=tuple)
-    nullable: bool = False
-
-    def describe(self) -> str:
-        """:return: what the key may hold, in words (for error messages)."""
-        bounds = self._bounds()
-        words = {
-            "int": f"an int{bounds}",
-            "float": f"a number{bounds}",
-            "bool": "true or false",
-            "str": "a string",
-            "choice": f"one of {allowed(self.choices)}",
-            "schedule": f"a number{bounds} or a linear schedule 'lin_<initial value>' (e.g. lin_1e-3)",
-            "train_freq": "an int >= 1 or a list [int >= 1, 'step' or 'episode']",
-            "int_list": f"a list of ints{bounds}"
-            + (f" or one of {allowed(self.choices)}" if self.choices else ""),
-            "list": "a list",
-            "any": "plain data (numbers, strings, lists, mappings)",
-            "mapping": "a mapping of names to values (or a 'dict(...)' string)",
-            "activation": f"one of {allowed(ACTIVATIONS)}",
-            "optimizer": f"one of {allowed(OPTIMIZERS)}",
-        }
-        return words[self.kind] + (" or null" if self.nullable else "")
-
-    def _bounds(self) -> str:
-        parts = []
-        if self.low is not None:
-            parts.append(f"{'>' if self.open_low else '>='} {self.low:g}")
-        if self.high is not None:
-            parts.append(f"{'<' if self.open_high else '<='} {self.high:g}")
-        return (" " + " and ".join(parts)) if parts else ""
-
-    def in_bounds(self, number: float) -> bool:
-        """:return: whether ``number`` respects ``low`` / ``high``."""
-        if math.isnan(number):
-            return False
-        if self.low is not None and (number < self.low or (self.open_low and number == self.low)):
-            return False
-        return not (
-            self.high is not None and (number > self.high or (self.open_high and number == self.high))
-        )
-
-
-#: The ranges the constructors check (``MultiAgentOffPolicyAlgorithm``, the policies), in interval notation: a
-#: config out of range fails when it is loaded, before a run folder exists. Type hints hold no ranges.
+#: The ranges the constructors check (``MultiAgentOffPolicyAlgorithm``, the policies), in interval notation, for
+#: every number a key holds: a config out of range fails when it is loaded, before a run folder exists. Type hints
+#: hold no ranges.
 RANGES: dict[str, str] = {
     "learning_rate": "(0, inf)", "buffer_size": "[1, inf)", "learning_starts": "[0, inf)",
     "batch_size": "[1, inf)", "tau": "(0, 1]", "gamma": "[0, 1]", "gradient_steps": "[-1, inf)",
     "gradient_steps_per_target_update": "[1, inf)", "n_steps": "[1, inf)", "prioritized_replay_alpha": "[0, inf)",
     "prioritized_replay_beta0": "[0, 1]", "exploration_fraction": "[0, 1]", "exploration_initial_eps": "[0, 1]",
     "exploration_final_eps": "[0, 1]", "max_grad_norm": "(0, inf)", "stats_window_size": "[1, inf)",
-    "net_arch": "[1, inf)", "stream_arch": "[1, inf)", "weight_average_tau": "(0, 1]",
+    "net_arch": "[1, inf)", "stream_arch": "[1, inf)", "weight_average_tau": "(0, 1]", "n_timesteps": "[1, inf)",
+    "n_envs": "[1, inf)", "train_freq": "[1, inf)", "seeds": "[0, inf)", "cpus_per_run": "[1, inf)",
 }  # fmt: skip
-#: Run keys of an entry (not algorithm arguments). ``policy`` and ``callback`` are checked separately.
-RUN_PARAMS: dict[str, Param] = {
-    "tuned": Param("bool"),
-    "notes": Param("str"),
-    "n_timesteps": Param("int", low=1),
-    "policy": Param("str"),
-    "n_envs": Param("int", low=1),
+#: The strings a plain ``str`` inside a key's hint may hold (SB3's ``train_freq`` unit).
+CHOICES: dict[str, tuple[str, ...]] = {"train_freq": tuple(unit.value for unit in TrainFrequencyUnit)}
+#: The classes a ``type[...]`` hint may name: base class -> {config name: class}.
+CLASS_NAMES: dict[Any, dict[str, type]] = {
+    nn.Module: ACTIVATIONS,
+    th.optim.Optimizer: OPTIMIZERS,
+    buffers.JointReplayBuffer: REPLAY_BUFFER_CLASSES,
+}
+#: Run keys of an entry (not algorithm arguments) and their types. ``policy`` and ``callback`` are checked separately.
+RUN_PARAMS: dict[str, Any] = {
+    "tuned": bool,
+    "notes": str,
+    "n_timesteps": int,
+    "policy": str,
+    "n_envs": int,
     # dummy: the worlds in the training process; subproc: in worker processes (make_vec_env's vec_env_cls)
-    "vec_env": Param("choice", choices=("dummy", "subproc")),
-    "env_kwargs": Param("mapping"),
+    "vec_env": Literal["dummy", "subproc"],
+    "env_kwargs": dict,
 }
 CALLBACK_KEY = "callback"
 POLICY_KWARGS_KEY = "policy_kwargs"
@@ -170,85 +118,73 @@ _POLICY_INTERNALS = (
     "observation_space", "action_space", "lr_schedule", "n_agents", "state_dim", "features_extractor_class",
     "features_extractor_kwargs",
 )  # fmt: skip
+_INVALID = object()
 
 
-def params_from_signature(function: Callable[..., Any], skip: Sequence[str] = ()) -> dict[str, Param]:
-    """:return: ``{argument: Param}`` of the keyword arguments of ``function`` whose type hint a config can hold
-    (``bool``, ``int``, ``float``, ``str``, ``Literal[...]``, ``list[int]``, a mapping, a schedule, a class of
-    :data:`ACTIVATIONS`, :data:`OPTIMIZERS` or :data:`REPLAY_BUFFER_CLASSES`; ``None`` allowed beside them), with
-    the range of :data:`RANGES`; the others are left out. A keyword whose hint is a dataclass (``EPSSettings``)
-    stands for the dataclass's fields."""
+def params_from_signature(
+    function: Callable[..., Any], skip: Sequence[str] = (), every: bool = False
+) -> dict[str, Any]:
+    """:return: ``{argument: type hint}`` of the keyword arguments of ``function`` whose hint a config can hold
+    (:func:`describe`); with ``every``, the others too, as plain data. A keyword whose hint is a dataclass
+    (``EPSSettings``) stands for the dataclass's fields."""
     hints = typing.get_type_hints(function)
-    params: dict[str, Param] = {}
+    params: dict[str, Any] = {}
     for name, parameter in inspect.signature(function).parameters.items():
         variadic = parameter.kind in (parameter.VAR_POSITIONAL, parameter.VAR_KEYWORD)
-        if variadic or name in skip or name == "self" or name not in hints:
+        if variadic or name in skip or name == "self" or (name not in hints and not every):
             continue
-        settings = _dataclass_of_hint(hints[name])
-        if settings is not None:
-            params.update(params_from_signature(settings, skip))
-            continue
-        param = _param_of_hint(hints[name])
-        if param is not None:
-            params[name] = _with_range(param, RANGES.get(name))
+        hint = hints.get(name, Any)
+        settings = [member for member in _hint_members(hint) if dataclasses.is_dataclass(member)]
+        if settings:
+            params.update(params_from_signature(settings[0], skip, every))
+        elif describe(hint) is not None or every:
+            params[name] = hint if describe(hint) is not None else Any
     return params
 
 
-def _dataclass_of_hint(hint: Any) -> type | None:
-    members = [member for member in _hint_members(hint) if member is not type(None)]
-    found = members[0] if len(members) == 1 else None
-    return found if isinstance(found, type) and dataclasses.is_dataclass(found) else None
-
-
-def _param_of_hint(hint: Any) -> Param | None:
-    members = [member for member in _hint_members(hint) if member is not type(None)]
-    nullable = len(members) < len(_hint_members(hint))
-    origins = [typing.get_origin(member) for member in members]
-    if set(members) == {int} | {m for m in members if typing.get_origin(m) is tuple}:
-        return Param("train_freq") if len(members) == 2 else Param("int", nullable=nullable)
-    if len(members) == 2 and float in members and collections.abc.Callable in origins:
-        return Param("schedule", nullable=nullable)  # a number or SB3's Schedule
-    choices = tuple(str(argument) for member in members if typing.get_origin(member) is typing.Literal
-                    for argument in typing.get_args(member))  # fmt: skip
-    members = [member for member in members if typing.get_origin(member) is not typing.Literal]
-    if not members:
-        return Param("choice", choices=choices, nullable=nullable)
-    if len(members) != 1:
-        return None
-    member = members[0]
-    origin, arguments = typing.get_origin(member), typing.get_args(member)
+def describe(hint: Any, name: str = "") -> str | None:
+    """:return: what a value of ``hint`` may be, in words (for error messages), with the range of :data:`RANGES`;
+    None for a hint a config cannot hold."""
+    members = _hint_members(hint)
+    if len(members) > 1:
+        words = [describe(member, name) for member in members if member is not type(None)]
+        if None in words:
+            return None
+        return " or ".join(words) + (" or null" if type(None) in members else "")  # type: ignore[arg-type]
+    origin, arguments = typing.get_origin(hint), typing.get_args(hint)
+    if origin is typing.Literal:
+        return f"one of {allowed(arguments)}"
+    if origin is collections.abc.Callable:  # SB3's Schedule
+        return "a linear schedule 'lin_<initial value>' (e.g. lin_1e-3)"
     if origin in (list, tuple):
-        return Param("int_list" if arguments[:1] == (int,) else "list", choices=choices, nullable=nullable)
+        items = [describe(argument, name) for argument in arguments]
+        if not items or None in items:
+            return None
+        return f"a list [{', '.join(items)}]" if origin is tuple else f"a list, each {items[0]}"  # type: ignore[arg-type]
     if origin is type:
-        return _class_param(arguments[0], nullable)
-    kinds = {bool: "bool", int: "int", float: "float", str: "str", dict: "mapping", Any: "any"}
-    if member in kinds or origin is dict:
-        return Param(kinds[origin or member], nullable=nullable)
-    return None
+        return f"one of {allowed(CLASS_NAMES[arguments[0]])}" if arguments[0] in CLASS_NAMES else None
+    if hint is str and name in CHOICES:
+        return " or ".join(map(repr, CHOICES[name]))
+    bounds = _bounds(RANGES.get(name))
+    words = {bool: "true or false", int: f"an int{bounds}", float: f"a number{bounds}", str: "a string",
+             dict: "a mapping of names to values (or a 'dict(...)' string)",
+             Any: "plain data (numbers, strings, lists, mappings)"}  # fmt: skip
+    return words.get(origin or hint)
 
 
-def _class_param(base: Any, nullable: bool) -> Param | None:
-    if base is nn.Module:
-        return Param("activation", nullable=nullable)
-    if base is th.optim.Optimizer:
-        return Param("optimizer", nullable=nullable)
-    if base is buffers.JointReplayBuffer:
-        return Param("choice", choices=tuple(REPLAY_BUFFER_CLASSES), nullable=nullable)
-    return None
-
-
-def _with_range(param: Param, interval: str | None) -> Param:
-    """:return: ``param`` bounded by an interval such as ``"(0, 1]"`` or ``"[1, inf)"``."""
+def _bounds(interval: str | None) -> str:
     if interval is None:
-        return param
+        return ""
+    low, high = (bound.strip() for bound in interval[1:-1].split(","))
+    parts = [f"{'>' if interval[0] == '(' else '>='} {low}"] if low != "-inf" else []
+    parts += [f"{'<' if interval[-1] == ')' else '<='} {high}"] if high != "inf" else []
+    return (" " + " and ".join(parts)) if parts else ""
+
+
+def _in_range(number: float, interval: str) -> bool:
     low, high = (float(bound) for bound in interval[1:-1].split(","))
-    return dataclasses.replace(
-        param,
-        low=None if math.isinf(low) else low,
-        high=None if math.isinf(high) else high,
-        open_low=interval[0] == "(",
-        open_high=interval[-1] == ")" and not math.isinf(high),
-    )
+    above = number > low if interval[0] == "(" else number >= low
+    return above and (number < high if interval[-1] == ")" else number <= high)  # NaN is neither
 
 
 def _hint_members(hint: Any) -> tuple[Any, ...]:
@@ -260,11 +196,11 @@ def _hint_members(hint: Any) -> tuple[Any, ...]:
 #: Arguments of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm` a config may set, read from its
 #: signature (``policy_kwargs`` is checked against the policy). Counts are SB3 timesteps (agent-steps) except
 #: ``buffer_size`` / ``batch_size`` (joint rows) and ``train_freq`` (vector-env steps).
-ALGORITHM_PARAMS: dict[str, Param] = params_from_signature(
+ALGORITHM_PARAMS: dict[str, Any] = params_from_signature(
     MultiAgentOffPolicyAlgorithm.__init__, (*COMMAND_LINE_ARGUMENTS, POLICY_KWARGS_KEY)
 )
 #: ``policy_kwargs`` keys of every algorithm, read from the shared policy's signature.
-COMMON_POLICY_PARAMS: dict[str, Param] = params_from_signature(MultiAgentQPolicy.__init__, _POLICY_INTERNALS)
+COMMON_POLICY_PARAMS: dict[str, Any] = params_from_signature(MultiAgentQPolicy.__init__, _POLICY_INTERNALS)
 
 
 # ---------------------------------------------------------------------------------------------- algorithms
@@ -282,13 +218,13 @@ class AlgorithmSpec:
 
     name: str
     algorithm_class: type[MultiAgentOffPolicyAlgorithm]
-    policy_params: dict[str, Param]
+    policy_params: dict[str, Any]
     eps: bool
     label: str
-    extra_params: dict[str, Param] = field(default_factory=dict)
+    extra_params: dict[str, Any] = field(default_factory=dict)
 
     @property
-    def params(self) -> dict[str, Param]:
+    def params(self) -> dict[str, Any]:
         """Every constructor argument a config may set (``policy_kwargs`` apart)."""
         return {**ALGORITHM_PARAMS, **self.extra_params}
 
@@ -349,13 +285,9 @@ def algorithm_spec(name: str) -> AlgorithmSpec:
 
 # ---------------------------------------------------------------------------------------------- callbacks
 #: Callbacks a config may name: canonical name -> class. Nothing else is ever built from a config.
-CALLBACKS: dict[str, type[BaseCallback]] = {"sb3_eps.EvolutionCallback": EvolutionCallback}
+CALLBACKS: dict[str, type[BaseCallback]] = {}
 EVOLUTION_CALLBACK = "sb3_eps.EvolutionCallback"
-_CALLBACK_SPELLINGS: dict[str, str] = {
-    "sb3_eps.EvolutionCallback": EVOLUTION_CALLBACK,
-    "sb3_eps.eps.EvolutionCallback": EVOLUTION_CALLBACK,
-    "EvolutionCallback": EVOLUTION_CALLBACK,
-}
+_CALLBACK_SPELLINGS: dict[str, str] = {"sb3_eps.eps.EvolutionCallback": EVOLUTION_CALLBACK}
 
 
 def register_callback(callback_class: type[BaseCallback], name: str | None = None) -> str:
@@ -400,22 +332,6 @@ def callback_class(name: str, where: str = "callback") -> type[BaseCallback]:
     return CALLBACKS[canonical]
 
 
-def callback_parameters(cls: type[BaseCallback]) -> dict[str, inspect.Parameter]:
-    """:return: the keyword arguments of a callback's constructor (no ``self``, no ``*args``); a keyword whose hint
-    is a dataclass (``EvolutionCallback``'s ``settings``) stands for the dataclass's fields."""
-    hints = typing.get_type_hints(cls.__init__)
-    parameters: dict[str, inspect.Parameter] = {}
-    for name, parameter in inspect.signature(cls.__init__).parameters.items():
-        if name == "self" or parameter.kind in (parameter.VAR_POSITIONAL, parameter.VAR_KEYWORD):
-            continue
-        settings = _dataclass_of_hint(hints.get(name))
-        if settings is not None:
-            parameters.update(inspect.signature(settings).parameters)
-        else:
-            parameters[name] = parameter
-    return parameters
-
-
 # ---------------------------------------------------------------------------------------------- checking
 def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, Any]:
     """Check one config entry and return it in canonical form.
@@ -440,16 +356,19 @@ def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, An
             continue
         value = entry[key]
         if key == "policy":
-            result[key] = _check_policy(value, spec, f"{where}: policy")
+            policies = Literal[tuple(sorted(spec.algorithm_class.policy_aliases))]  # type: ignore[valid-type]
+            result[key] = normalize_value(value, policies, f"{where}: policy")
         elif key == CALLBACK_KEY:
             result[key] = normalize_callbacks(value, f"{where}: callback")
         elif key == POLICY_KWARGS_KEY:
-            result[key] = normalize_policy_kwargs(value, spec, f"{where}: policy_kwargs")
+            result[key] = normalize_arguments(
+                value, spec.policy_params, f"{where}: policy_kwargs", NAME_SPELLINGS
+            )
         elif key == LADDER_KEY:
             result[key] = normalize_ladder(value, f"{where}: ladder")
         else:
-            param = RUN_PARAMS.get(key) or spec.params[key]
-            result[key] = normalize_value(value, param, f"{where}: {key}")
+            hint = RUN_PARAMS[key] if key in RUN_PARAMS else spec.params[key]
+            result[key] = normalize_value(value, hint, f"{where}: {key}", key)
     return result
 
 
@@ -474,22 +393,58 @@ def check_complete(entry: Mapping[str, Any], spec: AlgorithmSpec, where: str) ->
         )
 
 
-def normalize_value(value: Any, param: Param, where: str) -> Any:
-    """Check one value against its :class:`Param`; return its canonical form.
+def normalize_value(value: Any, hint: Any, where: str, name: str = "") -> Any:
+    """Check one value against its type hint (and the :data:`RANGES` / :data:`CHOICES` of ``name``); return its
+    canonical form.
 
     :raises ConfigError: naming ``where`` and what is allowed
     """
-    if value is None and param.nullable:
-        return None
-    if param.kind == "mapping" and isinstance(value, str):
-        value = parse_literal(value, {}, where)  # RL Zoo's "dict(...)" string
-    result = _CHECKERS[param.kind](value, param)
+    result = _conform(value, hint, name, where)
     if result is _INVALID:
-        raise ConfigError(f"{where} must be {param.describe()}, got {value!r} ({type(value).__name__})")
+        raise ConfigError(f"{where} must be {describe(hint, name)}, got {value!r} ({type(value).__name__})")
     return result
 
 
-_INVALID = object()
+def _conform(value: Any, hint: Any, name: str, where: str) -> Any:
+    """:return: ``value`` in canonical form when it fits ``hint``, else ``_INVALID``."""
+    members = _hint_members(hint)
+    if len(members) > 1:
+        if value is None and type(None) in members:
+            return None
+        results = (_conform(value, member, name, where) for member in members if member is not type(None))
+        return next((result for result in results if result is not _INVALID), _INVALID)
+    origin, arguments = typing.get_origin(hint), typing.get_args(hint)
+    if origin is typing.Literal:
+        return value if isinstance(value, str) and value in arguments else _INVALID
+    if origin is collections.abc.Callable:  # RL Zoo's lin_<x>: x at the start, decreasing linearly to 0
+        match = _SCHEDULE_PATTERN.match(value.strip()) if isinstance(value, str) else None
+        fits = match is not None and _conform(match[1], float, name, where) is not _INVALID
+        return f"lin_{match[1]}" if fits else _INVALID  # type: ignore[index]
+    if origin in (list, tuple):
+        if not isinstance(value, list | tuple) or (origin is tuple and len(value) != len(arguments)):
+            return _INVALID
+        items = [_conform(item, arguments[index if origin is tuple else 0], name, where)
+                 for index, item in enumerate(value)]  # fmt: skip
+        return _INVALID if any(item is _INVALID for item in items) else items
+    if origin is type:
+        canonical = NAME_SPELLINGS.get(value, value) if isinstance(value, str) else None
+        return canonical if canonical in CLASS_NAMES[arguments[0]] else _INVALID
+    if hint is dict or origin is dict:
+        value = parse_literal(value, {}, where) if isinstance(value, str) else value  # RL Zoo's "dict(...)"
+        return dict(value) if isinstance(value, Mapping) and _is_plain_data(value) else _INVALID
+    if hint is Any:
+        return value if _is_plain_data(value) else _INVALID
+    if hint in (bool, str):
+        fits = isinstance(value, hint) and (hint is bool or value in CHOICES.get(name, (value,)))
+        return value if fits else _INVALID
+    number = _as_number(value) if hint is float else value
+    if (
+        isinstance(number, bool)
+        or not isinstance(number, int | float)
+        or (hint is int and isinstance(number, float))
+    ):
+        return _INVALID
+    return hint(number) if _in_range(float(number), RANGES.get(name, "[-inf, inf]")) else _INVALID
 
 
 def _as_number(value: Any) -> Any:
@@ -497,93 +452,6 @@ def _as_number(value: Any) -> Any:
     if isinstance(value, str) and _FLOAT_PATTERN.match(value.strip()):
         return float(value)
     return value
-
-
-def _check_int(value: Any, param: Param) -> Any:
-    if isinstance(value, bool) or not isinstance(value, int):
-        return _INVALID
-    return value if param.in_bounds(value) else _INVALID
-
-
-def _check_float(value: Any, param: Param) -> Any:
-    value = _as_number(value)
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        return _INVALID
-    return float(value) if param.in_bounds(float(value)) else _INVALID
-
-
-def _check_bool(value: Any, param: Param) -> Any:
-    return value if isinstance(value, bool) else _INVALID
-
-
-def _check_str(value: Any, param: Param) -> Any:
-    return value if isinstance(value, str) else _INVALID
-
-
-def _check_choice(value: Any, param: Param) -> Any:
-    return value if isinstance(value, str) and value in param.choices else _INVALID
-
-
-def _check_schedule(value: Any, param: Param) -> Any:
-    if isinstance(value, str):
-        match = _SCHEDULE_PATTERN.match(value.strip())
-        if match is None or not _FLOAT_PATTERN.match(match.group(1)):
-            return _INVALID
-        return f"lin_{match.group(1)}" if param.in_bounds(float(match.group(1))) else _INVALID
-    return _check_float(value, param)
-
-
-def _check_train_freq(value: Any, param: Param) -> Any:
-    if isinstance(value, list | tuple):
-        if len(value) != 2 or value[1] not in ("step", "episode"):
-            return _INVALID
-        frequency = _check_int(value[0], Param("int", low=1))
-        return _INVALID if frequency is _INVALID else [frequency, value[1]]
-    return _check_int(value, Param("int", low=1))
-
-
-def _check_int_list(value: Any, param: Param) -> Any:
-    if isinstance(value, str) and value in param.choices:
-        return value
-    if not isinstance(value, list | tuple):
-        return _INVALID
-    items = [_check_int(item, param) for item in value]
-    return _INVALID if any(item is _INVALID for item in items) else items
-
-
-def _check_mapping(value: Any, param: Param) -> Any:
-    if not isinstance(value, Mapping) or not all(isinstance(key, str) for key in value):
-        return _INVALID
-    if not all(_is_plain_data(item) for item in value.values()):
-        return _INVALID
-    return dict(value)
-
-
-def _check_name(table: Mapping[str, type]) -> Callable[[Any, Param], Any]:
-    def check(value: Any, param: Param) -> Any:
-        canonical = NAME_SPELLINGS.get(value) if isinstance(value, str) else None
-        return canonical if canonical in table else _INVALID
-
-    return check
-
-
-_CHECKERS: dict[str, Callable[[Any, Param], Any]] = {
-    "int": _check_int,
-    "float": _check_float,
-    "bool": _check_bool,
-    "str": _check_str,
-    "choice": _check_choice,
-    "schedule": _check_schedule,
-    "train_freq": _check_train_freq,
-    "int_list": _check_int_list,
-    "mapping": _check_mapping,
-    "list": lambda value, param: (
-        list(value) if isinstance(value, list | tuple) and _is_plain_data(value) else _INVALID
-    ),
-    "any": lambda value, param: value if _is_plain_data(value) else _INVALID,
-    "activation": _check_name(ACTIVATIONS),
-    "optimizer": _check_name(OPTIMIZERS),
-}
 
 
 def _is_plain_data(value: Any, depth: int = 0) -> bool:
@@ -599,30 +467,22 @@ def _is_plain_data(value: Any, depth: int = 0) -> bool:
     return False
 
 
-def _check_policy(value: Any, spec: AlgorithmSpec, where: str) -> str:
-    aliases = sorted(spec.algorithm_class.policy_aliases)
-    if not isinstance(value, str) or value not in aliases:
-        raise ConfigError(f"{where} must be one of {allowed(aliases)}, got {value!r}")
-    return value
+def normalize_arguments(
+    value: Any, params: Mapping[str, Any], where: str, names: Mapping[str, str] | None = None
+) -> dict[str, Any]:
+    """Check keyword arguments (``policy_kwargs``, a callback's) against the type hints of ``params``: a mapping, or
+    RL Zoo's ``"dict(...)"`` string (parsed, never evaluated; ``names`` are the class names it may hold).
 
-
-def normalize_policy_kwargs(value: Any, spec: AlgorithmSpec, where: str) -> dict[str, Any]:
-    """Check ``policy_kwargs``: a mapping, or RL Zoo's ``"dict(...)"`` string (parsed, never evaluated).
-
-    :raises ConfigError: for an unknown key (listing the algorithm's keys) or a wrong value
+    :raises ConfigError: for an unknown key (listing the allowed ones) or a wrong value
     """
     if isinstance(value, str):
-        value = parse_literal(value, NAME_SPELLINGS, where)
+        value = parse_literal(value, names or {}, where)
     if not isinstance(value, Mapping):
         raise ConfigError(f"{where} must be a mapping or a 'dict(...)' string, got {value!r}")
-    result: dict[str, Any] = {}
-    for key, item in value.items():
-        if key not in spec.policy_params:
-            raise ConfigError(
-                f"{where}: unknown key {key!r} for {spec.name}; allowed keys: {allowed(spec.policy_params)}"
-            )
-        result[key] = normalize_value(item, spec.policy_params[key], f"{where}: {key}")
-    return result
+    for key in value:
+        if key not in params:
+            raise ConfigError(f"{where}: unknown key {key!r}; allowed keys: {allowed(params)}")
+    return {key: normalize_value(item, params[key], f"{where}: {key}", key) for key, item in value.items()}
 
 
 def normalize_callbacks(value: Any, where: str) -> list[dict[str, dict[str, Any]]]:
@@ -631,39 +491,18 @@ def normalize_callbacks(value: Any, where: str) -> list[dict[str, dict[str, Any]
     :return: a list of ``{canonical name: kwargs}``
     :raises ConfigError: for an unknown callback, an unknown argument or a value of the wrong type
     """
-    items = value if isinstance(value, list) else [value]
     result: list[dict[str, dict[str, Any]]] = []
-    for item in items:
-        kwargs: Any
-        if isinstance(item, str):
-            name, kwargs = item, {}
-        elif isinstance(item, Mapping) and len(item) == 1:
-            name, kwargs = next(iter(item.items()))
-            kwargs = {} if kwargs is None else kwargs
-        else:
+    for item in value if isinstance(value, list) else [value]:
+        item = {item: None} if isinstance(item, str) else item
+        if not (isinstance(item, Mapping) and len(item) == 1):
             raise ConfigError(
                 f"{where}: each callback must be a name or {{name: {{arguments}}}}, got {item!r}"
             )
-        if not isinstance(name, str):
-            raise ConfigError(f"{where}: a callback name must be a string, got {name!r}")
-        cls = callback_class(name, where)
+        name, kwargs = next(iter(item.items()))
+        params = params_from_signature(callback_class(name, where).__init__, every=True)
         canonical = _CALLBACK_SPELLINGS[name]
-        result.append({canonical: _check_callback_kwargs(cls, kwargs, f"{where}: {canonical}")})
-    return result
-
-
-def _check_callback_kwargs(cls: type[BaseCallback], kwargs: Any, where: str) -> dict[str, Any]:
-    if isinstance(kwargs, str):
-        kwargs = parse_literal(kwargs, {}, where)
-    if not isinstance(kwargs, Mapping):
-        raise ConfigError(f"{where}: the arguments must be a mapping, got {kwargs!r}")
-    parameters = callback_parameters(cls)
-    params = params_from_signature(cls.__init__)
-    result: dict[str, Any] = {}
-    for key, value in kwargs.items():
-        if key not in parameters:
-            raise ConfigError(f"{where}: unknown argument {key!r}; allowed: {allowed(parameters)}")
-        result[key] = normalize_value(value, params.get(key, Param("any")), f"{where}: {key}")
+        kwargs = {} if kwargs is None else kwargs
+        result.append({canonical: normalize_arguments(kwargs, params, f"{where}: {canonical}")})
     return result
 
 
@@ -728,36 +567,34 @@ def _config_value(value: Any) -> Any:
 
 
 # ---------------------------------------------------------------------------------------------- building
-def algorithm_kwargs(entry: Mapping[str, Any]) -> dict[str, Any]:
+def algorithm_kwargs(entry: Mapping[str, Any], spec: AlgorithmSpec) -> dict[str, Any]:
     """The algorithm constructor's keyword arguments of a canonical entry (schedules and classes built).
 
     :param entry: a canonical entry (:func:`normalize_entry`)
+    :param spec: the algorithm it configures
     """
-    kwargs: dict[str, Any] = {}
-    for key, value in entry.items():
-        if key in RUN_PARAMS or key in (POLICY_KWARGS_KEY, CALLBACK_KEY, LADDER_KEY):
-            continue
-        if key == "learning_rate" and isinstance(value, str):
-            # RL Zoo's lin_<x>: x at the start, decreasing linearly to 0 at the end of training.
-            value = LinearSchedule(float(value[4:]), 0.0, 1.0)
-        elif key == "train_freq" and isinstance(value, list):
-            value = (value[0], value[1])
-        elif key == "replay_buffer_class" and value is not None:
-            value = REPLAY_BUFFER_CLASSES[value]
-        kwargs[key] = value
+    kwargs = {key: to_object(value, spec.params[key]) for key, value in entry.items() if key in spec.params}
     if POLICY_KWARGS_KEY in entry:
-        kwargs[POLICY_KWARGS_KEY] = policy_kwargs_objects(entry[POLICY_KWARGS_KEY])
+        policy_kwargs = entry[POLICY_KWARGS_KEY].items()
+        kwargs[POLICY_KWARGS_KEY] = {
+            key: to_object(value, spec.policy_params[key]) for key, value in policy_kwargs
+        }
     return kwargs
 
 
-def policy_kwargs_objects(policy_kwargs: Mapping[str, Any]) -> dict[str, Any]:
-    """:return: canonical ``policy_kwargs`` with the class names replaced by the classes."""
-    result = dict(policy_kwargs)
-    if "activation_fn" in result:
-        result["activation_fn"] = ACTIVATIONS[result["activation_fn"]]
-    if "optimizer_class" in result:
-        result["optimizer_class"] = OPTIMIZERS[result["optimizer_class"]]
-    return result
+def to_object(value: Any, hint: Any) -> Any:
+    """:return: a canonical config value as its constructor takes it: RL Zoo's ``lin_<x>`` as SB3's
+    ``LinearSchedule(x, 0, 1)`` (x at the start, decreasing linearly to 0 at the end of training), a class name as
+    the class, a list as a tuple where the hint says ``tuple``."""
+    for member in _hint_members(hint):
+        origin, arguments = typing.get_origin(member), typing.get_args(member)
+        if isinstance(value, str) and origin is collections.abc.Callable:
+            return LinearSchedule(float(value[4:]), 0.0, 1.0)
+        if isinstance(value, str) and origin is type:
+            return CLASS_NAMES[arguments[0]][value]
+        if isinstance(value, list) and origin is tuple:
+            return tuple(value)
+    return value
 
 
 def build_callbacks(
@@ -784,7 +621,7 @@ def build_callbacks(
     return callbacks
 
 
-# The package's own algorithms, registered as a plug-in's would be (their config keys read from the signatures).
+# The package's own algorithms and callback, registered as a plug-in's would be (keys read from the signatures).
 for _name, _class, _label in (
     ("iql", IQL, "IL"),
     ("gdq", GDQ, "GDQ"),
@@ -794,3 +631,4 @@ for _name, _class, _label in (
     register_algorithm(_name, _class, label=_label)
 for _name, _class, _label in (("eps_iql", IQL, "EPS-IL"), ("eps_gdq", GDQ, "EPS-GDQ")):
     register_algorithm(_name, _class, label=_label, eps=True)
+register_callback(EvolutionCallback, EVOLUTION_CALLBACK)

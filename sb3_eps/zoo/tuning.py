@@ -11,12 +11,13 @@ one study. At the end the best trial is written as a ready-to-use config entry, 
 from __future__ import annotations
 
 import csv
+import io
 import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import yaml
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
@@ -26,7 +27,7 @@ from sb3_eps.gdq import GDQ
 from sb3_eps.zoo.callbacks import TeamEvalCallback, TickBudgetCallback
 from sb3_eps.zoo.checkpoint import write_text_atomic
 from sb3_eps.zoo.cli import NamespaceOptions
-from sb3_eps.zoo.config import ResolvedConfig, check_env_id, entry_yaml, resolve_config
+from sb3_eps.zoo.config import ResolvedConfig, apply_overrides, check_env_id, entry_yaml, resolve_config
 from sb3_eps.zoo.errors import ConfigError
 from sb3_eps.zoo.exp_manager import EVAL_SEED_OFFSET, TrainOptions, build_env, build_model, prepare_run
 from sb3_eps.zoo.run_folder import ARGS_NAME, CONFIG_NAME, create_run_folder
@@ -37,7 +38,6 @@ from sb3_eps.zoo.schema import (
     AlgorithmSpec,
     build_callbacks,
     check_complete,
-    normalize_entry,
 )
 
 BEST_PARAMS_NAME = "best_params.yml"
@@ -63,19 +63,9 @@ class TuningOptions(NamespaceOptions):
     sampler_seed: int | None = None
     n_seeds_per_trial: int = 1
     eps_only: bool = False
-
-    def check(self) -> None:
-        """:raises ConfigError: for a count out of range."""
-        for flag, value in (
-            ("--n-trials", self.n_trials),
-            ("--n-jobs", self.n_jobs),
-            ("--n-evaluations", self.n_evaluations),
-            ("--n-seeds-per-trial", self.n_seeds_per_trial),
-        ):
-            if value < 1:
-                raise ConfigError(f"{flag} must be >= 1, got {value}")
-        if self.n_startup_trials < 0:
-            raise ConfigError(f"--n-startup-trials must be >= 0, got {self.n_startup_trials}")
+    minimums: ClassVar[dict[str, int]] = {
+        "n_trials": 1, "n_jobs": 1, "n_evaluations": 1, "n_seeds_per_trial": 1, "n_startup_trials": 0,
+    }  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------- search spaces
@@ -92,11 +82,9 @@ def sample_hyperparams(
     :param spec: the algorithm
     :param n_timesteps: the trial budget (bounds ``learning_starts``)
     :param env_id: the training env id: EPS may then also search its team world (None: its default world only)
-    :param eps_only: sample the EPS arguments alone (``--eps-only``): the base algorithm keeps the entry's settings
-    :raises ConfigError: ``eps_only`` for an algorithm without EPS
+    :param eps_only: sample the EPS arguments alone (``--eps-only``, an ``eps_*`` algorithm's): the base algorithm
+        keeps the entry's settings
     """
-    if eps_only and not spec.eps:
-        raise ConfigError("--eps-only searches the EPS arguments: use it with an eps_* algorithm")
     space = next(
         (SEARCH_SPACES[cls] for cls in spec.algorithm_class.__mro__ if cls in SEARCH_SPACES), sample_common
     )
@@ -192,24 +180,21 @@ SEARCH_SPACES: dict[type, Callable[[Any, AlgorithmSpec, int], dict[str, Any]]] =
 
 
 def merge_overrides(base: dict[str, Any], overrides: dict[str, Any], spec: AlgorithmSpec) -> dict[str, Any]:
-    """The base entry updated with a trial's overrides (``policy_kwargs`` and callback arguments merged per key).
+    """The base entry updated with a trial's overrides (``policy_kwargs`` and the callback's arguments merged per key,
+    as ``--hyperparams`` does: :func:`~sb3_eps.zoo.config.apply_overrides`).
 
     :return: the canonical entry
     :raises ConfigError: when the result is not a valid entry
     """
-    entry = dict(base)
+    pairs: list[tuple[tuple[str, ...], Any]] = []
     for key, value in overrides.items():
         if key == POLICY_KWARGS_KEY:
-            entry[key] = {**base.get(key, {}), **value}
-        elif key == CALLBACK_KEY:
-            base_callbacks = {next(iter(item)): next(iter(item.values())) for item in base.get(key, [])}
-            for item in value:
-                name, kwargs = next(iter(item.items()))
-                base_callbacks[name] = {**base_callbacks.get(name, {}), **kwargs}
-            entry[key] = [{name: kwargs} for name, kwargs in base_callbacks.items()]
+            pairs += [((key, name), item) for name, item in value.items()]
+        elif key == CALLBACK_KEY:  # sample_hyperparams's [{EvolutionCallback: arguments}]
+            pairs += [((key, name), item) for name, item in value[0][EVOLUTION_CALLBACK].items()]
         else:
-            entry[key] = value
-    return normalize_entry(entry, spec, "sampled hyper-parameters")
+            pairs.append(((key,), value))
+    return apply_overrides(base, pairs, spec, "sampled hyper-parameters")
 
 
 def objective_score(summary: dict[str, Any], n_eval_episodes: int) -> float:
@@ -384,7 +369,7 @@ def tune(options: TrainOptions, tuning: TuningOptions) -> Path:
     :raises ConfigError: for any mistake, before anything is written
     """
     optuna = _import_optuna()
-    tuning.check()
+    tuning.check_minimums()
     options.check()
     check_env_id(options.env)
     hyperparams = [*options.hyperparams, *(f"env_kwargs.{item}" for item in options.env_kwargs)]
@@ -436,34 +421,19 @@ PER_SEED_COLUMNS = ("ticks", "eps_ticks", "eps_rounds", "eps_crossovers")
 
 
 def write_trials_csv(study: Any, path: Path) -> None:
-    """One row per trial: number, state, value, duration, :data:`PER_SEED_COLUMNS` and every sampled parameter (no
-    pandas needed)."""
-    trials = list(study.trials)
-    param_names = sorted({name for trial in trials for name in trial.params})
-    temporary = path.with_name(path.name + ".tmp")
-
-    def per_seed(trial: Any, key: str) -> str:
-        return "/".join(str(value) for value in trial.user_attrs.get(key, []))
-
-    with temporary.open("w", newline="") as file:
-        writer = csv.writer(file)
-        writer.writerow(
-            [
-                "number",
-                "state",
-                "value",
-                "duration_s",
-                *PER_SEED_COLUMNS,
-                *(f"params_{name}" for name in param_names),
-            ]
-        )
-        for trial in trials:
-            duration = trial.duration.total_seconds() if trial.duration is not None else ""
-            writer.writerow(
-                [trial.number, trial.state.name, "" if trial.value is None else trial.value, duration,
-                 *(per_seed(trial, key) for key in PER_SEED_COLUMNS), *(trial.params.get(name, "") for name in param_names)]
-            )  # fmt: skip
-    temporary.replace(path)
+    """One row per trial: number, state, value, duration, :data:`PER_SEED_COLUMNS` (``/``-joined) and every sampled
+    parameter (``params_<name>``)."""
+    names = sorted({name for trial in study.trials for name in trial.params})
+    rows = [
+        [trial.number, trial.state.name, trial.value, trial.duration.total_seconds() if trial.duration is not None else None,
+         *("/".join(map(str, trial.user_attrs.get(key, []))) for key in PER_SEED_COLUMNS),
+         *(trial.params.get(name) for name in names)]
+        for trial in study.trials
+    ]  # fmt: skip
+    text = io.StringIO()
+    csv.writer(text).writerows([["number", "state", "value", "duration_s", *PER_SEED_COLUMNS,
+                                 *(f"params_{name}" for name in names)], *rows])  # fmt: skip
+    write_text_atomic(path, text.getvalue())
 
 
 def write_results(
