@@ -445,7 +445,7 @@ def test_the_pillars_world_has_robot_sized_obstacles_and_the_training_spaces() -
     ("kwargs", "message"),
     [
         ({"target_flip_share": 1.0}, "target_flip_share"),
-        ({"fitness": "speed"}, "unknown fitness"),
+        ({"fitness": "speed"}, "fitness must be one of"),
         ({"min_gain": -0.1}, "min_gain"),
         ({"n_reevaluation_episodes": -1}, "n_reevaluation_episodes"),
         ({"frozen_groups": "value_stream"}, "frozen_groups"),

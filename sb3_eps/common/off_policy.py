@@ -33,7 +33,6 @@ from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from sb3_eps.common import collection
 from sb3_eps.common.buffers import (
-    TEAM_REWARD_MODES,
     JointReplayBuffer,
     JointReplayBufferSamples,
     NStepJointCollector,
@@ -43,7 +42,7 @@ from sb3_eps.common.buffers import (
 from sb3_eps.common.multi_agent_vec_env import MultiAgentVecEnv
 from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.common.threads import set_torch_threads
-from sb3_eps.common.utils import describe_space, epsilon_greedy, is_int, polyak_update_tensors_
+from sb3_eps.common.utils import check_arguments, describe_space, epsilon_greedy, polyak_update_tensors_
 
 SelfMultiAgentOffPolicyAlgorithm = TypeVar(
     "SelfMultiAgentOffPolicyAlgorithm", bound="MultiAgentOffPolicyAlgorithm"
@@ -103,6 +102,14 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     default_agent_target: ClassVar[bool] = True
     uses_global_state: ClassVar[bool] = False  # only state-conditioned mixers (QMIX) read and store it
     diagnostics_interval: ClassVar[int] = 250  # gradient steps between two diagnostic records under train/
+    #: The intervals the constructor checks its numbers against (:func:`~sb3_eps.common.utils.check_arguments`).
+    argument_ranges: ClassVar[dict[str, str]] = {
+        "learning_rate": "(0, inf)", "buffer_size": "[1, inf)", "learning_starts": "[0, inf)",
+        "batch_size": "[1, inf)", "tau": "(0, 1]", "gamma": "[0, 1]", "gradient_steps": "[-1, inf)",
+        "gradient_steps_per_target_update": "[1, inf)", "n_steps": "[1, inf)", "prioritized_replay_alpha": "[0, inf)",
+        "prioritized_replay_beta0": "[0, 1]", "exploration_fraction": "[0, 1]", "exploration_initial_eps": "[0, 1]",
+        "exploration_final_eps": "[0, 1]", "max_grad_norm": "(0, inf]", "stats_window_size": "[1, inf)",
+    }  # fmt: skip
 
     def __init__(
         self,
@@ -142,13 +149,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             raise ValueError(
                 f"pass a vector env, not the id {env!r}: use sb3_eps.make_vec_env({env!r}, n_envs=...)"
             )
-        self._check_hyperparameters(
-            tau=tau, gamma=gamma, n_steps=n_steps, gradient_steps_per_target_update=gradient_steps_per_target_update,
-            team_reward_mode=team_reward_mode, prioritized_replay_alpha=prioritized_replay_alpha,
-            buffer_size=buffer_size, batch_size=batch_size, exploration_fraction=exploration_fraction,
-            exploration_initial_eps=exploration_initial_eps, exploration_final_eps=exploration_final_eps,
-            learning_rate=learning_rate,
-        )  # fmt: skip
+        check_arguments(MultiAgentOffPolicyAlgorithm.__init__, locals(), self.argument_ranges)
         set_torch_threads()  # small networks: one thread unless the user chose (sb3_eps/common/threads.py)
         self.n_agents = 0
         self.n_worlds = 0
@@ -200,38 +201,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             self._setup_model()
 
     # ------------------------------------------------------------------ set-up
-    @staticmethod
-    def _check_hyperparameters(**values: Any) -> None:
-        if not 0.0 < values["tau"] <= 1.0:
-            raise ValueError(f"tau must be in (0, 1], got {values['tau']}")
-        if not 0.0 <= values["gamma"] <= 1.0:
-            raise ValueError(f"gamma must be in [0, 1], got {values['gamma']}")
-        if values["n_steps"] < 1:
-            raise ValueError(f"n_steps must be >= 1, got {values['n_steps']}")
-        if values["gradient_steps_per_target_update"] < 1:
-            raise ValueError(
-                f"gradient_steps_per_target_update must be >= 1, got {values['gradient_steps_per_target_update']}"
-            )
-        if values["team_reward_mode"] not in TEAM_REWARD_MODES:
-            raise ValueError(
-                f"team_reward_mode must be one of {TEAM_REWARD_MODES}, got {values['team_reward_mode']!r}"
-            )
-        if values["prioritized_replay_alpha"] < 0:
-            raise ValueError(
-                f"prioritized_replay_alpha must be >= 0, got {values['prioritized_replay_alpha']}"
-            )
-        for name in ("buffer_size", "batch_size"):
-            if not (is_int(values[name]) and values[name] >= 1):
-                raise ValueError(f"{name} must be an int >= 1 (joint rows), got {values[name]!r}")
-        for name in ("exploration_fraction", "exploration_initial_eps", "exploration_final_eps"):
-            if not isinstance(values[name], float | int) or not 0.0 <= values[name] <= 1.0:
-                raise ValueError(f"{name} must be a number in [0, 1], got {values[name]!r}")
-        rate = values["learning_rate"]
-        if not callable(rate) and (
-            not isinstance(rate, float | int) or isinstance(rate, bool) or not rate > 0
-        ):
-            raise ValueError(f"learning_rate must be a number > 0 or a schedule (callable), got {rate!r}")
-
     def _read_env_layout(self, env: VecEnv) -> None:
         """Read the agents-per-world layout from the bridge; check it against a loaded model's."""
         multi_agent_env = find_multi_agent_env(env)

@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import collections.abc
+import math
+import numbers
+import os
+import types
+import typing
 from collections.abc import Callable
 from typing import Any
 
@@ -12,6 +18,74 @@ import torch as th
 def is_int(value: Any) -> bool:
     """Whether ``value`` is a Python or NumPy integer (a bool is not)."""
     return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
+def check_arguments(function: Callable[..., Any], values: dict[str, Any], ranges: dict[str, str]) -> None:
+    """Check ``values`` against the type hints of ``function`` (a constructor or a dataclass) and the intervals of
+    ``ranges`` (``"(0, 1]"``, ``"[1, inf)"``), one config schema derived from the signatures.
+
+    :raises ValueError: one line naming the first argument that does not fit and what it may be
+    """
+    hints = typing.get_type_hints(function)
+    for name, value in values.items():
+        hint, interval = hints.get(name, Any), ranges.get(name)
+        in_range = interval is None or not _is_number(value) or _in_interval(float(value), interval)
+        if not (_fits(value, hint) and in_range):
+            raise ValueError(f"{name} must be {_describe(hint, interval)}, got {value!r}")
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
+
+
+def _in_interval(number: float, interval: str) -> bool:
+    low, high = (float(bound) for bound in interval[1:-1].split(","))
+    above = number > low or (interval[0] == "[" and number == low)
+    return above and (number < high or (interval[-1] == "]" and number == high))
+
+
+def _fits(value: Any, hint: Any) -> bool:
+    """Whether ``value`` fits ``hint``; hints a config cannot hold (classes, envs) accept anything."""
+    origin, arguments = typing.get_origin(hint), typing.get_args(hint)
+    if isinstance(hint, types.UnionType) or origin is typing.Union:
+        return any(_fits(value, member) for member in arguments)
+    if origin is typing.Literal:
+        return any(value == choice and type(value) is type(choice) for choice in arguments)
+    if origin in (list, tuple):
+        if not isinstance(value, list | tuple):
+            return False
+        items = arguments if origin is tuple and Ellipsis not in arguments else arguments[:1] * len(value)
+        return len(items) == len(value) and all(map(_fits, value, items))
+    checks: dict[Any, Callable[[Any], bool]] = {
+        type(None): lambda v: v is None,
+        bool: lambda v: isinstance(v, bool | np.bool_),
+        int: is_int,
+        float: _is_number,
+        str: lambda v: isinstance(v, str | os.PathLike),
+        dict: lambda v: isinstance(v, collections.abc.Mapping),
+        collections.abc.Callable: callable,
+    }
+    check = checks.get(origin or hint)
+    return check(value) if check is not None else True
+
+
+def _describe(hint: Any, interval: str | None) -> str:
+    origin, arguments = typing.get_origin(hint), typing.get_args(hint)
+    if isinstance(hint, types.UnionType) or origin is typing.Union:
+        return " or ".join(_describe(member, interval) for member in arguments)
+    if origin is typing.Literal:
+        return f"one of {arguments}"
+    if origin in (list, tuple):
+        return f"a list of {'/'.join(getattr(item, '__name__', '') for item in arguments if item is not Ellipsis)}"
+    words = {type(None): "None", bool: "True or False", int: "an int", float: "a number", str: "a string",
+             dict: "a mapping", collections.abc.Callable: "a schedule (callable)"}  # fmt: skip
+    word = words.get(origin or hint, getattr(hint, "__name__", str(hint)))
+    if interval is None or hint not in (int, float):
+        return word
+    low, high = interval[1:-1].split(", ")
+    if math.isinf(float(high)):
+        return f"{word} {'>=' if interval[0] == '[' else '>'} {low}"
+    return f"{word} in {interval}"
 
 
 def check_seed(seed: Any) -> int | None:
