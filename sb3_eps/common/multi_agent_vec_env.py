@@ -20,6 +20,7 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
+from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 from supersuit import pettingzoo_env_to_vec_env_v1
 
@@ -297,15 +298,7 @@ def _apply_to_world(
     if kind == "method":
         return getattr(env, name)(*args, **kwargs)  # type: ignore[arg-type]
     if kind == "is_wrapped":
-        return _is_wrapped(env, args[0])
+        return is_wrapped(env, args[0])
     if kind == "render":
         return world.render()
     raise ValueError(f"unknown world request {kind!r}")
-
-
-def _is_wrapped(env: Any, wrapper_class: type[gymnasium.Wrapper]) -> bool:
-    while isinstance(env, gymnasium.Wrapper):
-        if isinstance(env, wrapper_class):
-            return True
-        env = env.env
-    return False

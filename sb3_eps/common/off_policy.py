@@ -421,14 +421,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     def collection_values(
         self, observations: np.ndarray, next_observations: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray] | None:
-        """The per-agent values that replay rows store with these ticks, or None (:meth:`_collection_values`)."""
-        return self._collection_values(observations, next_observations)
-
-    def _collection_values(
-        self, observations: np.ndarray, next_observations: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray] | None:
-        """Hook: per-agent values ``(v, v')`` to store with the ticks' ``(n_worlds, n_agents, obs)`` observations,
-        computed at collection time; None (the default) stores none."""
+        """Hook: per-agent values ``(v, v')`` that replay rows store with the ticks' ``(n_worlds, n_agents, obs)``
+        observations, computed at collection time; None (the default) stores none."""
         return None
 
     # ------------------------------------------------------------------ learning

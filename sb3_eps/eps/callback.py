@@ -283,7 +283,6 @@ class EvolutionCallback(BaseCallback):
                 template,
                 batched=settings.batched_forward,
                 n_workers=n_workers,
-                start_method=settings.worker_start_method,
                 record=record,
             )
         self.round.pool = pool

@@ -169,9 +169,10 @@ class PopulationForward:
             return th.stack([self._copies[index](obs[index]) for index in range(obs.shape[0])])
 
 
-class _Block:
+class _Block(Served):
     """The envs of a block of individuals and the forward pass that drives them (in a worker or in process);
-    env ``p * n_episodes + j`` plays episode ``j`` of individual ``p``. ``record``: see :data:`RECORD_MODES`."""
+    env ``p * n_episodes + j`` plays episode ``j`` of individual ``p``. ``record``: see :data:`RECORD_MODES`. A
+    worker's block answers ``evaluate`` with the numpy weights of its individuals."""
 
     def __init__(
         self,
@@ -243,6 +244,12 @@ class _Block:
             ]
         return returns, lengths, outcomes, valid, episodes
 
+    def handle(self, command: str, data: Any) -> Any:
+        if command != "evaluate":
+            return super().handle(command, data)
+        population, seeds, valid = data
+        return self.evaluate({name: th.from_numpy(array) for name, array in population.items()}, seeds, valid)
+
     def _recorders(self, obs: np.ndarray, active: np.ndarray) -> list[_EpisodeRecorder] | None:
         if self.record is None:
             return None
@@ -259,27 +266,9 @@ class _Block:
             env.close()
 
 
-def _build_served_block(block_kwargs: dict[str, Any]) -> _ServedBlock:
+def _build_served_block(block_kwargs: dict[str, Any]) -> _Block:
     th.set_num_threads(1)  # the forward passes are tiny; threads would fight over the cores with the envs
-    return _ServedBlock(_Block(**block_kwargs))
-
-
-class _ServedBlock(Served):
-    """A worker's :class:`_Block`: answers ``evaluate`` with the numpy weights of its individuals."""
-
-    def __init__(self, block: _Block) -> None:
-        self.block = block
-
-    def handle(self, command: str, data: Any) -> Any:
-        if command != "evaluate":
-            return super().handle(command, data)
-        population, seeds, valid = data
-        return self.block.evaluate(
-            {name: th.from_numpy(array) for name, array in population.items()}, seeds, valid
-        )
-
-    def close(self) -> None:
-        self.block.close()
+    return _Block(**block_kwargs)
 
 
 class EnvPool(ABC):
@@ -342,7 +331,6 @@ class SubprocessEnvPool(EnvPool):
     :param network: architecture template (CPU; copied into the workers)
     :param batched: batched forward pass (:class:`PopulationForward`)
     :param n_workers: number of worker processes (at most ``n_individuals``)
-    :param start_method: multiprocessing start method (None: the platform's default)
     :param record: what to record of every episode (:data:`RECORD_MODES`), sent back with the answer
     """
 
@@ -355,7 +343,6 @@ class SubprocessEnvPool(EnvPool):
         network: nn.Module,
         batched: bool = True,
         n_workers: int = 2,
-        start_method: str | None = None,
         record: str | None = None,
     ) -> None:
         if record not in RECORD_MODES:
@@ -373,7 +360,6 @@ class SubprocessEnvPool(EnvPool):
         self._workers = WorkerPool(
             _build_served_block,
             payloads,
-            start_method,
             describe=lambda i: f"evaluation block {i}",
             error=EvaluationFailed,
             close_timeout=1.0,

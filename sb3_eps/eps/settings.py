@@ -136,7 +136,6 @@ class EPSSettings:
         ``mutation="safe"``
     :param eval_env_kwargs: constructor arguments of the evaluation env; None: :data:`DEFAULT_EVAL_ENV_KWARGS`;
         ``{}``: the env's own defaults (the bars world, paper)
-    :param worker_start_method: multiprocessing start method of the workers; None: the package's default
     :param seed: seed of the noise, the buffer sampling and the evaluation episodes; None: from the model's seed
     :param share_experience: write every tick of every evaluation episode into the model's replay buffer
         (Evolutionary RL, Khadka & Tumer, NeurIPS 2018); needs a team world with the training world's agents
@@ -168,7 +167,6 @@ class EPSSettings:
     batched_forward: bool = True
     per_robot: bool = False
     eval_env_kwargs: dict[str, Any] | None = None
-    worker_start_method: str | None = None
     seed: int | None = None
     share_experience: bool = False
 

@@ -220,7 +220,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     def _stores_agent_values(self) -> bool:
         return self.global_values == "stored"
 
-    def _collection_values(
+    def collection_values(
         self, observations: np.ndarray, next_observations: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """``global_values="stored"``: v and v' as the agent network sees them at collection time (the paper's
