@@ -227,9 +227,15 @@ class EPSRound:
         if when == "before":
             record["team_check_seed"] = int(self.rng.integers(2**31 - 1))
         # The online network, the one the crossover changed (a kept weight average, GDQ's default, follows it only
-        # slowly): its greedy actions without the model's exploration.
-        online = _OnlineGreedy(self.model.policy)
-        summary = evaluate_team(online, env_id, n_episodes, n_envs=1, seed=record["team_check_seed"])
+        # slowly): policies explore only through the algorithm, so their non-deterministic actions are its argmax.
+        summary = evaluate_team(
+            self.model.policy,
+            env_id,
+            n_episodes,
+            n_envs=1,
+            deterministic=False,
+            seed=record["team_check_seed"],
+        )
         ticks = int(sum(episode["l"] for episode in summary["episodes"]))
         self.eps_ticks += ticks
         record[f"team_success_{when}"] = summary.get("success_rate", float("nan"))
@@ -254,19 +260,6 @@ class EPSRound:
             observations = self.visited_observations(None)
         assert observations is not None
         return output_sensitivity(q_net, observations)
-
-
-class _OnlineGreedy:
-    """A policy's greedy actions from its online network (policies explore only through the algorithm, so
-    ``deterministic=False`` is the online argmax), whatever network ``predict(deterministic=True)`` takes."""
-
-    def __init__(self, policy: Any) -> None:
-        self.policy = policy
-
-    def predict(
-        self, observation: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True
-    ) -> tuple[np.ndarray, Any]:
-        return self.policy.predict(observation, state, episode_start, deterministic=False)
 
 
 def visited_mask(replay_buffer: Any, robot: int | None = None) -> np.ndarray:
