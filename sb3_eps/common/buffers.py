@@ -5,7 +5,6 @@ observation) masks. :class:`NStepJointCollector` folds every world's ticks into 
 
 from __future__ import annotations
 
-import typing
 from dataclasses import dataclass, field
 from typing import Any, Literal, NamedTuple
 
@@ -15,7 +14,6 @@ from gymnasium import spaces
 
 #: The team reward of a tick: the ``"sum"`` or the ``"mean"`` of the alive agents' rewards (``team_reward_mode``).
 TeamRewardMode = Literal["sum", "mean"]
-TEAM_REWARD_MODES: tuple[str, ...] = typing.get_args(TeamRewardMode)
 
 
 class JointReplayBufferSamples(NamedTuple):
@@ -58,8 +56,6 @@ class JointReplayBuffer:
         device: th.device | str = "cpu",
         store_values: bool = False,
     ) -> None:
-        if buffer_size < 1:
-            raise ValueError(f"buffer_size must be >= 1, got {buffer_size}")
         obs_shape = observation_space.shape
         if obs_shape is None or len(obs_shape) != 1:
             raise ValueError(f"joint buffers need flat observations, got shape {obs_shape}")
@@ -395,10 +391,6 @@ class NStepJointCollector:
         gamma: float = 0.99,
         team_reward_mode: TeamRewardMode = "sum",
     ) -> None:
-        if n_steps < 1:
-            raise ValueError(f"n_steps must be >= 1, got {n_steps}")
-        if team_reward_mode not in TEAM_REWARD_MODES:
-            raise ValueError(f"team_reward_mode must be one of {TEAM_REWARD_MODES}, got {team_reward_mode!r}")
         self.buffer = buffer
         self.n_steps = int(n_steps)
         self.gamma = float(gamma)

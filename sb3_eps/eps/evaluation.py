@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import copy
 import time
-from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -271,29 +270,7 @@ def _build_served_block(block_kwargs: dict[str, Any]) -> _Block:
     return _Block(**block_kwargs)
 
 
-class EnvPool(ABC):
-    """The evaluation envs of a population of ``n_individuals`` x ``n_episodes`` episodes."""
-
-    n_individuals: int
-    n_episodes: int
-
-    @abstractmethod
-    def evaluate(
-        self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
-    ) -> PoolAnswer:
-        """Play every episode of every valid individual (:meth:`_Block.evaluate`) before ``deadline``
-        (``time.monotonic()``), else raise :class:`EvaluationFailed`."""
-
-    @abstractmethod
-    def close(self) -> None: ...
-
-    @property
-    def pids(self) -> list[int]:
-        """Process ids of the worker processes (empty in process)."""
-        return []
-
-
-class InProcessEnvPool(EnvPool):
+class InProcessEnvPool:
     """All envs in the main process: no start-up cost, no protection against a hanging env (arguments as
     :class:`SubprocessEnvPool`)."""
 
@@ -309,10 +286,13 @@ class InProcessEnvPool(EnvPool):
     ) -> None:
         self.n_individuals, self.n_episodes = n_individuals, n_episodes
         self._block = _Block(env_id, env_kwargs, n_individuals, n_episodes, network, batched, record)
+        self.pids: list[int] = []  # no worker process
 
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
     ) -> PoolAnswer:
+        """Play every episode of every valid individual (:meth:`_Block.evaluate`) before ``deadline``
+        (``time.monotonic()``; a worker pool's), else raise :class:`EvaluationFailed`."""
         try:
             return self._block.evaluate(population, seeds, valid)
         except Exception as error:  # an env that fails (e.g. its PyBullet client is gone): skip the round
@@ -323,7 +303,7 @@ class InProcessEnvPool(EnvPool):
         self._block.close()
 
 
-class SubprocessEnvPool(EnvPool):
+class SubprocessEnvPool:
     """Individuals split into contiguous blocks over worker processes, each playing its block's episodes.
 
     :param env_id: an id :func:`check_eval_env_id` accepts, built with ``env_kwargs``
@@ -368,6 +348,7 @@ class SubprocessEnvPool(EnvPool):
 
     @property
     def pids(self) -> list[int]:
+        """Process ids of the worker processes (empty once closed)."""
         return [] if self._workers.closed else self._workers.pids
 
     def wait_ready(self, deadline: float) -> None:
@@ -394,6 +375,10 @@ class SubprocessEnvPool(EnvPool):
         self._workers.close()
 
 
+#: The evaluation envs of a population of ``n_individuals`` x ``n_episodes`` episodes.
+EnvPool = InProcessEnvPool | SubprocessEnvPool
+
+
 @dataclass
 class PopulationResult:
     """What one evaluation round measured: returns, lengths and outcomes (:data:`OUTCOMES`) ``(P, E)``; valid
@@ -404,13 +389,12 @@ class PopulationResult:
     lengths: np.ndarray
     valid: np.ndarray
     fitness: np.ndarray
-    outcomes: np.ndarray | None = None
+    outcomes: np.ndarray
     episodes: list[TeamEpisode | None] | None = None
 
     @property
     def successes(self) -> np.ndarray:
-        outcomes = self.outcomes if self.outcomes is not None else np.zeros_like(self.lengths)
-        return outcomes == OUTCOMES["success"]
+        return self.outcomes == OUTCOMES["success"]
 
 
 #: How an episode ended: reached the target, stopped by the time limit (or not run), or terminated otherwise.

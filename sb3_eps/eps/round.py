@@ -159,16 +159,7 @@ class EPSRound:
     def _evaluate(self, population: Parameters, record: dict[str, Any]) -> PopulationResult:
         """Algorithm 1, line 10, with every episode noted in the round's record."""
         seeds, result = self._play(population)
-        outcomes = result.outcomes if result.outcomes is not None else np.zeros_like(result.lengths)
-        record.update(
-            round_ticks=int(result.lengths.sum()),
-            episode_seeds=seeds,
-            returns=result.returns.tolist(),
-            successes=result.successes.astype(int).tolist(),
-            outcomes=outcomes.tolist(),
-            episode_lengths=result.lengths.tolist(),
-            fitness=result.fitness.tolist(),
-        )
+        record.update(round_ticks=int(result.lengths.sum()), **_episodes_record(seeds, result))
         return result
 
     def _accept(
@@ -193,28 +184,21 @@ class EPSRound:
         active[[0, winner]] = True
         pair = [0, winner]
         seeds: list[int] = []
-        returns, outcomes, lengths = [], [], []
+        results = []
         for _ in range(self.settings.n_reevaluation_batches):
             batch_seeds, result = self._play(population, active)
             seeds += batch_seeds
-            returns.append(result.returns[pair])
-            outcomes.append(
-                result.outcomes[pair] if result.outcomes is not None else np.zeros_like(result.lengths[pair])
-            )
-            lengths.append(result.lengths[pair])
-            valid = result.valid[pair]
-        returns_, outcomes_ = np.concatenate(returns, axis=1), np.concatenate(outcomes, axis=1)
-        fitness = population_fitness(returns_, outcomes_, valid, self.settings.fitness)
-        return {
-            "episode_seeds": seeds,
-            "returns": returns_.tolist(),
-            "successes": (outcomes_ == 1).astype(int).tolist(),
-            "outcomes": outcomes_.tolist(),
-            "episode_lengths": np.concatenate(lengths, axis=1).tolist(),
-            "fitness": fitness.tolist(),
-            "gain": float(fitness[1] - fitness[0]) if np.isfinite(fitness[0]) else float("nan"),
-            "ticks": int(sum(int(part.sum()) for part in lengths)),
-        }
+            results.append(result)
+        returns, outcomes, lengths = (
+            np.concatenate([getattr(result, name)[pair] for result in results], axis=1)
+            for name in ("returns", "outcomes", "lengths")
+        )
+        fitness = population_fitness(returns, outcomes, results[-1].valid[pair], self.settings.fitness)
+        record = _episodes_record(
+            seeds, PopulationResult(returns, lengths, results[-1].valid[pair], fitness, outcomes)
+        )
+        gain = float(fitness[1] - fitness[0]) if np.isfinite(fitness[0]) else float("nan")
+        return {**record, "gain": gain, "ticks": int(lengths.sum())}
 
     def _team_check(self, record: dict[str, Any], when: str) -> None:
         """Greedy episodes of the training env, same seeds before and after the crossover (optional)."""
@@ -303,6 +287,18 @@ def _warn_disqualified(population: Parameters, valid: np.ndarray) -> None:
         RuntimeWarning,
         stacklevel=3,
     )
+
+
+def _episodes_record(seeds: list[int], result: PopulationResult) -> dict[str, Any]:
+    """What a round's record keeps of an evaluation's episodes (``docs/modules/eps.md``, "The round record")."""
+    return {
+        "episode_seeds": seeds,
+        "returns": result.returns.tolist(),
+        "successes": result.successes.astype(int).tolist(),
+        "outcomes": result.outcomes.tolist(),
+        "episode_lengths": result.lengths.tolist(),
+        "fitness": result.fitness.tolist(),
+    }
 
 
 def gain_accepted(gain: float, min_gain: float) -> bool:
