@@ -82,7 +82,7 @@ class MultiAgentVecEnv(VecEnv):
             seed = None if self._seed is None else self._seed + w
             # SB3 keeps options per sub-env; a world takes those of its first agent.
             observations.append(venv.reset(seed=seed, options=self._options[w * self.n_agents] or None)[0])
-        obs = self._concatenate(observations)
+        obs = observations[0] if self.n_worlds == 1 else np.concatenate(observations)
         self._seed = None
         self._reset_seeds()
         self._reset_options()
@@ -179,7 +179,7 @@ class MultiAgentVecEnv(VecEnv):
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
         """Set an attribute of the env of each world that a selected sub-env belongs to (once per world)."""
-        self._world_call(self._world_indices(indices), "setattr", attr_name, (value,))
+        self._per_sub_env(indices, "setattr", attr_name, (value,))
 
     def env_method(
         self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
@@ -235,12 +235,6 @@ class MultiAgentVecEnv(VecEnv):
     def _per_world(self, actions: np.ndarray) -> Any:
         # Discrete actions go on as Python ints: envs turn lists of NumPy scalars into arrays far more slowly.
         return actions.tolist() if self._discrete_actions else actions
-
-    def _concatenate(self, arrays: list[np.ndarray]) -> np.ndarray:
-        return arrays[0] if self.n_worlds == 1 else np.concatenate(arrays)
-
-    def _world_indices(self, indices: VecEnvIndices) -> list[int]:
-        return sorted({k // self.n_agents for k in self._get_indices(indices)})
 
     def _get_indices(self, indices: VecEnvIndices) -> Iterable[int]:
         selected = list(super()._get_indices(indices))

@@ -258,11 +258,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self._collector = None
         self._last_state = None
 
-    def _policy_constructor_kwargs(self) -> dict[str, Any]:
-        kwargs = {"agent_target": self.default_agent_target, **self.policy_kwargs}
-        kwargs.update(n_agents=self.n_agents, state_dim=self.state_dim)
-        return kwargs
-
     def _setup_model(self) -> None:
         self._setup_lr_schedule()
         self.set_random_seed(self.seed)
@@ -277,8 +272,10 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                 f"{type(self).__name__} needs a policy derived from {expected.__name__}, got {self.policy_class!r}"
             )
         self.replay_buffer = self._make_replay_buffer()
+        kwargs = {"agent_target": self.default_agent_target, **self.policy_kwargs}
+        kwargs.update(n_agents=self.n_agents, state_dim=self.state_dim)
         self.policy = self.policy_class(  # type: ignore[assignment]
-            self.observation_space, self.action_space, self.lr_schedule, **self._policy_constructor_kwargs()
+            self.observation_space, self.action_space, self.lr_schedule, **kwargs
         ).to(self.device)
         self.exploration_schedule = LinearSchedule(
             self.exploration_initial_eps, self.exploration_final_eps, self.exploration_fraction
@@ -470,10 +467,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             online_next_values=online_next[0].reshape(shape) if need_online_next_values else None,  # type: ignore[index]
         )
 
-    def _per_beta(self) -> float:
-        progress = 1.0 - self._current_progress_remaining
-        return self.prioritized_replay_beta0 + (1.0 - self.prioritized_replay_beta0) * progress
-
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         """Sample joint rows, minimise the algorithm's loss, update priorities and target networks."""
         if self._trained_ahead:  # done while the worlds stepped (overlap_training)
@@ -484,7 +477,10 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             return  # n-step rows appear n ticks after their first step: nothing to learn from yet
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
-        beta = self._per_beta()
+        # The importance exponent, annealed from prioritized_replay_beta0 to 1 over training.
+        beta = self.prioritized_replay_beta0 + (1.0 - self.prioritized_replay_beta0) * (
+            1.0 - self._current_progress_remaining
+        )
         parameters = [param for group in self.policy.optimizer.param_groups for param in group["params"]]
         logs: dict[str, list[float]] = defaultdict(list)
         for _ in range(gradient_steps):

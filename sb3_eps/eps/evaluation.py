@@ -351,16 +351,12 @@ class SubprocessEnvPool:
         """Process ids of the worker processes (empty once closed)."""
         return [] if self._workers.closed else self._workers.pids
 
-    def wait_ready(self, deadline: float) -> None:
-        """Wait until every worker has built its envs, before ``deadline`` (``time.monotonic()``)."""
-        if not self._ready:
-            self._workers.gather(range(len(self.blocks)), "building its envs", deadline)
-            self._ready = True
-
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
     ) -> PoolAnswer:
-        self.wait_ready(deadline)
+        if not self._ready:  # the workers' hellos: their envs are built
+            self._workers.gather(range(len(self.blocks)), "building its envs", deadline)
+            self._ready = True
         for i, block in enumerate(self.blocks):
             weights = {name: stacked[block].cpu().numpy() for name, stacked in population.items()}
             self._workers.send(i, "evaluate", (weights, list(seeds), valid[block]), "receiving the weights")
