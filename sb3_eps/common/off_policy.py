@@ -42,7 +42,7 @@ from sb3_eps.common.buffers import (
 from sb3_eps.common.multi_agent_vec_env import MultiAgentVecEnv
 from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.common.threads import set_torch_threads
-from sb3_eps.common.utils import check_arguments, describe_space, epsilon_greedy, polyak_update_tensors_
+from sb3_eps.common.utils import check_arguments, describe_space, epsilon_greedy, polyak_update_
 
 SelfMultiAgentOffPolicyAlgorithm = TypeVar(
     "SelfMultiAgentOffPolicyAlgorithm", bound="MultiAgentOffPolicyAlgorithm"
@@ -534,20 +534,9 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         )
 
     def _update_targets(self) -> None:
-        """Polyak step of every target network, on tensor lists gathered once per policy object (parameters are only
-        ever updated in place)."""
-        cache = getattr(self, "_target_lists", None)
-        if cache is None or cache[0] is not self.policy:
-            pairs = []
-            for target, online in self.policy.target_pairs():
-                target_params, params = list(target.parameters()), list(online.parameters())
-                if len(target_params) != len(params):
-                    raise ValueError("target and online networks have different parameter lists")
-                pairs.append((target_params, params, list(target.buffers()), list(online.buffers())))
-            cache = (self.policy, pairs)
-            self._target_lists = cache
-        for target_params, params, target_buffers, buffers in cache[1]:
-            polyak_update_tensors_(target_params, params, target_buffers, buffers, self.tau)
+        """Polyak step of every target network toward its online network."""
+        for target, online in self.policy.target_pairs():
+            polyak_update_(target, online, self.tau)
 
     # ------------------------------------------------------------------ logging and saving
     def dump_logs(self) -> None:
@@ -568,7 +557,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             *super()._excluded_save_params(),
             "_collector",
             "_last_state",
-            "_target_lists",
             "_trained_ahead",
         ]
 

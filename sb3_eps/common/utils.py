@@ -10,6 +10,7 @@ import os
 import sys
 import types
 import typing
+import weakref
 from collections.abc import Callable
 from typing import Any
 
@@ -152,6 +153,23 @@ def polyak_update_tensors_(
             th._foreach_lerp_(target_params, params, tau)
         for target_buffer, buffer in zip(target_buffers, buffers, strict=True):
             target_buffer.copy_(buffer)
+
+
+#: The tensor lists of each target module and the online module they were gathered with (see :func:`polyak_update_`).
+_POLYAK_LISTS: weakref.WeakKeyDictionary[th.nn.Module, tuple[Any, list[list[th.Tensor]]]] = (
+    weakref.WeakKeyDictionary()
+)
+
+
+def polyak_update_(target: th.nn.Module, online: th.nn.Module, tau: float) -> None:
+    """:func:`polyak_update_tensors_` of ``target`` toward ``online``, on tensor lists gathered once per pair (module
+    traversal costs more than the update for small networks; parameters are only ever updated in place)."""
+    cached = _POLYAK_LISTS.get(target)
+    if cached is None or cached[0]() is not online:
+        lists = [list(part) for net in (target, online) for part in (net.parameters(), net.buffers())]
+        cached = _POLYAK_LISTS[target] = (weakref.ref(online), lists)
+    target_params, target_buffers, params, buffers = cached[1]
+    polyak_update_tensors_(target_params, params, target_buffers, buffers, tau)
 
 
 def epsilon_greedy(
