@@ -7,7 +7,6 @@ import inspect
 import math
 import numbers
 import os
-import sys
 import types
 import typing
 import weakref
@@ -29,12 +28,9 @@ def check_arguments(function: Callable[..., Any], values: dict[str, Any], ranges
 
     :raises ValueError: one line naming the first argument that does not fit and what it may be
     """
-    namespace = vars(sys.modules[function.__module__])
-    hints = inspect.get_annotations(function)
+    hints = inspect.get_annotations(function, eval_str=True)
     for name, value in values.items():
         hint, interval = hints.get(name, Any), ranges.get(name)
-        # The package's own annotations, evaluated in their module as typing.get_type_hints would.
-        hint = eval(hint, namespace) if isinstance(hint, str) else hint
         in_range = interval is None or not _is_number(value) or _in_interval(float(value), interval)
         if not (_fits(value, hint) and in_range):
             raise ValueError(f"{name} must be {_describe(hint, interval)}, got {value!r}")
