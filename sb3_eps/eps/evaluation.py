@@ -66,23 +66,11 @@ class _EpisodeRecorder:
             self.states.append(self.env.state())
 
     def episode(self) -> TeamEpisode:
-        n_ticks, n_agents = len(self.actions), self.env.team_size
+        """The episode played (at least one tick: an individual that stops early records none)."""
+        n_ticks = len(self.actions)
         states = np.stack(self.states) if self.record_states else np.zeros((n_ticks + 1, 0), dtype=np.float32)
-        flags = {
-            name: np.stack([getattr(tick, name) for tick in self.ticks])
-            if self.ticks
-            else np.zeros((0, n_agents))
-            for name in TeamTick._fields
-        }
-        return TeamEpisode(
-            observations=np.stack(self.observations).astype(np.float32),
-            actions=np.stack(self.actions) if self.actions else np.zeros((0, n_agents), dtype=np.int64),
-            rewards=flags["rewards"].astype(np.float32),
-            terminations=flags["terminations"].astype(bool),
-            truncations=flags["truncations"].astype(bool),
-            alive=flags["alive"].astype(bool),
-            states=states.astype(np.float32),
-        )
+        ticks = TeamTick(*(np.stack(column) for column in zip(*self.ticks)))
+        return TeamEpisode(np.stack(self.observations), np.stack(self.actions), *ticks, states=states)
 
 
 #: What an evaluation block records of its episodes: nothing, every tick of a team world, or also its global states.
@@ -253,11 +241,9 @@ class _Block(Served):
         if self.record is None:
             return None
         record_states = self.record == "ticks+states"
-        teams = [env for env in self.envs if isinstance(env, TeamAsGymnasium)]
-        assert len(teams) == len(self.envs)  # checked in __init__: only team worlds record
-        return [
-            _EpisodeRecorder(env, obs[index].copy(), record_states and bool(active[index]))
-            for index, env in enumerate(teams)
+        return [  # team worlds only (checked in __init__)
+            _EpisodeRecorder(env, obs[index].copy(), record_states and bool(active[index]))  # type: ignore[arg-type]
+            for index, env in enumerate(self.envs)
         ]
 
     def close(self) -> None:
