@@ -383,6 +383,8 @@ def _n_step_row_all_alive(ticks: list[JointTick], gamma: float, team_reward_mode
 class NStepJointCollector:
     """Turns the per-tick stream of every world into n-step joint rows (:func:`n_step_row`) written to ``buffer``."""
 
+    n_rows = 0  # rows written
+
     def __init__(
         self,
         buffer: JointReplayBuffer,
@@ -412,6 +414,7 @@ class NStepJointCollector:
     def _write(self, window: list[JointTick]) -> None:
         if window[0].alive.any():
             self.buffer.add_row(n_step_row(window, self.gamma, self.team_reward_mode))
+            self.n_rows += 1
 
     def reset(self) -> None:
         """Forget the unfinished windows (when the env is reset outside of an episode end)."""

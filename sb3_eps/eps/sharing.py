@@ -12,20 +12,9 @@ from typing import Any
 
 import numpy as np
 
-from sb3_eps.common.buffers import JointReplayBuffer, JointRow, JointTick, NStepJointCollector
+from sb3_eps.common.buffers import JointTick, NStepJointCollector
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.eps.evaluation import TeamEpisode
-
-
-class _RowCounter:
-    """The replay buffer as a collector sees it, counting the rows written through it."""
-
-    def __init__(self, buffer: JointReplayBuffer) -> None:
-        self.buffer, self.n_rows = buffer, 0
-
-    def add_row(self, row: JointRow) -> int:
-        self.n_rows += 1
-        return self.buffer.add_row(row)
 
 
 def sharing_problem(model: Any, eval_env: Any) -> str | None:
@@ -68,11 +57,11 @@ def share_episodes(model: MultiAgentOffPolicyAlgorithm, episodes: Sequence[TeamE
     observations = np.concatenate([episode.observations[:-1] for episode in played])
     next_observations = np.concatenate([episode.observations[1:] for episode in played])
     values = model.collection_values(observations, next_observations)  # one pass for the whole round
-    counter = _RowCounter(model.replay_buffer)
-    offset = 0
+    offset = n_rows = 0
     for episode in played:
-        buffer: Any = counter  # the collector only calls add_row
-        collector = NStepJointCollector(buffer, 1, model.n_steps, model.gamma, model.team_reward_mode)
+        collector = NStepJointCollector(
+            model.replay_buffer, 1, model.n_steps, model.gamma, model.team_reward_mode
+        )
         for tick in range(episode.n_ticks):
             row = offset + tick
             if not _finite_tick(episode, tick):
@@ -85,7 +74,8 @@ def share_episodes(model: MultiAgentOffPolicyAlgorithm, episodes: Sequence[TeamE
                 continue
             collector.add(0, _episode_tick(episode, tick, values, row))
         offset += episode.n_ticks
-    return counter.n_rows
+        n_rows += collector.n_rows
+    return n_rows
 
 
 def _episode_tick(
