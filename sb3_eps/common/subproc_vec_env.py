@@ -219,11 +219,8 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         n_worlds = len(env_fns)
         if n_worlds < 1:
             raise ValueError("SubprocMultiAgentVecEnv needs at least one env constructor")
-        values = {
-            "n_workers": n_workers,
-            "main_worlds": main_worlds,
-            "spin_s": spin_s,
-        }  # one world in a worker at least
+        values = {"n_workers": n_workers, "main_worlds": main_worlds, "spin_s": spin_s}
+        # At least one world in a worker (DummyVecEnv keeps them all in this process).
         ranges = {"n_workers": "[1, inf)", "main_worlds": f"[0, {n_worlds - 1}]", "spin_s": "[0, inf)"}
         check_arguments(SubprocMultiAgentVecEnv.__init__, values, ranges)
         if start_method is not None and start_method not in mp.get_all_start_methods():
