@@ -1,4 +1,5 @@
-"""Small typed math helpers shared by the algorithms; each cites the equation it implements."""
+"""Small typed helpers shared by the algorithms: the constructors' argument checks, and math that cites the equation
+it implements."""
 
 from __future__ import annotations
 
@@ -40,6 +41,18 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
 
 
+#: What each plain type hint accepts, and its name in an error.
+_PLAIN_HINTS: dict[Any, tuple[str, Callable[[Any], bool]]] = {
+    type(None): ("None", lambda value: value is None),
+    bool: ("True or False", lambda value: isinstance(value, bool | np.bool_)),
+    int: ("an int", is_int),
+    float: ("a number", _is_number),
+    str: ("a string", lambda value: isinstance(value, str | os.PathLike)),
+    dict: ("a mapping", lambda value: isinstance(value, collections.abc.Mapping)),
+    collections.abc.Callable: ("a schedule (callable)", callable),
+}
+
+
 def _in_interval(number: float, interval: str) -> bool:
     low, high = (float(bound) for bound in interval[1:-1].split(","))
     above = number > low or (interval[0] == "[" and number == low)
@@ -58,17 +71,7 @@ def _fits(value: Any, hint: Any) -> bool:
             return False
         items = arguments if origin is tuple and Ellipsis not in arguments else arguments[:1] * len(value)
         return len(items) == len(value) and all(map(_fits, value, items))
-    checks: dict[Any, Callable[[Any], bool]] = {
-        type(None): lambda v: v is None,
-        bool: lambda v: isinstance(v, bool | np.bool_),
-        int: is_int,
-        float: _is_number,
-        str: lambda v: isinstance(v, str | os.PathLike),
-        dict: lambda v: isinstance(v, collections.abc.Mapping),
-        collections.abc.Callable: callable,
-    }
-    check = checks.get(origin or hint)
-    return check(value) if check is not None else True
+    return _PLAIN_HINTS.get(origin or hint, ("", lambda _: True))[1](value)
 
 
 def _describe(hint: Any, interval: str | None) -> str:
@@ -79,9 +82,7 @@ def _describe(hint: Any, interval: str | None) -> str:
         return f"one of {arguments}"
     if origin in (list, tuple):
         return f"a list of {'/'.join(getattr(item, '__name__', '') for item in arguments if item is not Ellipsis)}"
-    words = {type(None): "None", bool: "True or False", int: "an int", float: "a number", str: "a string",
-             dict: "a mapping", collections.abc.Callable: "a schedule (callable)"}  # fmt: skip
-    word = words.get(origin or hint, getattr(hint, "__name__", str(hint)))
+    word = _PLAIN_HINTS.get(origin or hint, (getattr(hint, "__name__", str(hint)),))[0]
     if interval is None or hint not in (int, float):
         return word
     low, high = interval[1:-1].split(", ")
