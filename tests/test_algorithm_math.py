@@ -11,12 +11,12 @@ from gymnasium import spaces
 
 from sb3_eps.common.buffers import (
     JointReplayBuffer,
+    JointTick,
     NStepJointCollector,
     PrioritizedJointReplayBuffer,
     SumTree,
     _n_step_row_all_alive,
     _n_step_row_general,
-    _Tick,
     n_step_row,
 )
 from sb3_eps.common.losses import masked_huber
@@ -136,21 +136,22 @@ def test_masked_huber_ignores_dead_agents() -> None:
     assert th.isclose(loss, th.tensor(0.5 * 0.5**2))
 
 
-def _tick(rewards, alive, ended=(False, False), terminated=(False, False), world_end=False, world_term=False, tag=0):
+def _tick(rewards, alive, ended=(False, False), terminated=(False, False), world_end=False, tag=0):
     n_agents = len(rewards)
-    return _Tick(
+    tick = JointTick(
         observations=np.full((n_agents, 1), tag, dtype=np.float32),
         actions=np.zeros(n_agents, dtype=np.int64),
         rewards=np.array(rewards, dtype=np.float32),
         next_observations=np.full((n_agents, 1), tag + 1, dtype=np.float32),
-        terminated=np.array(terminated),
         ended=np.array(ended),
+        truncated=np.array(ended) & ~np.array(terminated),
         alive=np.array(alive),
         state=np.array([tag], dtype=np.float32),
         next_state=np.array([tag + 1], dtype=np.float32),
         world_ended=world_end,
-        world_terminated=world_term,
     )
+    assert tick.terminated.tolist() == list(terminated)
+    return tick
 
 
 def test_n_step_return_across_an_agent_terminal() -> None:
@@ -182,7 +183,7 @@ def test_n_step_fast_path_equals_the_general_fold(mode: str) -> None:
                 rng.normal(size=n_agents).astype(np.float32).tolist(), [True] * n_agents,
                 ended=tuple(last_ends) if k == n_ticks - 1 else (False,) * n_agents,
                 terminated=tuple(last_ends & (rng.random(n_agents) < 0.5)) if k == n_ticks - 1 else (False,) * n_agents,
-                world_end=bool(k == n_ticks - 1 and last_ends.all()), world_term=bool(rng.random() < 0.2), tag=k,
+                world_end=bool(k == n_ticks - 1 and last_ends.all()), tag=k,
             )
             for k in range(n_ticks)
         ]  # fmt: skip
@@ -196,7 +197,7 @@ def test_n_step_fast_path_equals_the_general_fold(mode: str) -> None:
 def test_n_step_return_across_a_truncation_bootstraps() -> None:
     window = [
         _tick([0.1, 0.1], [True, True], tag=0),
-        _tick([0.2, 0.2], [True, True], ended=(True, True), world_end=True, world_term=False, tag=1),
+        _tick([0.2, 0.2], [True, True], ended=(True, True), world_end=True, tag=1),
     ]
     row = n_step_row(window, GAMMA)
     assert row.dones.tolist() == [0.0, 0.0]  # truncated: not terminal, bootstrap from the last observation
@@ -211,7 +212,7 @@ def test_collector_flushes_windows_at_world_end_and_drops_dead_rows() -> None:
     collector.add(0, _tick([0.1, 0.1], [True, True], tag=0))
     collector.add(0, _tick([0.1, 0.1], [True, True], tag=1))
     assert buffer.size() == 0  # window not full yet
-    collector.add(0, _tick([-1.0, 0.1], [True, True], (True, True), (True, True), True, True, tag=2))
+    collector.add(0, _tick([-1.0, 0.1], [True, True], (True, True), (True, True), True, tag=2))
     # The world ended: the rows of ticks 0, 1, 2 are all written, with shrinking windows.
     assert buffer.size() == 3
     assert buffer.team_dones[:3].tolist() == [1.0, 1.0, 1.0]

@@ -279,7 +279,7 @@ def test_gdq_target_values_are_the_default_and_not_stored() -> None:
     ("policy_kwargs", "match"),
     [
         ({"global_values": "cached"}, "global_values must be one of"),
-        ({"global_bootstrap": 1.5}, "global_bootstrap must be in"),
+        ({"global_bootstrap": 1.5}, r"global_bootstrap must be a number in \[0, 1\]"),
         ({"global_init": "zeros"}, "global_init must be one of"),
     ],
 )

@@ -521,7 +521,7 @@ def test_sb3_dqn_works_too() -> None:
         ({"alpha": -0.1}, "alpha"),
         ({"sigma": 0.0}, "sigma"),
         ({"population_size": 0}, "population_size"),
-        ({"mutation": "cauchy"}, "unknown mutation"),
+        ({"mutation": "cauchy"}, "mutation must be one of"),
         ({"eval_env_id": "NoSuchWorld-v0"}, "unknown eval_env_id"),
         ({"period_unit": "epochs"}, "period_unit"),
         ({"period": 0}, "period"),

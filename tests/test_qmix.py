@@ -182,5 +182,5 @@ def test_advantage_learning_lowers_the_team_target_by_alpha_times_the_joint_acti
     model.save(tmp_path / "al")
     assert algorithm.load(tmp_path / "al").advantage_learning == 0.5
     assert tiny_model(algorithm).advantage_learning == (0.5 if algorithm is VDN else 0.0)  # VDN's default
-    with pytest.raises(ValueError, match=r"advantage_learning must be in \[0, 1\)"):
+    with pytest.raises(ValueError, match=r"advantage_learning must be a number in \[0, 1\)"):
         tiny_model(algorithm, advantage_learning=1.0)

@@ -5,7 +5,6 @@ observation) masks. :class:`NStepJointCollector` folds every world's ticks into 
 
 from __future__ import annotations
 
-import typing
 from dataclasses import dataclass, field
 from typing import Any, Literal, NamedTuple
 
@@ -15,7 +14,6 @@ from gymnasium import spaces
 
 #: The team reward of a tick: the ``"sum"`` or the ``"mean"`` of the alive agents' rewards (``team_reward_mode``).
 TeamRewardMode = Literal["sum", "mean"]
-TEAM_REWARD_MODES: tuple[str, ...] = typing.get_args(TeamRewardMode)
 
 
 class JointReplayBufferSamples(NamedTuple):
@@ -58,8 +56,6 @@ class JointReplayBuffer:
         device: th.device | str = "cpu",
         store_values: bool = False,
     ) -> None:
-        if buffer_size < 1:
-            raise ValueError(f"buffer_size must be >= 1, got {buffer_size}")
         obs_shape = observation_space.shape
         if obs_shape is None or len(obs_shape) != 1:
             raise ValueError(f"joint buffers need flat observations, got shape {obs_shape}")
@@ -270,67 +266,37 @@ class JointRow:
 
 
 @dataclass
-class _Tick:
-    """One raw tick of one world, as observed by the rollout."""
+class JointTick:
+    """One world's tick for the n-step collector, from what the bridge says of each agent (the rollout and EPS's
+    experience sharing both store through it): ``alive`` the agents that acted, ``ended`` those whose life ended,
+    ``truncated`` those ended by the time limit; ``values`` / ``next_values`` the agents' state-values to store."""
 
     observations: np.ndarray  # (n, d)
     actions: np.ndarray  # (n,)
     rewards: np.ndarray  # (n,)
     next_observations: np.ndarray  # (n, d), terminal observations where an agent ended
-    terminated: np.ndarray  # (n,) bool: the agent's episode ended by termination at this tick
     ended: np.ndarray  # (n,) bool: the agent's episode ended at this tick (terminated or truncated)
+    truncated: np.ndarray  # (n,) bool: ... by the time limit
     alive: np.ndarray  # (n,) bool: the agent acted at this tick
     state: np.ndarray
     next_state: np.ndarray
     world_ended: bool
-    world_terminated: bool
-    # (n,) the agents' state-values of ``observations`` / ``next_observations`` (when the buffer stores them)
     values: np.ndarray | None = None
     next_values: np.ndarray | None = None
-    # Summaries every window containing this tick asks for, computed once (see ``__post_init__``).
+    # Derived once (every window containing this tick asks for them).
+    terminated: np.ndarray = field(init=False)  # (n,) bool: the agent's episode ended by termination
+    world_terminated: bool = field(init=False)  # every living agent reached a real end, not the time limit
     all_alive: bool = field(init=False)
     any_ended: bool = field(init=False)
 
     def __post_init__(self) -> None:
+        self.terminated = self.ended & ~self.truncated
+        self.world_terminated = bool(self.world_ended and not self.truncated[self.alive].any())
         self.all_alive = bool(self.alive.all())
         self.any_ended = bool(self.ended.any())
 
 
-def joint_tick(
-    observations: np.ndarray,
-    actions: np.ndarray,
-    rewards: np.ndarray,
-    next_observations: np.ndarray,
-    alive: np.ndarray,
-    ended: np.ndarray,
-    truncated: np.ndarray,
-    world_ended: bool,
-    state: np.ndarray,
-    next_state: np.ndarray,
-    values: tuple[np.ndarray, np.ndarray] | None = None,
-) -> _Tick:
-    """One world's tick for the n-step collector from what the bridge says of each agent (the rollout and EPS's
-    experience sharing both store through it): ``alive`` the agents that acted, ``ended`` those whose life ended,
-    ``truncated`` those ended by the time limit; ``values`` ``(v, v')`` to store, or None."""
-    return _Tick(
-        observations=observations,
-        actions=actions,
-        rewards=rewards,
-        next_observations=next_observations,
-        terminated=ended & ~truncated,
-        ended=ended,
-        alive=alive,
-        state=state,
-        next_state=next_state,
-        world_ended=world_ended,
-        # an episode whose every living agent reached a real end, not the time limit
-        world_terminated=bool(world_ended and not truncated[alive].any()),
-        values=None if values is None else values[0],
-        next_values=None if values is None else values[1],
-    )
-
-
-def n_step_row(ticks: list[_Tick], gamma: float, team_reward_mode: str = "sum") -> JointRow:
+def n_step_row(ticks: list[JointTick], gamma: float, team_reward_mode: str = "sum") -> JointRow:
     """Fold the window ``t0 .. t0+K-1`` of one world (only the last tick may end it) into the n-step row of ``t0``.
 
     Agent i: ``G_i = sum_{k < K_i} gamma^k r_i(t0+k)``, ``K_i`` stopping where its own episode ended, bootstrapped
@@ -342,7 +308,7 @@ def n_step_row(ticks: list[_Tick], gamma: float, team_reward_mode: str = "sum") 
     return _n_step_row_general(ticks, gamma, team_reward_mode)
 
 
-def _n_step_row_general(ticks: list[_Tick], gamma: float, team_reward_mode: str) -> JointRow:
+def _n_step_row_general(ticks: list[JointTick], gamma: float, team_reward_mode: str) -> JointRow:
     """:func:`n_step_row` for any window."""
     first, last = ticks[0], ticks[-1]
     n_ticks = len(ticks)
@@ -383,7 +349,7 @@ def _n_step_row_general(ticks: list[_Tick], gamma: float, team_reward_mode: str)
     )
 
 
-def _n_step_row_all_alive(ticks: list[_Tick], gamma: float, team_reward_mode: str) -> JointRow:
+def _n_step_row_all_alive(ticks: list[JointTick], gamma: float, team_reward_mode: str) -> JointRow:
     """:func:`n_step_row` where every agent is alive at every tick and none ends before the last: the general fold's
     result at a third of its cost (``tests/test_algorithm_math.py`` compares them)."""
     first, last = ticks[0], ticks[-1]
@@ -417,6 +383,8 @@ def _n_step_row_all_alive(ticks: list[_Tick], gamma: float, team_reward_mode: st
 class NStepJointCollector:
     """Turns the per-tick stream of every world into n-step joint rows (:func:`n_step_row`) written to ``buffer``."""
 
+    n_rows = 0  # rows written
+
     def __init__(
         self,
         buffer: JointReplayBuffer,
@@ -425,17 +393,13 @@ class NStepJointCollector:
         gamma: float = 0.99,
         team_reward_mode: TeamRewardMode = "sum",
     ) -> None:
-        if n_steps < 1:
-            raise ValueError(f"n_steps must be >= 1, got {n_steps}")
-        if team_reward_mode not in TEAM_REWARD_MODES:
-            raise ValueError(f"team_reward_mode must be one of {TEAM_REWARD_MODES}, got {team_reward_mode!r}")
         self.buffer = buffer
         self.n_steps = int(n_steps)
         self.gamma = float(gamma)
         self.team_reward_mode = team_reward_mode
-        self.pending: list[list[_Tick]] = [[] for _ in range(n_worlds)]
+        self.pending: list[list[JointTick]] = [[] for _ in range(n_worlds)]
 
-    def add(self, world: int, tick: _Tick) -> None:
+    def add(self, world: int, tick: JointTick) -> None:
         """Append one world's tick; write every complete window's row (none where no agent was alive)."""
         window = self.pending[world]
         window.append(tick)
@@ -447,9 +411,10 @@ class NStepJointCollector:
             self._write(window)
             window.pop(0)
 
-    def _write(self, window: list[_Tick]) -> None:
+    def _write(self, window: list[JointTick]) -> None:
         if window[0].alive.any():
             self.buffer.add_row(n_step_row(window, self.gamma, self.team_reward_mode))
+            self.n_rows += 1
 
     def reset(self) -> None:
         """Forget the unfinished windows (when the env is reset outside of an episode end)."""

@@ -15,7 +15,7 @@ from stable_baselines3.common.type_aliases import RolloutReturn, TrainFreq
 from stable_baselines3.common.utils import should_collect_more_steps
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_eps.common.buffers import joint_tick
+from sb3_eps.common.buffers import JointTick
 from sb3_eps.common.utils import epsilon_greedy
 
 if TYPE_CHECKING:
@@ -121,18 +121,19 @@ def store_joint_transition(
             next_state = infos[world * model.n_agents].get("terminal_state", next_state)
         collector.add(
             world,
-            joint_tick(
+            JointTick(
                 observations=last_obs[world],
                 actions=actions[world],
                 rewards=rewards[world],
                 next_observations=next_obs[world],
-                alive=step.alive[world],
                 ended=step.ended[world],
                 truncated=step.truncated[world],
-                world_ended=bool(step.world_ended[world]),
+                alive=step.alive[world],
                 state=last_state[world],
                 next_state=np.asarray(next_state, dtype=np.float32),
-                values=None if values is None else (values[0][world], values[1][world]),
+                world_ended=bool(step.world_ended[world]),
+                values=None if values is None else values[0][world],
+                next_values=None if values is None else values[1][world],
             ),
         )
     model._last_obs = new_obs

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -38,18 +40,11 @@ def evaluate_team(
     """
     if n_eval_episodes < 1:
         raise ValueError(f"n_eval_episodes must be >= 1, got {n_eval_episodes}")
-    owned = isinstance(env, str)
-    venv = make_vec_env(env, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs) if owned else env
-    assert isinstance(venv, MultiAgentVecEnv)
-    if not owned and seed is not None:
-        venv.seed(seed)
-    n_worlds, n_agents = venv.n_worlds, venv.n_agents
-    quotas = [
-        n_eval_episodes // n_worlds + (1 if w < n_eval_episodes % n_worlds else 0) for w in range(n_worlds)
-    ]
-    counts = [0] * n_worlds
     episodes: list[dict[str, Any]] = []
-    try:
+    with _playing_in(env, n_envs, seed, env_kwargs) as venv:
+        n_worlds, n_agents = venv.n_worlds, venv.n_agents
+        quotas = [n_eval_episodes // n_worlds + (w < n_eval_episodes % n_worlds) for w in range(n_worlds)]
+        counts = [0] * n_worlds
         observations = venv.reset()
         while sum(counts) < n_eval_episodes:
             actions, _ = model.predict(observations, deterministic=deterministic)
@@ -59,10 +54,24 @@ def evaluate_team(
                 if episode is not None and counts[world] < quotas[world]:
                     counts[world] += 1
                     episodes.append(dict(episode))
-    finally:
-        if owned:
-            venv.close()
     return summarize_episodes(episodes)
+
+
+@contextlib.contextmanager
+def _playing_in(
+    env: str | MultiAgentVecEnv, n_envs: int, seed: int | None, env_kwargs: dict[str, Any] | None
+) -> Iterator[MultiAgentVecEnv]:
+    """The vec env to play in: ``env`` reseeded, or ``n_envs`` worlds built from an id and closed at the end."""
+    if isinstance(env, MultiAgentVecEnv):
+        if seed is not None:
+            env.seed(seed)
+        yield env
+        return
+    venv = make_vec_env(env, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs)
+    try:
+        yield venv
+    finally:
+        venv.close()
 
 
 def summarize_episodes(episodes: list[dict[str, Any]]) -> dict[str, Any]:
@@ -102,18 +111,9 @@ def record_frames(
     """
     if frame_every < 1:
         raise ValueError(f"frame_every must be >= 1, got {frame_every}")
-    owned = not isinstance(env, MultiAgentVecEnv)
-    if isinstance(env, MultiAgentVecEnv):
-        venv = env
-        if seed is not None:
-            venv.seed(seed)
-    else:
-        venv = make_vec_env(
-            env, n_envs=1, seed=seed, env_kwargs={**(env_kwargs or {}), "render_mode": "rgb_array"}
-        )
     frames: list[np.ndarray] = []
     episodes: list[dict[str, Any]] = []
-    try:
+    with _playing_in(env, 1, seed, {**(env_kwargs or {}), "render_mode": "rgb_array"}) as venv:
         observations: Any = venv.reset()
         tick = 0
         while len(episodes) < n_episodes and len(frames) < max_frames:
@@ -127,7 +127,4 @@ def record_frames(
                 # The world has already been reset for the next episode: its picture starts that one.
                 episodes.append(dict(infos[0]["episode"]))
                 tick = 0
-    finally:
-        if owned:
-            venv.close()
     return frames, episodes

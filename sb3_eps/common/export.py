@@ -46,7 +46,7 @@ def export_policy(model: Any, path: str | os.PathLike[str], opset_version: int =
         # The TorchScript exporter needs no extra package (the dynamo one needs onnxscript).
         warnings.simplefilter("ignore", DeprecationWarning)
         th.onnx.export(
-            _QValues(q_net),
+            q_net,
             (dummy,),
             str(onnx_path),
             dynamo=False,
@@ -77,14 +77,3 @@ def export_policy(model: Any, path: str | os.PathLike[str], opset_version: int =
     }
     json_path.write_text(json.dumps(description, indent=2))
     return str(onnx_path), str(json_path)
-
-
-class _QValues(th.nn.Module):
-    """Wraps the agent network so the exported graph takes a plain float tensor."""
-
-    def __init__(self, q_net: th.nn.Module) -> None:
-        super().__init__()
-        self.q_net = q_net
-
-    def forward(self, obs: th.Tensor) -> th.Tensor:
-        return self.q_net(obs)

@@ -20,6 +20,7 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
+from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 from supersuit import pettingzoo_env_to_vec_env_v1
 
@@ -81,7 +82,7 @@ class MultiAgentVecEnv(VecEnv):
             seed = None if self._seed is None else self._seed + w
             # SB3 keeps options per sub-env; a world takes those of its first agent.
             observations.append(venv.reset(seed=seed, options=self._options[w * self.n_agents] or None)[0])
-        obs = self._concatenate(observations)
+        obs = observations[0] if self.n_worlds == 1 else np.concatenate(observations)
         self._seed = None
         self._reset_seeds()
         self._reset_options()
@@ -178,7 +179,7 @@ class MultiAgentVecEnv(VecEnv):
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
         """Set an attribute of the env of each world that a selected sub-env belongs to (once per world)."""
-        self._world_call(self._world_indices(indices), "setattr", attr_name, (value,))
+        self._per_sub_env(indices, "setattr", attr_name, (value,))
 
     def env_method(
         self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs: Any
@@ -234,12 +235,6 @@ class MultiAgentVecEnv(VecEnv):
     def _per_world(self, actions: np.ndarray) -> Any:
         # Discrete actions go on as Python ints: envs turn lists of NumPy scalars into arrays far more slowly.
         return actions.tolist() if self._discrete_actions else actions
-
-    def _concatenate(self, arrays: list[np.ndarray]) -> np.ndarray:
-        return arrays[0] if self.n_worlds == 1 else np.concatenate(arrays)
-
-    def _world_indices(self, indices: VecEnvIndices) -> list[int]:
-        return sorted({k // self.n_agents for k in self._get_indices(indices)})
 
     def _get_indices(self, indices: VecEnvIndices) -> Iterable[int]:
         selected = list(super()._get_indices(indices))
@@ -297,15 +292,7 @@ def _apply_to_world(
     if kind == "method":
         return getattr(env, name)(*args, **kwargs)  # type: ignore[arg-type]
     if kind == "is_wrapped":
-        return _is_wrapped(env, args[0])
+        return is_wrapped(env, args[0])
     if kind == "render":
         return world.render()
     raise ValueError(f"unknown world request {kind!r}")
-
-
-def _is_wrapped(env: Any, wrapper_class: type[gymnasium.Wrapper]) -> bool:
-    while isinstance(env, gymnasium.Wrapper):
-        if isinstance(env, wrapper_class):
-            return True
-        env = env.env
-    return False

@@ -33,7 +33,6 @@ from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
 from sb3_eps.common import collection
 from sb3_eps.common.buffers import (
-    TEAM_REWARD_MODES,
     JointReplayBuffer,
     JointReplayBufferSamples,
     NStepJointCollector,
@@ -43,7 +42,7 @@ from sb3_eps.common.buffers import (
 from sb3_eps.common.multi_agent_vec_env import MultiAgentVecEnv
 from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.common.threads import set_torch_threads
-from sb3_eps.common.utils import describe_space, epsilon_greedy, is_int, polyak_update_tensors_
+from sb3_eps.common.utils import check_arguments, describe_space, epsilon_greedy, polyak_update_
 
 SelfMultiAgentOffPolicyAlgorithm = TypeVar(
     "SelfMultiAgentOffPolicyAlgorithm", bound="MultiAgentOffPolicyAlgorithm"
@@ -103,6 +102,14 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     default_agent_target: ClassVar[bool] = True
     uses_global_state: ClassVar[bool] = False  # only state-conditioned mixers (QMIX) read and store it
     diagnostics_interval: ClassVar[int] = 250  # gradient steps between two diagnostic records under train/
+    #: The intervals the constructor checks its numbers against (:func:`~sb3_eps.common.utils.check_arguments`).
+    argument_ranges: ClassVar[dict[str, str]] = {
+        "learning_rate": "(0, inf)", "buffer_size": "[1, inf)", "learning_starts": "[0, inf)",
+        "batch_size": "[1, inf)", "tau": "(0, 1]", "gamma": "[0, 1]", "gradient_steps": "[-1, inf)",
+        "gradient_steps_per_target_update": "[1, inf)", "n_steps": "[1, inf)", "prioritized_replay_alpha": "[0, inf)",
+        "prioritized_replay_beta0": "[0, 1]", "exploration_fraction": "[0, 1]", "exploration_initial_eps": "[0, 1]",
+        "exploration_final_eps": "[0, 1]", "max_grad_norm": "(0, inf]", "stats_window_size": "[1, inf)",
+    }  # fmt: skip
 
     def __init__(
         self,
@@ -142,13 +149,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             raise ValueError(
                 f"pass a vector env, not the id {env!r}: use sb3_eps.make_vec_env({env!r}, n_envs=...)"
             )
-        self._check_hyperparameters(
-            tau=tau, gamma=gamma, n_steps=n_steps, gradient_steps_per_target_update=gradient_steps_per_target_update,
-            team_reward_mode=team_reward_mode, prioritized_replay_alpha=prioritized_replay_alpha,
-            buffer_size=buffer_size, batch_size=batch_size, exploration_fraction=exploration_fraction,
-            exploration_initial_eps=exploration_initial_eps, exploration_final_eps=exploration_final_eps,
-            learning_rate=learning_rate,
-        )  # fmt: skip
+        check_arguments(MultiAgentOffPolicyAlgorithm.__init__, locals(), self.argument_ranges)
         set_torch_threads()  # small networks: one thread unless the user chose (sb3_eps/common/threads.py)
         self.n_agents = 0
         self.n_worlds = 0
@@ -200,38 +201,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             self._setup_model()
 
     # ------------------------------------------------------------------ set-up
-    @staticmethod
-    def _check_hyperparameters(**values: Any) -> None:
-        if not 0.0 < values["tau"] <= 1.0:
-            raise ValueError(f"tau must be in (0, 1], got {values['tau']}")
-        if not 0.0 <= values["gamma"] <= 1.0:
-            raise ValueError(f"gamma must be in [0, 1], got {values['gamma']}")
-        if values["n_steps"] < 1:
-            raise ValueError(f"n_steps must be >= 1, got {values['n_steps']}")
-        if values["gradient_steps_per_target_update"] < 1:
-            raise ValueError(
-                f"gradient_steps_per_target_update must be >= 1, got {values['gradient_steps_per_target_update']}"
-            )
-        if values["team_reward_mode"] not in TEAM_REWARD_MODES:
-            raise ValueError(
-                f"team_reward_mode must be one of {TEAM_REWARD_MODES}, got {values['team_reward_mode']!r}"
-            )
-        if values["prioritized_replay_alpha"] < 0:
-            raise ValueError(
-                f"prioritized_replay_alpha must be >= 0, got {values['prioritized_replay_alpha']}"
-            )
-        for name in ("buffer_size", "batch_size"):
-            if not (is_int(values[name]) and values[name] >= 1):
-                raise ValueError(f"{name} must be an int >= 1 (joint rows), got {values[name]!r}")
-        for name in ("exploration_fraction", "exploration_initial_eps", "exploration_final_eps"):
-            if not isinstance(values[name], float | int) or not 0.0 <= values[name] <= 1.0:
-                raise ValueError(f"{name} must be a number in [0, 1], got {values[name]!r}")
-        rate = values["learning_rate"]
-        if not callable(rate) and (
-            not isinstance(rate, float | int) or isinstance(rate, bool) or not rate > 0
-        ):
-            raise ValueError(f"learning_rate must be a number > 0 or a schedule (callable), got {rate!r}")
-
     def _read_env_layout(self, env: VecEnv) -> None:
         """Read the agents-per-world layout from the bridge; check it against a loaded model's."""
         multi_agent_env = find_multi_agent_env(env)
@@ -289,11 +258,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self._collector = None
         self._last_state = None
 
-    def _policy_constructor_kwargs(self) -> dict[str, Any]:
-        kwargs = {"agent_target": self.default_agent_target, **self.policy_kwargs}
-        kwargs.update(n_agents=self.n_agents, state_dim=self.state_dim)
-        return kwargs
-
     def _setup_model(self) -> None:
         self._setup_lr_schedule()
         self.set_random_seed(self.seed)
@@ -308,8 +272,10 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                 f"{type(self).__name__} needs a policy derived from {expected.__name__}, got {self.policy_class!r}"
             )
         self.replay_buffer = self._make_replay_buffer()
+        kwargs = {"agent_target": self.default_agent_target, **self.policy_kwargs}
+        kwargs.update(n_agents=self.n_agents, state_dim=self.state_dim)
         self.policy = self.policy_class(  # type: ignore[assignment]
-            self.observation_space, self.action_space, self.lr_schedule, **self._policy_constructor_kwargs()
+            self.observation_space, self.action_space, self.lr_schedule, **kwargs
         ).to(self.device)
         self.exploration_schedule = LinearSchedule(
             self.exploration_initial_eps, self.exploration_final_eps, self.exploration_fraction
@@ -452,14 +418,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     def collection_values(
         self, observations: np.ndarray, next_observations: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray] | None:
-        """The per-agent values that replay rows store with these ticks, or None (:meth:`_collection_values`)."""
-        return self._collection_values(observations, next_observations)
-
-    def _collection_values(
-        self, observations: np.ndarray, next_observations: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray] | None:
-        """Hook: per-agent values ``(v, v')`` to store with the ticks' ``(n_worlds, n_agents, obs)`` observations,
-        computed at collection time; None (the default) stores none."""
+        """Hook: per-agent values ``(v, v')`` that replay rows store with the ticks' ``(n_worlds, n_agents, obs)``
+        observations, computed at collection time; None (the default) stores none."""
         return None
 
     # ------------------------------------------------------------------ learning
@@ -507,10 +467,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             online_next_values=online_next[0].reshape(shape) if need_online_next_values else None,  # type: ignore[index]
         )
 
-    def _per_beta(self) -> float:
-        progress = 1.0 - self._current_progress_remaining
-        return self.prioritized_replay_beta0 + (1.0 - self.prioritized_replay_beta0) * progress
-
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         """Sample joint rows, minimise the algorithm's loss, update priorities and target networks."""
         if self._trained_ahead:  # done while the worlds stepped (overlap_training)
@@ -521,7 +477,10 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             return  # n-step rows appear n ticks after their first step: nothing to learn from yet
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
-        beta = self._per_beta()
+        # The importance exponent, annealed from prioritized_replay_beta0 to 1 over training.
+        beta = self.prioritized_replay_beta0 + (1.0 - self.prioritized_replay_beta0) * (
+            1.0 - self._current_progress_remaining
+        )
         parameters = [param for group in self.policy.optimizer.param_groups for param in group["params"]]
         logs: dict[str, list[float]] = defaultdict(list)
         for _ in range(gradient_steps):
@@ -575,20 +534,9 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         )
 
     def _update_targets(self) -> None:
-        """Polyak step of every target network, on tensor lists gathered once per policy object (parameters are only
-        ever updated in place)."""
-        cache = getattr(self, "_target_lists", None)
-        if cache is None or cache[0] is not self.policy:
-            pairs = []
-            for target, online in self.policy.target_pairs():
-                target_params, params = list(target.parameters()), list(online.parameters())
-                if len(target_params) != len(params):
-                    raise ValueError("target and online networks have different parameter lists")
-                pairs.append((target_params, params, list(target.buffers()), list(online.buffers())))
-            cache = (self.policy, pairs)
-            self._target_lists = cache
-        for target_params, params, target_buffers, buffers in cache[1]:
-            polyak_update_tensors_(target_params, params, target_buffers, buffers, self.tau)
+        """Polyak step of every target network toward its online network."""
+        for target, online in self.policy.target_pairs():
+            polyak_update_(target, online, self.tau)
 
     # ------------------------------------------------------------------ logging and saving
     def dump_logs(self) -> None:
@@ -609,7 +557,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             *super()._excluded_save_params(),
             "_collector",
             "_last_state",
-            "_target_lists",
             "_trained_ahead",
         ]
 

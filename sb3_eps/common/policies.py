@@ -12,7 +12,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, Flatten
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
-from sb3_eps.common.utils import dueling_aggregation, polyak_update_tensors_
+from sb3_eps.common.utils import dueling_aggregation, polyak_update_
 
 DEFAULT_NET_ARCH = [128, 64]
 DEFAULT_STREAM_ARCH = [64]
@@ -207,28 +207,14 @@ class MultiAgentQPolicy(BasePolicy):
         if self.q_net_average is not None:
             self.q_net_average.load_state_dict(self.q_net.state_dict())
 
-    def update_weight_average(self, n_updates: int | None = None) -> None:
+    def update_weight_average(self, n_updates: int) -> None:
         """One step of the weight average toward the online network, by :func:`weight_average_rate` of the
-        ``n_updates`` so far (None: by ``tau``); nothing without ``weight_average_tau``."""
-        if self.q_net_average is None:
-            return
-        cache = getattr(self, "_average_lists", None)
-        if cache is None or cache[0] is not self.q_net_average or cache[1] is not self.q_net:
-            lists = [
-                list(part)
-                for net in (self.q_net_average, self.q_net)
-                for part in (net.parameters(), net.buffers())
-            ]
-            cache = (self.q_net_average, self.q_net, lists)
-            self._average_lists = cache
-        average_params, average_buffers, params, buffers = cache[2]
-        assert self.weight_average_tau is not None
-        rate = (
-            self.weight_average_tau
-            if n_updates is None
-            else weight_average_rate(self.weight_average_tau, n_updates)
-        )
-        polyak_update_tensors_(average_params, params, average_buffers, buffers, rate)
+        ``n_updates`` so far; nothing without ``weight_average_tau``."""
+        if self.q_net_average is not None:
+            assert self.weight_average_tau is not None
+            polyak_update_(
+                self.q_net_average, self.q_net, weight_average_rate(self.weight_average_tau, n_updates)
+            )
 
     def greedy_net(self) -> DuelingQNetwork:
         """:return: the network the greedy actions come from: ``q_net_average`` when kept, else ``q_net``."""

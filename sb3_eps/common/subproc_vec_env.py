@@ -22,7 +22,7 @@ from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper, Ve
 
 from sb3_eps.common.multi_agent_vec_env import MultiAgentVecEnv
 from sb3_eps.common.snapshots import snapshot_dumps
-from sb3_eps.common.utils import is_int
+from sb3_eps.common.utils import check_arguments
 from sb3_eps.common.workers import START_TIMEOUT, Served, WorkerError, WorkerPool, default_start_method
 
 #: Seconds a process polls its pipe without sleeping before it sleeps, where every process of the vec env has a
@@ -219,23 +219,13 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         n_worlds = len(env_fns)
         if n_worlds < 1:
             raise ValueError("SubprocMultiAgentVecEnv needs at least one env constructor")
-        if n_workers is not None and not (is_int(n_workers) and n_workers >= 1):
-            raise ValueError(f"n_workers must be an int >= 1 (or None: one per core), got {n_workers!r}")
-        if main_worlds is not None and not (is_int(main_worlds) and 0 <= main_worlds < n_worlds):
-            raise ValueError(
-                f"main_worlds must be an int in [0, {n_worlds - 1}] (at least one of the {n_worlds} worlds in a "
-                f"worker; DummyVecEnv keeps them all in this process), or None for the default; got {main_worlds!r}"
-            )
+        values = {"n_workers": n_workers, "main_worlds": main_worlds, "spin_s": spin_s}
+        # At least one world in a worker (DummyVecEnv keeps them all in this process).
+        ranges = {"n_workers": "[1, inf)", "main_worlds": f"[0, {n_worlds - 1}]", "spin_s": "[0, inf)"}
+        check_arguments(SubprocMultiAgentVecEnv.__init__, values, ranges)
         if start_method is not None and start_method not in mp.get_all_start_methods():
             raise ValueError(
                 f"start_method {start_method!r} is not available here; use one of {mp.get_all_start_methods()}"
-            )
-        valid_spin = (
-            not isinstance(spin_s, bool) and isinstance(spin_s, int | float) and 0 <= spin_s < float("inf")
-        )
-        if spin_s is not None and not valid_spin:
-            raise ValueError(
-                f"spin_s must be a number of seconds >= 0 (or None for the default), got {spin_s!r}"
             )
         if main_worlds is None:
             if n_workers is None:
@@ -257,15 +247,11 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
             spin_s = DEFAULT_SPIN_S if len(self._blocks) + 1 <= available_cores() else 0.0
         self.spin_s = float(spin_s)
         self._t_start = time.time()
-        payloads = [
-            ("fns", CloudpickleWrapper(([env_fns[w] for w in block], env_id))) for block in self._blocks
-        ]
-        main_payload = (
-            ("fns", CloudpickleWrapper(([env_fns[w] for w in self._main_block], env_id)))
-            if main_worlds
-            else None
+        main_payload, *payloads = (
+            ("fns", CloudpickleWrapper(([env_fns[w] for w in block], env_id)))
+            for block in [self._main_block, *self._blocks]
         )
-        self._start_workers(payloads, main_payload)
+        self._start_workers(payloads, main_payload if main_worlds else None)
 
     # -------------------------------------------------------------------------------- workers
     @property

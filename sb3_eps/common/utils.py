@@ -1,7 +1,16 @@
-"""Small typed math helpers shared by the algorithms; each cites the equation it implements."""
+"""Small typed helpers shared by the algorithms: the constructors' argument checks, and math that cites the equation
+it implements."""
 
 from __future__ import annotations
 
+import collections.abc
+import inspect
+import math
+import numbers
+import os
+import types
+import typing
+import weakref
 from collections.abc import Callable
 from typing import Any
 
@@ -12,6 +21,74 @@ import torch as th
 def is_int(value: Any) -> bool:
     """Whether ``value`` is a Python or NumPy integer (a bool is not)."""
     return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
+def check_arguments(function: Callable[..., Any], values: dict[str, Any], ranges: dict[str, str]) -> None:
+    """Check ``values`` against the type hints of ``function`` (a constructor or a dataclass) and the intervals of
+    ``ranges`` (``"(0, 1]"``, ``"[1, inf)"``), one config schema derived from the signatures.
+
+    :raises ValueError: one line naming the first argument that does not fit and what it may be
+    """
+    hints = inspect.get_annotations(function, eval_str=True)
+    for name, value in values.items():
+        hint, interval = hints.get(name, Any), ranges.get(name)
+        in_range = interval is None or not _is_number(value) or _in_interval(float(value), interval)
+        if not (_fits(value, hint) and in_range):
+            raise ValueError(f"{name} must be {_describe(hint, interval)}, got {value!r}")
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
+
+
+#: What each plain type hint accepts, and its name in an error.
+_PLAIN_HINTS: dict[Any, tuple[str, Callable[[Any], bool]]] = {
+    type(None): ("None", lambda value: value is None),
+    bool: ("True or False", lambda value: isinstance(value, bool | np.bool_)),
+    int: ("an int", is_int),
+    float: ("a number", _is_number),
+    str: ("a string", lambda value: isinstance(value, str | os.PathLike)),
+    dict: ("a mapping", lambda value: isinstance(value, collections.abc.Mapping)),
+    collections.abc.Callable: ("a schedule (callable)", callable),
+}
+
+
+def _in_interval(number: float, interval: str) -> bool:
+    low, high = (float(bound) for bound in interval[1:-1].split(","))
+    above = number > low or (interval[0] == "[" and number == low)
+    return above and (number < high or (interval[-1] == "]" and number == high))
+
+
+def _fits(value: Any, hint: Any) -> bool:
+    """Whether ``value`` fits ``hint``; hints a config cannot hold (classes, envs) accept anything."""
+    origin, arguments = typing.get_origin(hint), typing.get_args(hint)
+    if isinstance(hint, types.UnionType) or origin is typing.Union:
+        return any(_fits(value, member) for member in arguments)
+    if origin is typing.Literal:
+        return any(value == choice and type(value) is type(choice) for choice in arguments)
+    if origin in (list, tuple):
+        if not isinstance(value, list | tuple):
+            return False
+        items = arguments if origin is tuple and Ellipsis not in arguments else arguments[:1] * len(value)
+        return len(items) == len(value) and all(map(_fits, value, items))
+    return _PLAIN_HINTS.get(origin or hint, ("", lambda _: True))[1](value)
+
+
+def _describe(hint: Any, interval: str | None) -> str:
+    origin, arguments = typing.get_origin(hint), typing.get_args(hint)
+    if isinstance(hint, types.UnionType) or origin is typing.Union:
+        return " or ".join(_describe(member, interval) for member in arguments)
+    if origin is typing.Literal:
+        return f"one of {arguments}"
+    if origin in (list, tuple):
+        return f"a list of {'/'.join(getattr(item, '__name__', '') for item in arguments if item is not Ellipsis)}"
+    word = _PLAIN_HINTS.get(origin or hint, (getattr(hint, "__name__", str(hint)),))[0]
+    if interval is None or hint not in (int, float):
+        return word
+    low, high = interval[1:-1].split(", ")
+    if math.isinf(float(high)):
+        return f"{word} {'>=' if interval[0] == '[' else '>'} {low}"
+    return f"{word} in {interval}"
 
 
 def check_seed(seed: Any) -> int | None:
@@ -73,6 +150,23 @@ def polyak_update_tensors_(
             th._foreach_lerp_(target_params, params, tau)
         for target_buffer, buffer in zip(target_buffers, buffers, strict=True):
             target_buffer.copy_(buffer)
+
+
+#: The tensor lists of each target module and the online module they were gathered with (see :func:`polyak_update_`).
+_POLYAK_LISTS: weakref.WeakKeyDictionary[th.nn.Module, tuple[Any, list[list[th.Tensor]]]] = (
+    weakref.WeakKeyDictionary()
+)
+
+
+def polyak_update_(target: th.nn.Module, online: th.nn.Module, tau: float) -> None:
+    """:func:`polyak_update_tensors_` of ``target`` toward ``online``, on tensor lists gathered once per pair (module
+    traversal costs more than the update for small networks; parameters are only ever updated in place)."""
+    cached = _POLYAK_LISTS.get(target)
+    if cached is None or cached[0]() is not online:
+        lists = [list(part) for net in (target, online) for part in (net.parameters(), net.buffers())]
+        cached = _POLYAK_LISTS[target] = (weakref.ref(online), lists)
+    target_params, target_buffers, params, buffers = cached[1]
+    polyak_update_tensors_(target_params, params, target_buffers, buffers, tau)
 
 
 def epsilon_greedy(

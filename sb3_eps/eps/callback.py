@@ -283,22 +283,18 @@ class EvolutionCallback(BaseCallback):
             settings.n_individuals,
             settings.n_eval_episodes,
         )
+        kwargs: dict[str, Any] = {
+            "batched": settings.batched_forward,
+            "record": record_mode(self.model) if settings.share_experience else None,
+        }
         # A worker evaluates whole individuals, so more workers than individuals would idle.
         n_workers = (os.cpu_count() or 1) if settings.n_workers is None else settings.n_workers
         n_workers = min(n_workers, settings.n_individuals)
-        record = record_mode(self.model) if settings.share_experience else None
-        pool: EnvPool
-        if n_workers == 0:
-            pool = InProcessEnvPool(*arguments, template, batched=settings.batched_forward, record=record)
-        else:
-            pool = SubprocessEnvPool(
-                *arguments,
-                template,
-                batched=settings.batched_forward,
-                n_workers=n_workers,
-                start_method=settings.worker_start_method,
-                record=record,
-            )
+        pool: EnvPool = (
+            SubprocessEnvPool(*arguments, template, n_workers=n_workers, **kwargs)
+            if n_workers
+            else InProcessEnvPool(*arguments, template, **kwargs)
+        )
         self.round.pool = pool
         # Close the workers even when training dies with an exception (no _on_training_end then).
         self._pool_finalizer = weakref.finalize(self, pool.close)

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import copy
 import time
-from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -67,23 +66,11 @@ class _EpisodeRecorder:
             self.states.append(self.env.state())
 
     def episode(self) -> TeamEpisode:
-        n_ticks, n_agents = len(self.actions), self.env.team_size
+        """The episode played (at least one tick: an individual that stops early records none)."""
+        n_ticks = len(self.actions)
         states = np.stack(self.states) if self.record_states else np.zeros((n_ticks + 1, 0), dtype=np.float32)
-        flags = {
-            name: np.stack([getattr(tick, name) for tick in self.ticks])
-            if self.ticks
-            else np.zeros((0, n_agents))
-            for name in TeamTick._fields
-        }
-        return TeamEpisode(
-            observations=np.stack(self.observations).astype(np.float32),
-            actions=np.stack(self.actions) if self.actions else np.zeros((0, n_agents), dtype=np.int64),
-            rewards=flags["rewards"].astype(np.float32),
-            terminations=flags["terminations"].astype(bool),
-            truncations=flags["truncations"].astype(bool),
-            alive=flags["alive"].astype(bool),
-            states=states.astype(np.float32),
-        )
+        ticks = TeamTick(*(np.stack(column) for column in zip(*self.ticks)))
+        return TeamEpisode(np.stack(self.observations), np.stack(self.actions), *ticks, states=states)
 
 
 #: What an evaluation block records of its episodes: nothing, every tick of a team world, or also its global states.
@@ -169,9 +156,10 @@ class PopulationForward:
             return th.stack([self._copies[index](obs[index]) for index in range(obs.shape[0])])
 
 
-class _Block:
+class _Block(Served):
     """The envs of a block of individuals and the forward pass that drives them (in a worker or in process);
-    env ``p * n_episodes + j`` plays episode ``j`` of individual ``p``. ``record``: see :data:`RECORD_MODES`."""
+    env ``p * n_episodes + j`` plays episode ``j`` of individual ``p``. ``record``: see :data:`RECORD_MODES`. A
+    worker's block answers ``evaluate`` with the numpy weights of its individuals."""
 
     def __init__(
         self,
@@ -243,15 +231,19 @@ class _Block:
             ]
         return returns, lengths, outcomes, valid, episodes
 
+    def handle(self, command: str, data: Any) -> Any:
+        if command != "evaluate":
+            return super().handle(command, data)
+        population, seeds, valid = data
+        return self.evaluate({name: th.from_numpy(array) for name, array in population.items()}, seeds, valid)
+
     def _recorders(self, obs: np.ndarray, active: np.ndarray) -> list[_EpisodeRecorder] | None:
         if self.record is None:
             return None
         record_states = self.record == "ticks+states"
-        teams = [env for env in self.envs if isinstance(env, TeamAsGymnasium)]
-        assert len(teams) == len(self.envs)  # checked in __init__: only team worlds record
-        return [
-            _EpisodeRecorder(env, obs[index].copy(), record_states and bool(active[index]))
-            for index, env in enumerate(teams)
+        return [  # team worlds only (checked in __init__)
+            _EpisodeRecorder(env, obs[index].copy(), record_states and bool(active[index]))  # type: ignore[arg-type]
+            for index, env in enumerate(self.envs)
         ]
 
     def close(self) -> None:
@@ -259,52 +251,12 @@ class _Block:
             env.close()
 
 
-def _build_served_block(block_kwargs: dict[str, Any]) -> _ServedBlock:
+def _build_served_block(block_kwargs: dict[str, Any]) -> _Block:
     th.set_num_threads(1)  # the forward passes are tiny; threads would fight over the cores with the envs
-    return _ServedBlock(_Block(**block_kwargs))
+    return _Block(**block_kwargs)
 
 
-class _ServedBlock(Served):
-    """A worker's :class:`_Block`: answers ``evaluate`` with the numpy weights of its individuals."""
-
-    def __init__(self, block: _Block) -> None:
-        self.block = block
-
-    def handle(self, command: str, data: Any) -> Any:
-        if command != "evaluate":
-            return super().handle(command, data)
-        population, seeds, valid = data
-        return self.block.evaluate(
-            {name: th.from_numpy(array) for name, array in population.items()}, seeds, valid
-        )
-
-    def close(self) -> None:
-        self.block.close()
-
-
-class EnvPool(ABC):
-    """The evaluation envs of a population of ``n_individuals`` x ``n_episodes`` episodes."""
-
-    n_individuals: int
-    n_episodes: int
-
-    @abstractmethod
-    def evaluate(
-        self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
-    ) -> PoolAnswer:
-        """Play every episode of every valid individual (:meth:`_Block.evaluate`) before ``deadline``
-        (``time.monotonic()``), else raise :class:`EvaluationFailed`."""
-
-    @abstractmethod
-    def close(self) -> None: ...
-
-    @property
-    def pids(self) -> list[int]:
-        """Process ids of the worker processes (empty in process)."""
-        return []
-
-
-class InProcessEnvPool(EnvPool):
+class InProcessEnvPool:
     """All envs in the main process: no start-up cost, no protection against a hanging env (arguments as
     :class:`SubprocessEnvPool`)."""
 
@@ -320,10 +272,13 @@ class InProcessEnvPool(EnvPool):
     ) -> None:
         self.n_individuals, self.n_episodes = n_individuals, n_episodes
         self._block = _Block(env_id, env_kwargs, n_individuals, n_episodes, network, batched, record)
+        self.pids: list[int] = []  # no worker process
 
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
     ) -> PoolAnswer:
+        """Play every episode of every valid individual (:meth:`_Block.evaluate`) before ``deadline``
+        (``time.monotonic()``; a worker pool's), else raise :class:`EvaluationFailed`."""
         try:
             return self._block.evaluate(population, seeds, valid)
         except Exception as error:  # an env that fails (e.g. its PyBullet client is gone): skip the round
@@ -334,7 +289,7 @@ class InProcessEnvPool(EnvPool):
         self._block.close()
 
 
-class SubprocessEnvPool(EnvPool):
+class SubprocessEnvPool:
     """Individuals split into contiguous blocks over worker processes, each playing its block's episodes.
 
     :param env_id: an id :func:`check_eval_env_id` accepts, built with ``env_kwargs``
@@ -342,7 +297,6 @@ class SubprocessEnvPool(EnvPool):
     :param network: architecture template (CPU; copied into the workers)
     :param batched: batched forward pass (:class:`PopulationForward`)
     :param n_workers: number of worker processes (at most ``n_individuals``)
-    :param start_method: multiprocessing start method (None: the platform's default)
     :param record: what to record of every episode (:data:`RECORD_MODES`), sent back with the answer
     """
 
@@ -355,11 +309,8 @@ class SubprocessEnvPool(EnvPool):
         network: nn.Module,
         batched: bool = True,
         n_workers: int = 2,
-        start_method: str | None = None,
         record: str | None = None,
     ) -> None:
-        if record not in RECORD_MODES:
-            raise ValueError(f"record must be one of {RECORD_MODES}, got {record!r}")
         self.n_individuals, self.n_episodes = n_individuals, n_episodes
         n_blocks = max(1, min(n_workers, n_individuals))
         self.blocks = [block for block in np.array_split(np.arange(n_individuals), n_blocks) if len(block)]
@@ -373,7 +324,6 @@ class SubprocessEnvPool(EnvPool):
         self._workers = WorkerPool(
             _build_served_block,
             payloads,
-            start_method,
             describe=lambda i: f"evaluation block {i}",
             error=EvaluationFailed,
             close_timeout=1.0,
@@ -382,18 +332,15 @@ class SubprocessEnvPool(EnvPool):
 
     @property
     def pids(self) -> list[int]:
+        """Process ids of the worker processes (empty once closed)."""
         return [] if self._workers.closed else self._workers.pids
-
-    def wait_ready(self, deadline: float) -> None:
-        """Wait until every worker has built its envs, before ``deadline`` (``time.monotonic()``)."""
-        if not self._ready:
-            self._workers.gather(range(len(self.blocks)), "building its envs", deadline)
-            self._ready = True
 
     def evaluate(
         self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
     ) -> PoolAnswer:
-        self.wait_ready(deadline)
+        if not self._ready:  # the workers' hellos: their envs are built
+            self._workers.gather(range(len(self.blocks)), "building its envs", deadline)
+            self._ready = True
         for i, block in enumerate(self.blocks):
             weights = {name: stacked[block].cpu().numpy() for name, stacked in population.items()}
             self._workers.send(i, "evaluate", (weights, list(seeds), valid[block]), "receiving the weights")
@@ -408,6 +355,10 @@ class SubprocessEnvPool(EnvPool):
         self._workers.close()
 
 
+#: The evaluation envs of a population of ``n_individuals`` x ``n_episodes`` episodes.
+EnvPool = InProcessEnvPool | SubprocessEnvPool
+
+
 @dataclass
 class PopulationResult:
     """What one evaluation round measured: returns, lengths and outcomes (:data:`OUTCOMES`) ``(P, E)``; valid
@@ -418,13 +369,12 @@ class PopulationResult:
     lengths: np.ndarray
     valid: np.ndarray
     fitness: np.ndarray
-    outcomes: np.ndarray | None = None
+    outcomes: np.ndarray
     episodes: list[TeamEpisode | None] | None = None
 
     @property
     def successes(self) -> np.ndarray:
-        outcomes = self.outcomes if self.outcomes is not None else np.zeros_like(self.lengths)
-        return outcomes == OUTCOMES["success"]
+        return self.outcomes == OUTCOMES["success"]
 
 
 #: How an episode ended: reached the target, stopped by the time limit (or not run), or terminated otherwise.

@@ -40,8 +40,6 @@ def output_sensitivity(
         raise ValueError(
             f"observations must be a non-empty (batch, obs_dim) tensor, got {tuple(observations.shape)}"
         )
-    if chunk_size < 1:
-        raise ValueError(f"chunk_size must be >= 1, got {chunk_size}")
     parameters = {name: param.detach() for name, param in network.named_parameters()}
     buffers = dict(network.named_buffers())
 
@@ -65,8 +63,6 @@ def safe_mutation_step(noise: th.Tensor, sensitivity: th.Tensor, floor: float, m
     """The safe mutation of Algorithm 1, line 9: ``delta = G / omega``, made safe as Lehman et al. do: a sensitivity of
     exactly 0 (a weight never exercised) becomes 1, smaller ones are raised to ``floor``, and the step is clipped to
     ``[-max_step, max_step]`` per weight. ``sensitivity`` broadcasts to ``noise``."""
-    if floor <= 0 or max_step <= 0:
-        raise ValueError(f"floor and max_step must be > 0, got {floor} and {max_step}")
     try:
         broadcast = th.broadcast_shapes(noise.shape, sensitivity.shape)
     except RuntimeError:
@@ -97,8 +93,6 @@ def mutate_population(
     :param names: the parameters to mutate (None: all)
     :return: the population, each tensor ``(n_mutants + 1, *shape)``
     """
-    if sigma <= 0:
-        raise ValueError(f"sigma must be > 0, got {sigma}")
     directions = mutation_directions(parameters, n_mutants, generator, sensitivities, floor, names)
     # Lehman et al.'s clip belongs to the safe step; plain Gaussian noise is left unclipped.
     return population_from_directions(

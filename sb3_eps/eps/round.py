@@ -159,16 +159,7 @@ class EPSRound:
     def _evaluate(self, population: Parameters, record: dict[str, Any]) -> PopulationResult:
         """Algorithm 1, line 10, with every episode noted in the round's record."""
         seeds, result = self._play(population)
-        outcomes = result.outcomes if result.outcomes is not None else np.zeros_like(result.lengths)
-        record.update(
-            round_ticks=int(result.lengths.sum()),
-            episode_seeds=seeds,
-            returns=result.returns.tolist(),
-            successes=result.successes.astype(int).tolist(),
-            outcomes=outcomes.tolist(),
-            episode_lengths=result.lengths.tolist(),
-            fitness=result.fitness.tolist(),
-        )
+        record.update(round_ticks=int(result.lengths.sum()), **_episodes_record(seeds, result))
         return result
 
     def _accept(
@@ -193,28 +184,21 @@ class EPSRound:
         active[[0, winner]] = True
         pair = [0, winner]
         seeds: list[int] = []
-        returns, outcomes, lengths = [], [], []
+        results = []
         for _ in range(self.settings.n_reevaluation_batches):
             batch_seeds, result = self._play(population, active)
             seeds += batch_seeds
-            returns.append(result.returns[pair])
-            outcomes.append(
-                result.outcomes[pair] if result.outcomes is not None else np.zeros_like(result.lengths[pair])
-            )
-            lengths.append(result.lengths[pair])
-            valid = result.valid[pair]
-        returns_, outcomes_ = np.concatenate(returns, axis=1), np.concatenate(outcomes, axis=1)
-        fitness = population_fitness(returns_, outcomes_, valid, self.settings.fitness)
-        return {
-            "episode_seeds": seeds,
-            "returns": returns_.tolist(),
-            "successes": (outcomes_ == 1).astype(int).tolist(),
-            "outcomes": outcomes_.tolist(),
-            "episode_lengths": np.concatenate(lengths, axis=1).tolist(),
-            "fitness": fitness.tolist(),
-            "gain": float(fitness[1] - fitness[0]) if np.isfinite(fitness[0]) else float("nan"),
-            "ticks": int(sum(int(part.sum()) for part in lengths)),
-        }
+            results.append(result)
+        returns, outcomes, lengths = (
+            np.concatenate([getattr(result, name)[pair] for result in results], axis=1)
+            for name in ("returns", "outcomes", "lengths")
+        )
+        fitness = population_fitness(returns, outcomes, results[-1].valid[pair], self.settings.fitness)
+        record = _episodes_record(
+            seeds, PopulationResult(returns, lengths, results[-1].valid[pair], fitness, outcomes)
+        )
+        gain = float(fitness[1] - fitness[0]) if np.isfinite(fitness[0]) else float("nan")
+        return {**record, "gain": gain, "ticks": int(lengths.sum())}
 
     def _team_check(self, record: dict[str, Any], when: str) -> None:
         """Greedy episodes of the training env, same seeds before and after the crossover (optional)."""
@@ -227,9 +211,15 @@ class EPSRound:
         if when == "before":
             record["team_check_seed"] = int(self.rng.integers(2**31 - 1))
         # The online network, the one the crossover changed (a kept weight average, GDQ's default, follows it only
-        # slowly): its greedy actions without the model's exploration.
-        online = _OnlineGreedy(self.model.policy)
-        summary = evaluate_team(online, env_id, n_episodes, n_envs=1, seed=record["team_check_seed"])
+        # slowly): policies explore only through the algorithm, so their non-deterministic actions are its argmax.
+        summary = evaluate_team(
+            self.model.policy,
+            env_id,
+            n_episodes,
+            n_envs=1,
+            deterministic=False,
+            seed=record["team_check_seed"],
+        )
         ticks = int(sum(episode["l"] for episode in summary["episodes"]))
         self.eps_ticks += ticks
         record[f"team_success_{when}"] = summary.get("success_rate", float("nan"))
@@ -254,19 +244,6 @@ class EPSRound:
             observations = self.visited_observations(None)
         assert observations is not None
         return output_sensitivity(q_net, observations)
-
-
-class _OnlineGreedy:
-    """A policy's greedy actions from its online network (policies explore only through the algorithm, so
-    ``deterministic=False`` is the online argmax), whatever network ``predict(deterministic=True)`` takes."""
-
-    def __init__(self, policy: Any) -> None:
-        self.policy = policy
-
-    def predict(
-        self, observation: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True
-    ) -> tuple[np.ndarray, Any]:
-        return self.policy.predict(observation, state, episode_start, deterministic=False)
 
 
 def visited_mask(replay_buffer: Any, robot: int | None = None) -> np.ndarray:
@@ -310,6 +287,18 @@ def _warn_disqualified(population: Parameters, valid: np.ndarray) -> None:
         RuntimeWarning,
         stacklevel=3,
     )
+
+
+def _episodes_record(seeds: list[int], result: PopulationResult) -> dict[str, Any]:
+    """What a round's record keeps of an evaluation's episodes (``docs/modules/eps.md``, "The round record")."""
+    return {
+        "episode_seeds": seeds,
+        "returns": result.returns.tolist(),
+        "successes": result.successes.astype(int).tolist(),
+        "outcomes": result.outcomes.tolist(),
+        "episode_lengths": result.lengths.tolist(),
+        "fitness": result.fitness.tolist(),
+    }
 
 
 def gain_accepted(gain: float, min_gain: float) -> bool:

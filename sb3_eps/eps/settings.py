@@ -10,18 +10,23 @@ import typing
 from dataclasses import dataclass
 from typing import Any, Literal
 
-import numpy as np
-
+from sb3_eps.common.utils import check_arguments
 from sb3_eps.eps.evaluation import FITNESS_KINDS, check_eval_env_id
 
 Mutation = Literal["safe", "gaussian"]
 PeriodUnit = Literal["episodes", "ticks"]
 AlphaSchedule = Literal["constant", "linear"]
 Fitness = Literal["return", "outcome"]
-MUTATIONS: tuple[str, ...] = typing.get_args(Mutation)
-PERIOD_UNITS: tuple[str, ...] = typing.get_args(PeriodUnit)
 ALPHA_SCHEDULES: tuple[str, ...] = typing.get_args(AlphaSchedule)
 assert typing.get_args(Fitness) == FITNESS_KINDS
+#: The intervals of :class:`EPSSettings`'s numbers (its type hints give the rest of its schema).
+RANGES = {
+    "population_size": "[1, inf)", "period": "[1, inf)", "n_eval_episodes": "[1, inf)", "alpha": "[0, 1]",
+    "sensitivity_batch_size": "[1, inf)", "n_reevaluation_episodes": "[0, inf)", "n_team_check_episodes": "[0, inf)",
+    "sigma": "(0, inf)", "sensitivity_floor": "(0, inf)", "max_step": "(0, inf]", "n_workers": "[0, inf)",
+    "eval_timeout": "(0, inf]", "target_flip_share": "(0, 1)", "min_gain": "[0, inf)", "rounds_until": "[1, inf)",
+    "max_eps_share": "(0, inf]",
+}  # fmt: skip
 # Noise scales giving a mean |Q change| of about 5-10 % of |Q| on a mid-training GDQ robot network (measured); with
 # a target_flip_share they are only the first scale the calibration tries.
 DEFAULT_SIGMA = {"safe": 0.001, "gaussian": 0.03}
@@ -131,7 +136,6 @@ class EPSSettings:
         ``mutation="safe"``
     :param eval_env_kwargs: constructor arguments of the evaluation env; None: :data:`DEFAULT_EVAL_ENV_KWARGS`;
         ``{}``: the env's own defaults (the bars world, paper)
-    :param worker_start_method: multiprocessing start method of the workers; None: the package's default
     :param seed: seed of the noise, the buffer sampling and the evaluation episodes; None: from the model's seed
     :param share_experience: write every tick of every evaluation episode into the model's replay buffer
         (Evolutionary RL, Khadka & Tumer, NeurIPS 2018); needs a team world with the training world's agents
@@ -163,12 +167,13 @@ class EPSSettings:
     batched_forward: bool = True
     per_robot: bool = False
     eval_env_kwargs: dict[str, Any] | None = None
-    worker_start_method: str | None = None
     seed: int | None = None
     share_experience: bool = False
 
     def __post_init__(self) -> None:
-        _check(self)
+        check_arguments(EPSSettings, dataclasses.asdict(self), RANGES)
+        if self.per_robot and self.mutation != "safe":
+            raise ValueError("per_robot=True chooses each mutant's sensitivity: it needs mutation='safe'")
         check_eval_env_id(self.eval_env_id)
         if self.sigma is None:
             self.sigma = DEFAULT_SIGMA[self.mutation]
@@ -200,65 +205,3 @@ class EPSSettings:
         return (
             self.n_individuals + 2 * self.n_reevaluation_batches
         ) * per_batch + 2 * self.n_team_check_episodes
-
-
-def _check(settings: EPSSettings) -> None:
-    """Each a ``ValueError`` that says what to change."""
-    values = dataclasses.asdict(settings)
-    if not isinstance(values["share_experience"], bool):
-        raise ValueError(f"share_experience must be True or False, got {values['share_experience']!r}")
-    for name, low, meaning in (
-        ("population_size", 1, " (mutants per round)"),
-        ("period", 1, ""),
-        ("n_eval_episodes", 1, ""),
-        ("sensitivity_batch_size", 1, ""),
-        ("n_reevaluation_episodes", 0, " (0: no reevaluation)"),
-        ("n_team_check_episodes", 0, ""),
-    ):
-        if not isinstance(values[name], int) or values[name] < low:
-            raise ValueError(f"{name}{meaning} must be an int >= {low}, got {values[name]!r}")
-    for name, choices in (
-        ("period_unit", PERIOD_UNITS),
-        ("mutation", MUTATIONS),
-        ("alpha_schedule", ALPHA_SCHEDULES),
-        ("fitness", FITNESS_KINDS),
-    ):
-        if values[name] not in choices:
-            raise ValueError(f"unknown {name} {values[name]!r}; use one of {choices}")
-    if values["sigma"] is not None and not values["sigma"] > 0:
-        raise ValueError(f"sigma (noise scale) must be > 0, got {values['sigma']!r}")
-    if not 0.0 <= values["alpha"] <= 1.0:
-        raise ValueError(
-            f"alpha (crossover share of the best individual, Eq. 5) must be in [0, 1], got {values['alpha']!r}"
-        )
-    if not values["sensitivity_floor"] > 0:
-        raise ValueError(f"sensitivity_floor must be > 0, got {values['sensitivity_floor']!r}")
-    if not values["max_step"] > 0:
-        raise ValueError(f"max_step must be > 0 (float('inf') disables the clip), got {values['max_step']!r}")
-    workers = values["n_workers"]
-    if workers is not None and (not isinstance(workers, int) or workers < 0):
-        raise ValueError(f"n_workers must be None or an int >= 0 (0: in the main process), got {workers!r}")
-    if not values["eval_timeout"] > 0:
-        raise ValueError(f"eval_timeout must be > 0 seconds, got {values['eval_timeout']!r}")
-    if values["per_robot"] and values["mutation"] != "safe":
-        raise ValueError("per_robot=True chooses each mutant's sensitivity: it needs mutation='safe'")
-    share = values["target_flip_share"]
-    if share is not None and not 0.0 < share < 1.0:
-        raise ValueError(
-            f"target_flip_share (share of greedy actions a mutant changes) must be in (0, 1) or None, got {share!r}"
-        )
-    groups = values["frozen_groups"]
-    if groups is not None and (
-        isinstance(groups, str) or not all(isinstance(group, str) for group in groups)
-    ):
-        raise ValueError(
-            f"frozen_groups must be a list of parameter-group names (e.g. ['value_stream']) or None, got {groups!r}"
-        )
-    if not np.isfinite(values["min_gain"]) or values["min_gain"] < 0:
-        raise ValueError(f"min_gain must be a finite number >= 0, got {values['min_gain']!r}")
-    until = values["rounds_until"]
-    if until is not None and (isinstance(until, bool) or not isinstance(until, int) or until < 1):
-        raise ValueError(f"rounds_until must be None or an int >= 1 (training world ticks), got {until!r}")
-    max_share = values["max_eps_share"]
-    if max_share is not None and not max_share > 0:
-        raise ValueError(f"max_eps_share must be > 0 or None (no budget), got {max_share!r}")

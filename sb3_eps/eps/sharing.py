@@ -1,7 +1,7 @@
 """EPS experience sharing: the population's team-world episodes become replay rows of the learner, as in
 Evolutionary RL (Khadka & Tumer, NeurIPS 2018). Each episode's ticks go through a fresh
 :class:`~sb3_eps.common.buffers.NStepJointCollector` into ``model.replay_buffer`` exactly as a training world's do
-(:func:`~sb3_eps.common.buffers.joint_tick`).
+(:class:`~sb3_eps.common.buffers.JointTick`).
 """
 
 from __future__ import annotations
@@ -12,20 +12,9 @@ from typing import Any
 
 import numpy as np
 
-from sb3_eps.common.buffers import JointReplayBuffer, JointRow, NStepJointCollector, joint_tick
+from sb3_eps.common.buffers import JointTick, NStepJointCollector
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.eps.evaluation import TeamEpisode
-
-
-class _RowCounter:
-    """The replay buffer as a collector sees it, counting the rows written through it."""
-
-    def __init__(self, buffer: JointReplayBuffer) -> None:
-        self.buffer, self.n_rows = buffer, 0
-
-    def add_row(self, row: JointRow) -> int:
-        self.n_rows += 1
-        return self.buffer.add_row(row)
 
 
 def sharing_problem(model: Any, eval_env: Any) -> str | None:
@@ -68,11 +57,11 @@ def share_episodes(model: MultiAgentOffPolicyAlgorithm, episodes: Sequence[TeamE
     observations = np.concatenate([episode.observations[:-1] for episode in played])
     next_observations = np.concatenate([episode.observations[1:] for episode in played])
     values = model.collection_values(observations, next_observations)  # one pass for the whole round
-    counter = _RowCounter(model.replay_buffer)
-    offset = 0
+    offset = n_rows = 0
     for episode in played:
-        buffer: Any = counter  # the collector only calls add_row
-        collector = NStepJointCollector(buffer, 1, model.n_steps, model.gamma, model.team_reward_mode)
+        collector = NStepJointCollector(
+            model.replay_buffer, 1, model.n_steps, model.gamma, model.team_reward_mode
+        )
         for tick in range(episode.n_ticks):
             row = offset + tick
             if not _finite_tick(episode, tick):
@@ -83,33 +72,36 @@ def share_episodes(model: MultiAgentOffPolicyAlgorithm, episodes: Sequence[TeamE
                     stacklevel=2,
                 )
                 continue
-            collector.add(
-                0, _episode_tick(episode, tick, None if values is None else (values[0][row], values[1][row]))
-            )
+            collector.add(0, _episode_tick(episode, tick, values, row))
         offset += episode.n_ticks
-    return counter.n_rows
+        n_rows += collector.n_rows
+    return n_rows
 
 
-def _episode_tick(episode: TeamEpisode, tick: int, values: tuple[np.ndarray, np.ndarray] | None) -> Any:
-    """Tick ``tick`` of a team-world episode as the bridge would report it (``MultiAgentVecEnv.step_wait``)."""
+def _episode_tick(
+    episode: TeamEpisode, tick: int, values: tuple[np.ndarray, np.ndarray] | None, row: int
+) -> JointTick:
+    """Tick ``tick`` of a team-world episode as the bridge would report it (``MultiAgentVecEnv.step_wait``), with
+    row ``row`` of the round's ``values``."""
     terminations, truncations, alive = (
         episode.terminations[tick],
         episode.truncations[tick],
         episode.alive[tick],
     )
     dones = terminations | truncations
-    return joint_tick(
+    return JointTick(
         observations=episode.observations[tick],
         actions=episode.actions[tick],
         rewards=episode.rewards[tick],
         next_observations=episode.observations[tick + 1],
-        alive=alive,
         ended=dones & alive,
         truncated=truncations & ~terminations,
-        world_ended=bool(dones.all()),
+        alive=alive,
         state=episode.states[tick],
         next_state=episode.states[tick + 1],
-        values=values,
+        world_ended=bool(dones.all()),
+        values=None if values is None else values[0][row],
+        next_values=None if values is None else values[1][row],
     )
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import typing
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -14,12 +13,11 @@ from sb3_eps.common.buffers import JointReplayBuffer, JointReplayBufferSamples, 
 from sb3_eps.common.losses import masked_huber, row_priority, weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm, TDTerms
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import input_gain, td_target
+from sb3_eps.common.utils import check_arguments, input_gain, td_target
 from sb3_eps.gdq.policies import DEFAULT_GLOBAL_HEAD, GDQPolicy, MlpPolicy
 
 #: Where ``v`` and ``v'`` (the inputs of ``V_G`` and ``V_G'``) come from (``GDQ(global_values=...)``).
 GlobalValues = Literal["recomputed", "stored", "target"]
-GLOBAL_VALUES: tuple[str, ...] = typing.get_args(GlobalValues)
 DEFAULT_GLOBAL_VALUES: GlobalValues = "target"
 
 
@@ -101,6 +99,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     # The paper's agents had no target network. With one, and v' read from it (global_values="target"), GDQ
     # learned the robot worlds faster and without the collapses of the online v' (docs/results/gdq_target.md).
     default_agent_target: ClassVar[bool] = True
+    argument_ranges = {**MultiAgentOffPolicyAlgorithm.argument_ranges, "global_bootstrap": "[0, 1]"}
 
     def __init__(
         self,
@@ -138,15 +137,11 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         global_values: GlobalValues = DEFAULT_GLOBAL_VALUES,
         global_bootstrap: float = DEFAULT_GLOBAL_BOOTSTRAP,
     ) -> None:
-        # GDQ's own defaults differ from the base's in global_bootstrap (0.1, GDQ-lambda: the paper's full V_G'
-        # bootstrap cost 28 points on 4 robots, held-out seeds), team_reward_mode ("mean": V_G on the scale of one
-        # agent's value, a common-mode gain of about gamma^n), learning_rate (3e-4 decaying linearly to 0 over the
-        # call's budget, RL Zoo's lin_3e-4: the greedy policy stops churning as the budget ends) and
-        # prioritized_replay (uniform); docs/results/gdq_target.md, docs/results/gdq_uniform_replay.md.
-        if global_values not in GLOBAL_VALUES:
-            raise ValueError(f"global_values must be one of {GLOBAL_VALUES}, got {global_values!r}")
-        if not 0.0 <= global_bootstrap <= 1.0:
-            raise ValueError(f"global_bootstrap must be in [0, 1], got {global_bootstrap}")
+        check_arguments(
+            GDQ.__init__,
+            {"global_values": global_values, "global_bootstrap": global_bootstrap},
+            self.argument_ranges,
+        )
         self.global_values: GlobalValues = global_values
         self.global_bootstrap = float(global_bootstrap)
         super().__init__(
@@ -225,7 +220,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     def _stores_agent_values(self) -> bool:
         return self.global_values == "stored"
 
-    def _collection_values(
+    def collection_values(
         self, observations: np.ndarray, next_observations: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """``global_values="stored"``: v and v' as the agent network sees them at collection time (the paper's

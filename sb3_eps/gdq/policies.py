@@ -10,6 +10,7 @@ from stable_baselines3.common.torch_layers import create_mlp
 from torch import nn
 
 from sb3_eps.common.policies import MultiAgentQPolicy
+from sb3_eps.common.utils import check_arguments
 
 DEFAULT_GLOBAL_NET_ARCH = [64, 64]
 #: GDQ greedy-acts from a weight average of its agent network by default (docs/results/gdq_weight_average.md).
@@ -18,7 +19,6 @@ GlobalInit = Literal["random", "sum", "mean"]
 GLOBAL_INITS: tuple[str, ...] = typing.get_args(GlobalInit)
 #: ``"mlp"``: the paper's head over a fixed number of agents; ``"pooled"``: a Deep Sets head over any number.
 GlobalHead = Literal["mlp", "pooled"]
-GLOBAL_HEADS: tuple[str, ...] = typing.get_args(GlobalHead)
 DEFAULT_GLOBAL_HEAD: GlobalHead = "mlp"
 
 
@@ -174,8 +174,7 @@ class GDQPolicy(MultiAgentQPolicy):
     ) -> None:
         self.global_net_arch = list(global_net_arch or DEFAULT_GLOBAL_NET_ARCH)
         self.global_init = global_init
-        if global_head not in GLOBAL_HEADS:
-            raise ValueError(f"global_head must be one of {GLOBAL_HEADS}, got {global_head!r}")
+        check_arguments(GDQPolicy.__init__, {"global_head": global_head}, {})
         self.global_head = global_head
         super().__init__(*args, weight_average_tau=weight_average_tau, **kwargs)
 

@@ -10,6 +10,7 @@ from stable_baselines3.common.type_aliases import Schedule
 from torch import nn
 
 from sb3_eps.common.policies import MultiAgentQPolicy
+from sb3_eps.common.utils import check_arguments
 
 #: VDN greedy-acts from a weight average of its agent network by default (docs/results/qmix_vdn.md; the
 #: same rate as GDQ's).
@@ -141,14 +142,8 @@ class QMIXPolicy(MultiAgentQPolicy):
         mixer_lr_scale: float = 0.1,
         **kwargs: Any,
     ):
-        if mixer_init not in MIXER_INITS:
-            raise ValueError(f"mixer_init must be one of {MIXER_INITS}, got {mixer_init!r}")
-        if not (
-            isinstance(mixer_lr_scale, float | int)
-            and not isinstance(mixer_lr_scale, bool)
-            and mixer_lr_scale > 0
-        ):
-            raise ValueError(f"mixer_lr_scale must be a number > 0, got {mixer_lr_scale!r}")
+        values = {"mixer_init": mixer_init, "mixer_lr_scale": mixer_lr_scale}
+        check_arguments(QMIXPolicy.__init__, values, {"mixer_lr_scale": "(0, inf)"})
         self.mixing_embed_dim = mixing_embed_dim
         self.hypernet_hidden_dim = hypernet_hidden_dim
         self.mixer_init = mixer_init

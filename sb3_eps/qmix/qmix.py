@@ -13,7 +13,7 @@ from sb3_eps.common.buffers import JointReplayBuffer, JointReplayBufferSamples, 
 from sb3_eps.common.losses import weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import input_gain, td_target
+from sb3_eps.common.utils import check_arguments, input_gain, td_target
 from sb3_eps.qmix.policies import QMIXPolicy, VDNPolicy, apply_lr_scales
 
 #: QMIX's and VDN's default learning rate: 3e-4 decaying linearly to 0 over the budget (docs/results/qmix_vdn.md).
@@ -44,6 +44,7 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": QMIXPolicy}
     requires_fixed_n_agents: ClassVar[bool] = True
     uses_global_state: ClassVar[bool] = True
+    argument_ranges = {**MultiAgentOffPolicyAlgorithm.argument_ranges, "advantage_learning": "[0, 1)"}
 
     def __init__(
         self,
@@ -80,8 +81,7 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
         _init_setup_model: bool = True,
         advantage_learning: float = 0.0,
     ) -> None:
-        if not 0.0 <= advantage_learning < 1.0:
-            raise ValueError(f"advantage_learning must be in [0, 1), got {advantage_learning}")
+        check_arguments(QMIX.__init__, {"advantage_learning": advantage_learning}, self.argument_ranges)
         self.advantage_learning = float(advantage_learning)
         super().__init__(
             policy,
