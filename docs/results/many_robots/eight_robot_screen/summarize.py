@@ -1,7 +1,8 @@
 """The 8-robot screen's table (rule: ``rules.md`` beside this file): per arm and seed, greedy team success at every
 evaluation, the score (mean of the last three), the first ticks at 80 % and the final collisions and time-outs.
 
-    python docs/results/many_robots/eight_robot_screen/summarize.py docs/results/many_robots/eight_robot_screen
+    python docs/results/many_robots/eight_robot_screen/summarize.py docs/results/many_robots/eight_robot_screen \
+        docs/results/many_robots/team_size_ladder/scratch_seed220.jsonl
 """
 
 from __future__ import annotations
@@ -15,17 +16,25 @@ ARMS = ("scratch", "ladder_whole", "eps_early", "eps_team4", "pop_copy", "pop_di
 
 
 def read(path: pathlib.Path) -> list[dict]:
-    return sorted((json.loads(line) for line in path.read_text().splitlines() if line.strip()), key=lambda r: r["ticks"])
+    return sorted(
+        (json.loads(line) for line in path.read_text().splitlines() if line.strip()), key=lambda r: r["ticks"]
+    )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("folders", nargs="+", type=pathlib.Path)
+    parser.add_argument("paths", nargs="+", type=pathlib.Path, help="record files or folders of them")
     args = parser.parse_args()
-    files = sorted(p for folder in args.folders for p in folder.glob("*_seed*.jsonl") if "_rounds" not in p.name
-                   and "_selections" not in p.name)
+    found = [
+        p for path in args.paths for p in (sorted(path.glob("*_seed*.jsonl")) if path.is_dir() else [path])
+    ]
+    files = sorted(p for p in found if "_rounds" not in p.name and "_selections" not in p.name)
     marks = list(range(25_000, 300_001, 25_000))
-    print("| arm, seed | " + " | ".join(str(m // 1000) for m in marks) + " | score | ticks to 80 % | final collisions / time-outs | EPS |")
+    print(
+        "| arm, seed | "
+        + " | ".join(str(m // 1000) for m in marks)
+        + " | score | ticks to 80 % | final collisions / time-outs | EPS |"
+    )
     print("|---" * (len(marks) + 5) + "|")
     scores: dict[str, list[float]] = {}
     for path in files:
@@ -45,7 +54,11 @@ def main() -> None:
         reach = next((r["ticks"] for r in curve if r["success_rate"] >= 0.8), None)
         final = curve[-1]
         timeouts = 1 - final["success_rate"] - final["collision_rate"]
-        eps = f"{final['rounds']} rounds, {final['crossovers']} crossovers, {final['eps_ticks']} ticks" if "rounds" in final else ""
+        eps = (
+            f"{final['rounds']} rounds, {final['crossovers']} crossovers, {final['eps_ticks']} ticks"
+            if "rounds" in final
+            else ""
+        )
         print(
             f"| {arm}, {seed} | " + " | ".join(cells) + f" | {'' if score is None else f'**{score:.1f}**'} | "
             f"{'' if reach is None else f'{reach // 1000}k'} | {100 * final['collision_rate']:.0f} / {100 * timeouts:.0f} % | {eps} |"
