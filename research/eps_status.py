@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import csv
 import importlib.util
+import json
 import math
 import re
 import sys
@@ -218,6 +219,75 @@ def paper_algorithm_row(root: Path = ROOT) -> Row:
     )
 
 
+#: The 8-robot screen (``docs/results/many_robots/eight_robot_screen/``, ``benchmarks/team_size_ladder.py``): its EPS
+#: and population arms against GDQ from scratch with the package defaults, 300k total world ticks (EPS world ticks
+#: and every learner's paid from them), 50 greedy episodes every 25k ticks. The scratch arm's seed 220 is the
+#: team-size ladder screen's record, made with the same script and protocol.
+SCREEN8 = "docs/results/many_robots/eight_robot_screen"
+SCREEN8_SCRATCH = ("docs/results/many_robots/team_size_ladder", SCREEN8)
+SCREEN8_ARMS = {
+    "eps_early": "EPS-GDQ, early rounds (every 10k ticks up to 60k), 8 robots",
+    "eps_team4": "EPS-GDQ, early rounds in a 4-robot team world, 8 robots",
+    "pop_copy": "population of 4 GDQ learners, copy + safe mutation (rounds: selections; crossovers: copies), 8 robots",
+    "pop_distill": "population of 4 GDQ learners, distillation crossover (rounds: selections; crossovers: copies), 8 robots",
+}
+SCREEN8_MARKS = (250_000, 275_000, 300_000)
+
+
+def screen8_curves(arm: str, folders: Sequence[str], root: Path = ROOT) -> dict[int, list[dict]]:
+    """:return: seed -> the evaluations of one arm of the 8-robot screen, by ticks."""
+    curves = {}
+    for folder in folders:
+        for path in sorted((root / folder).glob(f"{arm}_seed*.jsonl")):
+            seed = re.fullmatch(rf"{arm}_seed(\d+)", path.stem)
+            if seed:
+                records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+                curves[int(seed[1])] = sorted(records, key=lambda record: record["ticks"])
+    return curves
+
+
+def screen8_score(curve: list[dict]) -> float | None:
+    """:return: the mean success of the first evaluations at or after 250k, 275k and 300k ticks (within 25k of
+    each); None for an unfinished run."""
+    found = [next((r for r in curve if mark <= r["ticks"] < mark + 25_000), None) for mark in SCREEN8_MARKS]
+    return None if None in found else sum(r["success_rate"] for r in found) / len(found)  # type: ignore[index]
+
+
+def screen8_rows(root: Path = ROOT) -> list[Row]:
+    """:return: one row per EPS or population arm of the 8-robot screen over the seeds both it and scratch finished
+    (none for an arm without such a seed).
+    A population's rounds are its selections and its crossovers the copies made; it plays no EPS ticks."""
+    scratch = {s: screen8_score(c) for s, c in screen8_curves("scratch", SCREEN8_SCRATCH, root).items()}
+    rows = []
+    for arm, name in SCREEN8_ARMS.items():
+        curves = screen8_curves(arm, (SCREEN8,), root)
+        seeds = sorted(s for s in curves if screen8_score(curves[s]) is not None and scratch.get(s) is not None)
+        if not seeds:
+            continue
+        rounds = crossovers = 0
+        for seed in seeds:
+            if arm.startswith("pop"):
+                with open(root / SCREEN8 / f"{arm}_seed{seed}_selections.jsonl") as file:
+                    selections = [json.loads(line) for line in file if line.strip()]
+                rounds += len(selections)
+                crossovers += sum("skipped" not in selection for selection in selections)
+            else:
+                rounds += curves[seed][-1]["rounds"]
+                crossovers += curves[seed][-1]["crossovers"]
+        variant = Variant(name, "GDQ, package defaults", (), (), 300_000, every=25_000, section="8-robot-screen",
+                          robots=8)  # fmt: skip
+        rows.append(Row(
+            variant, seeds, [scratch[s] for s in seeds], [screen8_score(curves[s]) for s in seeds], rounds,
+            crossovers, [int(curves[s][-1].get("eps_ticks", 0)) for s in seeds],
+        ))  # fmt: skip
+    return rows
+
+
+def all_rows(root: Path = ROOT) -> list[Row]:
+    """:return: the page's table rows: :data:`VARIANTS`, Algorithm 1 and the 8-robot screen."""
+    return [measure(variant, root) for variant in VARIANTS] + [paper_algorithm_row(root), *screen8_rows(root)]
+
+
 def seeds_text(seeds: Sequence[int]) -> str:
     """:return: the seeds with runs of three or more consecutive ones joined by a dash: ``0-4, 146-150``."""
     runs: list[list[int]] = []
@@ -277,7 +347,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     )
     parser.add_argument("--searches", action="store_true", help="also summarise the Optuna studies")
     args = parser.parse_args(argv)
-    print(table([measure(variant) for variant in VARIANTS] + [paper_algorithm_row()]))
+    print(table(all_rows()))
     if args.searches:
         print()
         print(search_summary("tuning_eps_gdq4", "EPS-GDQ"))

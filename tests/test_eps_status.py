@@ -12,9 +12,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_the_committed_page_holds_the_table_the_records_compute() -> None:
-    rows = [eps_status.measure(variant) for variant in eps_status.VARIANTS] + [
-        eps_status.paper_algorithm_row()
-    ]
+    rows = eps_status.all_rows()
     page = (ROOT / "docs" / "results" / "eps.md").read_text().splitlines()
     missing = [line for line in eps_status.table(rows).splitlines() if line not in page]
     assert not missing, f"docs/results/eps.md is out of date; run python research/eps_status.py: {missing}"
@@ -32,3 +30,27 @@ def test_the_ten_pairs_of_the_package_defaults() -> None:
 def test_seeds_text_joins_runs() -> None:
     assert eps_status.seeds_text([0, 1, 2, 3, 4, 146, 147, 148]) == "0-4, 146-148"
     assert eps_status.seeds_text([100, 101]) == "100, 101"
+
+
+def test_the_8_robot_screen_pairs_each_arm_with_scratch_on_finished_seeds(tmp_path) -> None:
+    """An unfinished run (no evaluation at 300k) is left out; the score is the mean of the last three evaluations."""
+    import json
+
+    screen, ladder = tmp_path / eps_status.SCREEN8, tmp_path / eps_status.SCREEN8_SCRATCH[0]
+    screen.mkdir(parents=True)
+    ladder.mkdir(parents=True)
+
+    def write(path, rates, **last):
+        records = [{"ticks": 25_000 * (i + 1), "success_rate": rate} for i, rate in enumerate(rates)]
+        records[-1].update(last)
+        path.write_text("".join(json.dumps(record) + "\n" for record in records))
+
+    write(ladder / "scratch_seed220.jsonl", [0.5] * 9 + [0.7, 0.8, 0.9])
+    write(screen / "eps_early_seed220.jsonl", [0.5] * 9 + [0.6, 0.6, 0.6], rounds=3, crossovers=1, eps_ticks=9000)
+    write(screen / "eps_early_seed221.jsonl", [0.5] * 12, rounds=3, crossovers=0, eps_ticks=9000)  # no scratch
+    write(screen / "eps_team4_seed220.jsonl", [0.5] * 11, rounds=2, crossovers=0, eps_ticks=100)  # unfinished
+    rows = {row.variant.name: row for row in eps_status.screen8_rows(tmp_path)}
+    early = rows[eps_status.SCREEN8_ARMS["eps_early"]]
+    assert early.seeds == [220] and early.rounds == 3 and early.crossovers == 1 and early.eps_ticks == [9000]
+    assert early.base_scores == pytest.approx([0.8]) and early.eps_scores == pytest.approx([0.6])
+    assert eps_status.SCREEN8_ARMS["eps_team4"] not in rows
