@@ -50,7 +50,7 @@ _MULTI_AGENT_SPECS: dict[str, EnvSpec] = {
         "envs.turtlebot3:MultiRobotNavEnv", {"n_robots": 4, "scenario": "unseen"}
     ),
     # The same room, every start and target moved by a seeded offset of up to 0.3 m: 100 episodes, 100 problems.
-    "MultiRobotNavUnseenVaried-4-v0": EnvSpec(
+    "MultiRobotNavUnseen-4-varied-v0": EnvSpec(
         "envs.turtlebot3:MultiRobotNavEnv",
         {"n_robots": 4, "scenario": "unseen", "placement_jitter": 0.3},
     ),

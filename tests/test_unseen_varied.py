@@ -1,4 +1,4 @@
-"""The varied unseen room (``placement_jitter``, ``MultiRobotNavUnseenVaried-4-v0``): every episode a new problem,
+"""The varied unseen room (``placement_jitter``, ``MultiRobotNavUnseen-4-varied-v0``): every episode a new problem,
 every pose valid, seeding reproducible, the fixed room unchanged, and the arena's spaces so any 4-robot model runs."""
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from sb3_eps.common.evaluation import evaluate_team
 from tests.test_algorithms import tiny_model
 from tests.test_turtlebot3_physics import reachable
 
-VARIED = "MultiRobotNavUnseenVaried-4-v0"
+VARIED = "MultiRobotNavUnseen-4-varied-v0"
 JITTER = 0.3  # the id's placement_jitter
 N_SETS = len(UNSEEN_TARGET_SETS)
 
