@@ -1,7 +1,10 @@
 """The measure of this folder's rule: every model of both arms, greedy, 100 episodes on the varied and the fixed
 unseen room, one after another on one thread; one JSON line per model and room (a rerun skips lines already there).
+``--summary`` prints the page's table from the records instead.
 
     python docs/results/many_robots/unseen_room_varied/evaluate.py --open runs/open --bars runs/bars \\
+        --out docs/results/many_robots/unseen_room_varied/records.jsonl
+    python docs/results/many_robots/unseen_room_varied/evaluate.py --summary \\
         --out docs/results/many_robots/unseen_room_varied/records.jsonl
 """
 
@@ -20,11 +23,39 @@ EVAL_SEED = 20_000
 EPISODE_KEYS = ("success", "collision", "n_arrived", "l")
 
 parser = argparse.ArgumentParser()
-parser.add_argument("--open", required=True, help="folder of gdq_open4_seed{0..4}.zip")
-parser.add_argument("--bars", required=True, help="folder of gdq_bars4_seed{0..4}.zip")
+parser.add_argument("--open", help="folder of gdq_open4_seed{0..4}.zip")
+parser.add_argument("--bars", help="folder of gdq_bars4_seed{0..4}.zip")
 parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
 parser.add_argument("--out", required=True)
+parser.add_argument("--summary", action="store_true", help="print the table of the records in --out and stop")
 args = parser.parse_args()
+
+
+def percent(records: list[dict], key: str) -> str:
+    return " / ".join(f"{100 * record[key]:.0f}" for record in records)
+
+
+if args.summary:
+    records = [json.loads(line) for line in pathlib.Path(args.out).read_text().splitlines()]
+    print(
+        "| arm | room | success, seeds " + ", ".join(map(str, args.seeds)) + " | mean | collisions | mean |"
+    )
+    print("|---|---|---|---|---|---|")
+    for arm in ("open", "bars"):
+        for env_id in ROOMS:
+            rows = sorted(
+                (r for r in records if (r["arm"], r["env_id"]) == (arm, env_id)), key=lambda r: r["seed"]
+            )
+            rows = [r for r in rows if r["seed"] in args.seeds]
+            mean_success = 100 * sum(r["success_rate"] for r in rows) / len(rows)
+            mean_collision = 100 * sum(r["collision_rate"] for r in rows) / len(rows)
+            print(
+                f"| {arm} | `{env_id}` | {percent(rows, 'success_rate')} | {mean_success:.1f} % "
+                f"| {percent(rows, 'collision_rate')} | {mean_collision:.1f} % |"
+            )
+    raise SystemExit(0)
+if args.open is None or args.bars is None:
+    parser.error("--open and --bars name the folders of the models (or pass --summary)")
 th.set_num_threads(1)
 out = pathlib.Path(args.out)
 done = set()
