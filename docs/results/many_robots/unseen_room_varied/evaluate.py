@@ -11,6 +11,7 @@ unseen room, one after another on one thread; one JSON line per model and room (
 import argparse
 import json
 import pathlib
+import zipfile
 
 import torch as th
 
@@ -33,6 +34,16 @@ args = parser.parse_args()
 
 def percent(records: list[dict], key: str) -> str:
     return " / ".join(f"{100 * record[key]:.0f}" for record in records)
+
+
+def load(path: pathlib.Path) -> GDQ:
+    """The saved model; the bars models, saved before the package dropped the ``angle_features`` policy option, hold
+    its off value (None), which is left out so they load with the weights they were saved with."""
+    with zipfile.ZipFile(path) as archive:
+        policy_kwargs = json.loads(archive.read("data"))["policy_kwargs"]
+    if policy_kwargs.pop("angle_features", "absent") is not None:
+        return GDQ.load(path, device="cpu")
+    return GDQ.load(path, device="cpu", custom_objects={"policy_kwargs": policy_kwargs})
 
 
 if args.summary:
@@ -63,7 +74,7 @@ if out.exists():
     done = {(r["arm"], r["seed"], r["env_id"]) for r in map(json.loads, out.read_text().splitlines())}
 for arm, folder in (("open", args.open), ("bars", args.bars)):
     for seed in args.seeds:
-        model = GDQ.load(pathlib.Path(folder) / f"gdq_{arm}4_seed{seed}.zip", device="cpu")
+        model = load(pathlib.Path(folder) / f"gdq_{arm}4_seed{seed}.zip")
         for env_id in ROOMS:
             if (arm, seed, env_id) in done:
                 continue
