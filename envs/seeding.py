@@ -19,9 +19,7 @@ def check_seed(seed: Any) -> int | None:
     if seed is None:
         return None
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
-        raise ValueError(
-            f"seed must be None or a non-negative int, got {seed!r} of type {type(seed).__name__}"
-        )
+        raise ValueError(f"seed must be None or a non-negative int, got {seed!r} of type {type(seed).__name__}")
     if seed < 0:
         raise ValueError(f"seed must be None or a non-negative int, got {seed}")
     return int(seed)

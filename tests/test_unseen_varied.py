@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import envs
-from envs.turtlebot3 import MultiRobotNavEnv
+from envs.turtlebot3 import MultiRobotNavEnv, SingleRobotNavEnv
 from envs.turtlebot3.layouts import (
     HEADING_JITTER,
     MIN_START_TARGET,
@@ -179,3 +179,16 @@ def test_bad_placement_jitter_is_refused_in_one_line(kwargs: dict, message: str)
     with pytest.raises(ValueError, match=message) as error:
         MultiRobotNavEnv(n_robots=4, **kwargs)
     assert "\n" not in str(error.value)
+
+
+def test_the_single_robot_view_of_the_room_takes_the_jitter_too() -> None:
+    fixed, varied = SingleRobotNavEnv("unseen"), SingleRobotNavEnv("unseen", placement_jitter=JITTER)
+    fixed_obs, _ = fixed.reset(seed=0)
+    varied_obs, _ = varied.reset(seed=0)
+    assert varied.observation_space == fixed.observation_space
+    assert not np.allclose(fixed_obs, varied_obs)
+    np.testing.assert_array_equal(fixed.multi_env.world.xy[0], UNSEEN_STARTS[0, :2])
+    offset = np.linalg.norm(varied.multi_env.world.xy[0] - UNSEEN_STARTS[0, :2])
+    assert 0 < offset <= JITTER
+    fixed.close()
+    varied.close()
