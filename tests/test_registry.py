@@ -14,6 +14,7 @@ def test_ids_are_partitioned() -> None:
         "MultiRobotNav-8-v0",
         "MultiRobotNav-12-v0",
         "MultiRobotNavUnseen-4-v0",
+        "MultiRobotNavUnseen-4-varied-v0",
         "CooperativeNavigation-v0",
     }
     assert set(envs.SINGLE_AGENT_ENV_IDS) == {"SingleRobotNav-v0", "CooperativeNavigationSingle-v0"}

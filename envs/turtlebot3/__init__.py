@@ -2,7 +2,7 @@
 
 - :class:`MultiRobotNavEnv`: PettingZoo ``ParallelEnv``, n robots; scenarios ``"arena"`` (training),
   ``"eps"`` (walls plus bars), ``"eps_pillars"`` (an EPS world closer to training) and
-  ``"unseen"`` (evaluation room with a fixed target sequence).
+  ``"unseen"`` (evaluation room with a fixed target sequence; ``placement_jitter`` varies its poses).
 - :class:`SingleRobotNavEnv`: gymnasium ``Env``, one robot in the EPS world with static obstacles.
 - :func:`save_gif`: write ``rgb_array`` frames to an animated GIF.
 

@@ -11,7 +11,9 @@ Scenarios (see ``docs/envs.md`` for the pictures):
 - ``"eps_pillars"``: an EPS world closer to the 4-robot training arena: its walls plus three robot-sized static
   pillars standing for the other three robots (no thin bars, which the training worlds never show).
 - ``"unseen"``: the 4-robot evaluation room (paper Fig. 5 analogue): a 6 m room whose four inner blocks
-  leave a central cross and a ring corridor; fixed start poses and a fixed sequence of target sets.
+  leave a central cross and a ring corridor; fixed start poses and a fixed sequence of target sets. With a
+  placement jitter (:func:`jitter_starts`, :func:`jitter_targets`) every episode moves those poses by a seeded
+  offset, so no two episodes pose the same problem.
 """
 
 from __future__ import annotations
@@ -28,6 +30,9 @@ TARGET_CLEARANCE = 0.3  # [m] target to any wall/obstacle surface: a robot parke
 TARGET_SPACING = 0.5  # [m] between targets (paper Sec. IV-B)
 TARGET_START_SPACING = 0.5  # [m] target to every robot's start: "not on the initial positions"
 TICKS_PER_METRE = 150  # default time limit per metre of the room's longer side (see default_time_limit)
+PLACEMENT_JITTER_MAX = 0.5  # [m] largest offset of a fixed start or target (keeps each problem recognisable)
+HEADING_JITTER = np.pi / 6  # [rad] largest turn of a fixed start heading when the placement is jittered
+MIN_START_TARGET = 2.0  # [m] a jittered target to its own robot's start (the fixed sets' shortest is 2.6 m)
 SCENARIOS = ("arena", "eps", "eps_pillars", "unseen")
 MAX_ROBOTS = {"arena": 16, "eps": 4, "eps_pillars": 4, "unseen": 4}
 
@@ -303,3 +308,74 @@ def sample_targets(rng: np.random.Generator, layout: Layout, starts_xy: np.ndarr
     return _pick_spaced(
         rng, layout, len(starts_xy), TARGET_CLEARANCE, TARGET_SPACING, starts_xy, TARGET_START_SPACING
     )
+
+
+def jitter_starts(rng: np.random.Generator, layout: Layout, starts: np.ndarray, radius: float) -> np.ndarray:
+    """Fixed start poses moved by seeded offsets: each position within ``radius`` of its own (uniform over the
+    disc), clear of walls and obstacles and apart from the others as random starts are; each heading turned by up
+    to :data:`HEADING_JITTER`.
+
+    :param rng: the env's generator
+    :param layout: the room
+    :param starts: ``(n, 3)`` the fixed poses (x, y, heading)
+    :param radius: largest offset [m]
+    :return: ``(n, 3)`` poses
+    """
+    xy = _pick_near(rng, layout, starts[:, :2], radius, START_CLEARANCE, START_SPACING)
+    turn = rng.uniform(-HEADING_JITTER, HEADING_JITTER, size=len(starts))
+    heading = np.mod(starts[:, 2] + turn + np.pi, 2.0 * np.pi) - np.pi
+    return np.concatenate([xy, heading[:, None]], axis=1)
+
+
+def jitter_targets(
+    rng: np.random.Generator, layout: Layout, targets: np.ndarray, starts_xy: np.ndarray, radius: float
+) -> np.ndarray:
+    """Fixed targets moved by seeded offsets within ``radius``: clear of walls and obstacles, apart from each other
+    and from every start as random targets are, and at least :data:`MIN_START_TARGET` from the robot's own start.
+
+    :param rng: the env's generator
+    :param layout: the room
+    :param targets: ``(n, 2)`` the fixed targets
+    :param starts_xy: ``(n, 2)`` the episode's start positions
+    :param radius: largest offset [m]
+    :return: ``(n, 2)`` targets
+    """
+    return _pick_near(
+        rng, layout, targets, radius, TARGET_CLEARANCE, TARGET_SPACING, starts_xy, TARGET_START_SPACING
+    )
+
+
+def _pick_near(
+    rng: np.random.Generator,
+    layout: Layout,
+    centres: np.ndarray,
+    radius: float,
+    wall_clearance: float,
+    spacing: float,
+    starts_xy: np.ndarray | None = None,
+    start_spacing: float = 0.0,
+) -> np.ndarray:
+    """One point per centre, uniform in the disc of ``radius`` around it, by rejection in batches of 32: the first
+    candidate in draw order that keeps ``wall_clearance`` to every box, ``spacing`` to the points already chosen
+    and, with ``starts_xy``, ``start_spacing`` to every start and :data:`MIN_START_TARGET` to its own."""
+    chosen: list[np.ndarray] = []
+    for i, centre in enumerate(centres):
+        for _ in range(100):
+            distance = radius * np.sqrt(rng.uniform(size=32))
+            angle = rng.uniform(-np.pi, np.pi, size=32)
+            candidates = centre + np.stack([distance * np.cos(angle), distance * np.sin(angle)], axis=1)
+            ok = in_room(candidates, layout, 0.0) & (clearance(candidates, layout.boxes) >= wall_clearance)
+            for other in chosen:
+                ok &= np.hypot(*(candidates - other).T) >= spacing
+            if starts_xy is not None:
+                gaps = np.linalg.norm(candidates[:, None, :] - starts_xy[None, :, :], axis=-1)
+                ok &= (gaps.min(axis=1) >= start_spacing) & (gaps[:, i] >= MIN_START_TARGET)
+            if ok.any():
+                chosen.append(candidates[np.argmax(ok)])
+                break
+        else:
+            raise RuntimeError(
+                f"Could not place point {i} within {radius} m of {centre.tolist()} in the {layout.name!r} layout "
+                "after 100 batches; use a smaller placement_jitter."
+            )
+    return np.array(chosen)

@@ -20,7 +20,16 @@ from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
 from envs.seeding import check_seed
-from envs.turtlebot3.layouts import Layout, in_room, make_layout, sample_starts, sample_targets
+from envs.turtlebot3.layouts import (
+    PLACEMENT_JITTER_MAX,
+    Layout,
+    in_room,
+    jitter_starts,
+    jitter_targets,
+    make_layout,
+    sample_starts,
+    sample_targets,
+)
 from envs.turtlebot3.render import Rasteriser
 from envs.turtlebot3.robot import (
     ACTION_ANGULAR,
@@ -83,6 +92,10 @@ class MultiRobotNavEnv(ParallelEnv):
     :param render_mode: None, ``"rgb_array"`` (top-down picture) or ``"human"`` (PyBullet GUI; needs a display)
     :param lidar_noise_std: standard deviation of Gaussian noise added to every range [m] (0 = exact)
     :param render_lidar: draw the lidar beams in ``rgb_array`` pictures
+    :param placement_jitter: in a room with fixed poses (``"unseen"``), the largest seeded offset [m] of every
+        start and target at each reset (start headings turn by up to 30 degrees too), kept clear of walls,
+        obstacles and the other robots, with each target at least 2 m from its robot's start; 0 (the default)
+        keeps the fixed poses. Up to 0.5 m
     """
 
     metadata: dict[str, Any] = {
@@ -100,6 +113,7 @@ class MultiRobotNavEnv(ParallelEnv):
         render_mode: str | None = None,
         lidar_noise_std: float = 0.0,
         render_lidar: bool = False,
+        placement_jitter: float = 0.0,
     ) -> None:
         self.layout: Layout = make_layout(scenario, n_robots)
         self.scenario = scenario
@@ -122,6 +136,7 @@ class MultiRobotNavEnv(ParallelEnv):
             raise ValueError(
                 f"lidar_noise_std must be a finite number >= 0 (metres), got {lidar_noise_std!r}."
             )
+        self.placement_jitter = self._check_placement_jitter(placement_jitter)
         self.max_episode_steps = int(max_episode_steps)
         self.render_mode = render_mode
         self.lidar_noise_std = float(lidar_noise_std)
@@ -155,6 +170,22 @@ class MultiRobotNavEnv(ParallelEnv):
         self._distance_travelled = 0.0
         self._collision = False
         self._last_render_time = 0.0
+
+    def _check_placement_jitter(self, placement_jitter: float) -> float:
+        if (
+            isinstance(placement_jitter, bool)
+            or not isinstance(placement_jitter, (int, float, np.integer, np.floating))
+            or not 0.0 <= placement_jitter <= PLACEMENT_JITTER_MAX
+        ):
+            raise ValueError(
+                f"placement_jitter must be a number of metres in [0, {PLACEMENT_JITTER_MAX}], got {placement_jitter!r}."
+            )
+        if placement_jitter > 0 and self.layout.starts is None:
+            raise ValueError(
+                f"placement_jitter moves fixed poses, and scenario {self.scenario!r} draws its poses at random: "
+                "use scenario='unseen' or placement_jitter=0."
+            )
+        return float(placement_jitter)
 
     # --- spaces ------------------------------------------------------------------------------------------
 
@@ -235,7 +266,10 @@ class MultiRobotNavEnv(ParallelEnv):
                 )
             return poses
         if self.layout.starts is not None:
-            return self.layout.starts[:n].copy()
+            starts = self.layout.starts[:n].copy()
+            if self.placement_jitter > 0:
+                return jitter_starts(self.np_random, self.layout, starts, self.placement_jitter)
+            return starts
         return sample_starts(self.np_random, self.layout, n)
 
     def _pick_targets(self, options: dict[str, Any], starts_xy: np.ndarray) -> np.ndarray:
@@ -247,7 +281,10 @@ class MultiRobotNavEnv(ParallelEnv):
             index = options.get("target_set", self._episode_index % n_sets)
             if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < n_sets:
                 raise ValueError(f"options['target_set'] must be an int in [0, {n_sets - 1}], got {index!r}.")
-            return self.layout.target_sets[index, :n].copy()
+            targets = self.layout.target_sets[index, :n].copy()
+            if self.placement_jitter > 0:
+                return jitter_targets(self.np_random, self.layout, targets, starts_xy, self.placement_jitter)
+            return targets
         return sample_targets(self.np_random, self.layout, starts_xy)
 
     @staticmethod
@@ -390,7 +427,9 @@ class MultiRobotNavEnv(ParallelEnv):
 
     def _bearing(self, indices: np.ndarray, offset: np.ndarray) -> np.ndarray:
         """The target's bearing relative to each robot's heading, wrapped to [-pi, pi)."""
-        return wrap_angle(np.arctan2(offset[:, 1], offset[:, 0]) - self.world.theta[self.world.rows_of(indices)])
+        return wrap_angle(
+            np.arctan2(offset[:, 1], offset[:, 0]) - self.world.theta[self.world.rows_of(indices)]
+        )
 
     def _team_info(self) -> dict[str, Any]:
         n_arrived = int(self._arrived.sum())

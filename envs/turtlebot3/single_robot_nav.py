@@ -37,6 +37,8 @@ class SingleRobotNavEnv(gymnasium.Env):
     :param render_mode: None, ``"rgb_array"`` or ``"human"`` (PyBullet GUI; needs a display)
     :param lidar_noise_std: standard deviation of Gaussian range noise [m]
     :param render_lidar: draw the lidar beams in ``rgb_array`` pictures
+    :param placement_jitter: in ``"unseen"``, the largest seeded offset [m] of robot 0's fixed start and targets
+        (as in :class:`~envs.turtlebot3.MultiRobotNavEnv`); 0 keeps them fixed
     """
 
     metadata: dict[str, Any] = {
@@ -52,6 +54,7 @@ class SingleRobotNavEnv(gymnasium.Env):
         render_mode: str | None = None,
         lidar_noise_std: float = 0.0,
         render_lidar: bool = False,
+        placement_jitter: float = 0.0,
     ) -> None:
         self.multi_env = MultiRobotNavEnv(
             n_robots=1,
@@ -60,6 +63,7 @@ class SingleRobotNavEnv(gymnasium.Env):
             render_mode=render_mode,
             lidar_noise_std=lidar_noise_std,
             render_lidar=render_lidar,
+            placement_jitter=placement_jitter,
         )
         self.observation_space = self.multi_env.observation_space(AGENT)
         self.action_space = self.multi_env.action_space(AGENT)
