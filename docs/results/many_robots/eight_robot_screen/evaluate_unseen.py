@@ -1,0 +1,44 @@
+"""The 8-robot screen's final models on the unseen room, fixed and varied (``rules.md``, amendment): greedy, 100
+episodes each, evaluation seed 20000, one JSON line per model and room (a rerun skips lines already there).
+
+    python docs/results/many_robots/eight_robot_screen/evaluate_unseen.py MODEL.zip ... \\
+        --out docs/results/many_robots/eight_robot_screen/unseen_room.jsonl
+
+A model file is named ``<arm>_seed<k>[_rung<i>].zip`` (``benchmarks/team_size_ladder.py --save-models``).
+"""
+
+import argparse
+import json
+import pathlib
+import re
+
+import torch as th
+
+import envs  # noqa: F401
+from sb3_eps import GDQ
+from sb3_eps.common.evaluation import evaluate_team
+
+ROOMS = ("MultiRobotNavUnseen-4-v0", "MultiRobotNavUnseen-4-varied-v0")
+EVAL_SEED = 20_000
+
+parser = argparse.ArgumentParser()
+parser.add_argument("models", nargs="+", type=pathlib.Path)
+parser.add_argument("--out", required=True, type=pathlib.Path)
+args = parser.parse_args()
+th.set_num_threads(1)
+done = set()
+if args.out.exists():
+    done = {(r["arm"], r["seed"], r["room"]) for r in map(json.loads, args.out.read_text().splitlines())}
+for path in args.models:
+    arm, seed = re.fullmatch(r"(.+)_seed(\d+)(_rung\d+)?", path.stem).group(1, 2)
+    model = None
+    for room in ROOMS:
+        if (arm, int(seed), room) in done:
+            continue
+        model = model or GDQ.load(path, device="cpu")
+        summary = evaluate_team(model, room, 100, n_envs=4, seed=EVAL_SEED)
+        summary.pop("episodes")
+        record = {"arm": arm, "seed": int(seed), "room": room, **summary}
+        with args.out.open("a") as file:
+            file.write(json.dumps(record) + "\n")
+        print(arm, seed, room, record["success_rate"], record["collision_rate"], flush=True)
