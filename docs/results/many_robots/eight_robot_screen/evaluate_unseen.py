@@ -11,6 +11,7 @@ import argparse
 import json
 import pathlib
 import re
+import zipfile
 
 import torch as th
 
@@ -26,6 +27,18 @@ parser.add_argument("models", nargs="+", type=pathlib.Path)
 parser.add_argument("--out", required=True, type=pathlib.Path)
 args = parser.parse_args()
 th.set_num_threads(1)
+
+
+def load(path: pathlib.Path) -> GDQ:
+    """The saved model; one saved before the package dropped the ``angle_features`` policy option (scratch, seed
+    220) holds its off value (None), left out so it loads with the weights it was saved with."""
+    with zipfile.ZipFile(path) as archive:
+        policy_kwargs = json.loads(archive.read("data"))["policy_kwargs"]
+    if policy_kwargs.pop("angle_features", "absent") is not None:
+        return GDQ.load(path, device="cpu")
+    return GDQ.load(path, device="cpu", custom_objects={"policy_kwargs": policy_kwargs})
+
+
 done = set()
 if args.out.exists():
     done = {(r["arm"], r["seed"], r["room"]) for r in map(json.loads, args.out.read_text().splitlines())}
@@ -35,7 +48,7 @@ for path in args.models:
     for room in ROOMS:
         if (arm, int(seed), room) in done:
             continue
-        model = model or GDQ.load(path, device="cpu")
+        model = model or load(path)
         summary = evaluate_team(model, room, 100, n_envs=4, seed=EVAL_SEED)
         summary.pop("episodes")
         record = {"arm": arm, "seed": int(seed), "room": room, **summary}
