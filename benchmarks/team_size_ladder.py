@@ -69,7 +69,7 @@ class LadderEval(BaseCallback):
         )
 
         self.eps: EvolutionCallback | None = None
-        self.rungs: list[int] | None = None  # the rungs' ticks of a whole-learner ladder
+        self.rungs: list[Rung] | None = None  # a whole-learner ladder's rungs
         self.total = 0  # the run's ticks: training stops there (an EPS run's rounds are paid from them)
 
     def eps_ticks(self) -> int:
@@ -89,16 +89,16 @@ class LadderEval(BaseCallback):
         record: dict[str, Any] = {
             "ticks": self.total_ticks(),
             "agent_steps": self.steps_before + int(self.model.num_timesteps),
-            "rung": self.rung if self.rungs is None else _rung(self.rungs, int(self.model.ticks)),
+            "rung": self.rung
+            if self.rungs is None
+            else min(rung_at(self.rungs, self.model.ticks), len(self.rungs) - 1),
             "wall_s": round(time.time() - self.start, 1),
         }
         if self.eps is not None:
-            record.update(eps_ticks=self.eps_ticks(), rounds=self.eps.n_rounds, crossovers=self.eps.n_crossovers)
+            record.update(
+                eps_ticks=self.eps_ticks(), rounds=self.eps.n_rounds, crossovers=self.eps.n_crossovers
+            )
         write_evaluation(self.args, self.path, self.seed, self.model, record)
-
-
-def _rung(rungs: list[int], ticks: int) -> int:
-    return min(rung_at([Rung(None, t) for t in rungs], ticks), len(rungs) - 1)  # type: ignore[arg-type]
 
 
 def write_evaluation(
@@ -142,7 +142,9 @@ def main() -> None:
         default="agent",
         help="agent: a fresh learner per rung from the agent network; whole: one model climbs (learn_ladder)",
     )
-    parser.add_argument("--eps", type=json.loads, default=None, help="JSON dict of EvolutionCallback settings")
+    parser.add_argument(
+        "--eps", type=json.loads, default=None, help="JSON dict of EvolutionCallback settings"
+    )
     parser.add_argument(
         "--population", type=json.loads, default=None, help="JSON dict of PopulationTrainer settings"
     )
@@ -188,7 +190,10 @@ def main() -> None:
                 callback = LadderEval(args, path, seed, index, ticks_before, steps_before, next_eval, start)
                 callbacks: list[BaseCallback] = [callback]
                 if args.eps is not None:
-                    settings = {"seed": seed, "diagnostics_path": str(out / f"{name}_seed{seed}_rounds.jsonl")}
+                    settings = {
+                        "seed": seed,
+                        "diagnostics_path": str(out / f"{name}_seed{seed}_rounds.jsonl"),
+                    }
                     callback.eps = EvolutionCallback(**{**settings, **args.eps})
                     callback.total = ticks
                     callbacks.insert(0, callback.eps)
@@ -209,11 +214,13 @@ def train_whole(
     args: argparse.Namespace, rungs: list[tuple[str, int]], seed: int, path: pathlib.Path, save: pathlib.Path
 ) -> None:
     """One model over every rung (``learn_ladder``); rung ``i``'s worlds seeded ``seed + 1000 i``."""
-    venvs = [make_vec_env(env_id, n_envs=args.n_envs, seed=seed + 1000 * i) for i, (env_id, _) in enumerate(rungs)]
+    venvs = [
+        make_vec_env(env_id, n_envs=args.n_envs, seed=seed + 1000 * i) for i, (env_id, _) in enumerate(rungs)
+    ]
     model = ALGORITHMS[args.algo]("MlpPolicy", venvs[0], seed=seed, **args.hyperparams)
     callback = LadderEval(args, path, seed, 0, 0, 0, args.eval_every, time.time())
-    callback.rungs = [ticks for _, ticks in rungs]
-    learn_ladder(model, [(venv, ticks) for venv, (_, ticks) in zip(venvs, rungs)], callback=callback, log_interval=10_000)
+    callback.rungs = [Rung(venv, ticks) for venv, (_, ticks) in zip(venvs, rungs)]
+    learn_ladder(model, callback.rungs, callback=callback, log_interval=10_000)
     if callback.next_eval - args.eval_every < model.ticks:
         callback.evaluate()
     if args.save_models:

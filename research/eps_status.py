@@ -246,10 +246,16 @@ def screen8_curves(arm: str, folders: Sequence[str], root: Path = ROOT) -> dict[
     return curves
 
 
+def screen8_at(curve: list[dict], mark: int) -> dict | None:
+    """:return: the evaluation that stands for ``mark`` ticks: the first at or after it, within 25k (a round or a
+    rollout carries an evaluation a few ticks past its point); None if there is none."""
+    return next((record for record in curve if mark <= record["ticks"] < mark + 25_000), None)
+
+
 def screen8_score(curve: list[dict]) -> float | None:
-    """:return: the mean success of the first evaluations at or after 250k, 275k and 300k ticks (within 25k of
-    each); None for an unfinished run."""
-    found = [next((r for r in curve if mark <= r["ticks"] < mark + 25_000), None) for mark in SCREEN8_MARKS]
+    """:return: the mean success of the evaluations at 250k, 275k and 300k ticks (:func:`screen8_at`); None for an
+    unfinished run."""
+    found = [screen8_at(curve, mark) for mark in SCREEN8_MARKS]
     return None if None in found else sum(r["success_rate"] for r in found) / len(found)  # type: ignore[index]
 
 
@@ -261,7 +267,9 @@ def screen8_rows(root: Path = ROOT) -> list[Row]:
     rows = []
     for arm, name in SCREEN8_ARMS.items():
         curves = screen8_curves(arm, (SCREEN8,), root)
-        seeds = sorted(s for s in curves if screen8_score(curves[s]) is not None and scratch.get(s) is not None)
+        seeds = sorted(
+            s for s in curves if screen8_score(curves[s]) is not None and scratch.get(s) is not None
+        )
         if not seeds:
             continue
         rounds = crossovers = 0

@@ -1,5 +1,7 @@
 """The 8-robot screen's table (rule: ``rules.md`` beside this file): per arm and seed, greedy team success at every
-evaluation, the score (mean of the last three), the first ticks at 80 % and the final collisions and time-outs.
+evaluation, the score (mean of the last three), the first ticks at 80 % and the final collisions and time-outs. The
+evaluation that stands for each mark and the score are ``research/eps_status.py``'s (``screen8_at``,
+``screen8_score``), so this table and the EPS page's agree.
 
     python docs/results/many_robots/eight_robot_screen/summarize.py docs/results/many_robots/eight_robot_screen \
         docs/results/many_robots/team_size_ladder/scratch_seed220.jsonl
@@ -11,8 +13,10 @@ import argparse
 import json
 import pathlib
 import re
+import sys
 
-ARMS = ("scratch", "ladder_whole", "eps_early", "eps_team4", "pop_copy", "pop_distill")
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[4]))
+from research.eps_status import screen8_at, screen8_score
 
 
 def read(path: pathlib.Path) -> list[dict]:
@@ -41,15 +45,11 @@ def main() -> None:
         match = re.match(r"(.+)_seed(\d+)\.jsonl", path.name)
         arm, seed = match.group(1), int(match.group(2))
         curve = read(path)
-        by_mark = {}
-        for mark in marks:  # the first evaluation at or after each mark
-            later = [r for r in curve if r["ticks"] >= mark]
-            if later and later[0]["ticks"] < mark + 25_000:
-                by_mark[mark] = later[0]
-        cells = [f"{100 * by_mark[m]['success_rate']:.0f}" if m in by_mark else "" for m in marks]
-        last = [by_mark[m]["success_rate"] for m in marks[-3:] if m in by_mark]
-        score = 100 * sum(last) / 3 if len(last) == 3 else None
+        at = [screen8_at(curve, mark) for mark in marks]
+        cells = ["" if record is None else f"{100 * record['success_rate']:.0f}" for record in at]
+        score = screen8_score(curve)
         if score is not None:
+            score *= 100
             scores.setdefault(arm, []).append(score)
         reach = next((r["ticks"] for r in curve if r["success_rate"] >= 0.8), None)
         final = curve[-1]
