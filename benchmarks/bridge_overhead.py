@@ -128,9 +128,7 @@ def main() -> None:
     raw = best_of(repeats, lambda: cpu_per_tick_raw(NoOpEnv(), 10 * ticks))
     show("raw ParallelEnv loop", raw, 4)
     for n_worlds in (1, 4):
-        vec = best_of(
-            repeats, lambda n=n_worlds: cpu_per_tick_vec(MultiAgentVecEnv([NoOpEnv] * n), n, 10 * ticks)
-        )
+        vec = best_of(repeats, lambda n=n_worlds: cpu_per_tick_vec(MultiAgentVecEnv([NoOpEnv] * n), n, 10 * ticks))
         show(f"bridge, {n_worlds} world(s)  (overhead {(vec - raw) * 1e6:.1f} us/tick)", vec, 4)
 
     print("Cooperative Navigation (3 agents):")
@@ -138,25 +136,17 @@ def main() -> None:
 
     mpe = best_of(repeats, lambda: cpu_per_tick_raw(simple_spread_v3.parallel_env(N=3, max_cycles=25), ticks))
     show("mpe2 simple_spread_v3 raw loop", mpe, 3)
-    ours = best_of(
-        repeats, lambda: cpu_per_tick_raw(envs.make_parallel_env("CooperativeNavigation-v0"), ticks)
-    )
+    ours = best_of(repeats, lambda: cpu_per_tick_raw(envs.make_parallel_env("CooperativeNavigation-v0"), ticks))
     show("CooperativeNavigation-v0 raw loop", ours, 3, mpe)
     stock = best_of(repeats, lambda: cpu_per_tick_vec(stock_supersuit_mpe(2), 2, ticks))
     show("mpe2 via stock SuperSuit, 2 worlds", stock, 3, mpe)
-    bridge = best_of(
-        repeats, lambda: cpu_per_tick_vec(make_vec_env("CooperativeNavigation-v0", 2, seed=0), 2, ticks)
-    )
+    bridge = best_of(repeats, lambda: cpu_per_tick_vec(make_vec_env("CooperativeNavigation-v0", 2, seed=0), 2, ticks))
     show("CooperativeNavigation-v0 via bridge, 2 worlds", bridge, 3, mpe)
 
     print("MultiRobotNav-4-v0 (4 robots):")
-    robots_raw = best_of(
-        repeats, lambda: cpu_per_tick_raw(envs.make_parallel_env("MultiRobotNav-4-v0"), ticks)
-    )
+    robots_raw = best_of(repeats, lambda: cpu_per_tick_raw(envs.make_parallel_env("MultiRobotNav-4-v0"), ticks))
     show("raw loop", robots_raw, 4)
-    robots = best_of(
-        repeats, lambda: cpu_per_tick_vec(make_vec_env("MultiRobotNav-4-v0", 1, seed=0), 1, ticks)
-    )
+    robots = best_of(repeats, lambda: cpu_per_tick_vec(make_vec_env("MultiRobotNav-4-v0", 1, seed=0), 1, ticks))
     show(f"bridge, 1 world  (overhead {(robots - robots_raw) * 1e6:.1f} us/tick)", robots, 4, robots_raw)
 
 

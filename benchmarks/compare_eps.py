@@ -119,9 +119,7 @@ def mean_curve(runs: dict[int, EvaluationRun], seeds: list[int], at: list[int]) 
     return [float(value) for value in np.mean(curves, axis=0)]
 
 
-def report(
-    base_dir: pathlib.Path, eps_dir: pathlib.Path, budget: int, target_ticks: int, every: int = 10_000
-) -> str:
+def report(base_dir: pathlib.Path, eps_dir: pathlib.Path, budget: int, target_ticks: int, every: int = 10_000) -> str:
     base, eps = read_runs(base_dir), read_runs(eps_dir)
     unfinished = {seed for runs in (base, eps) for seed, run in runs.items() if run.ticks[-1] < budget}
     seeds = sorted((set(base) & set(eps)) - unfinished)
@@ -146,9 +144,7 @@ def report(
         f = figures[key]
         for index, seed in enumerate(seeds):
             eps_cells = (
-                f"{f['eps_ticks'][index]} | {f['rounds'][index]} ({f['crossovers'][index]})"
-                if key == "eps"
-                else "- | -"
+                f"{f['eps_ticks'][index]} | {f['rounds'][index]} ({f['crossovers'][index]})" if key == "eps" else "- | -"
             )
             lines.append(
                 f"| {names[key]} | {seed} | {ticks_text(f['to80'][index])} | {ticks_text(f['to90'][index])} | "
@@ -162,9 +158,7 @@ def report(
         f"Mean of the last 3 evaluations: {names['base']} {means['base']:.1%}, {names['eps']} {means['eps']:.1%} "
         f"({gap:+.1f} points). Area under the curve: {aucs['base']:.3f} against {aucs['eps']:.3f}."
     )
-    lines.append(
-        f"Floor (EPS at most 3 points below at equal total ticks): {'met' if gap >= -3 else 'NOT met'}."
-    )
+    lines.append(f"Floor (EPS at most 3 points below at equal total ticks): {'met' if gap >= -3 else 'NOT met'}.")
     pairs = paired_difference(figures["base"]["last3"], figures["eps"]["last3"])
     lines.append(
         f"Seed by seed (EPS minus base, mean of the last 3): {100 * pairs['mean']:+.1f} points on average, "
@@ -186,16 +180,12 @@ def report(
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("base", type=pathlib.Path, help="records of the base algorithm")
     parser.add_argument("eps", type=pathlib.Path, help="records of EPS-<algo> (ticks include EPS ticks)")
     parser.add_argument("--budget", type=int, required=True, help="total ticks compared")
     parser.add_argument("--target-ticks", type=int, default=100_000)
-    parser.add_argument(
-        "--eval-every", type=int, default=10_000, help="the evaluation spacing of the runs, in ticks"
-    )
+    parser.add_argument("--eval-every", type=int, default=10_000, help="the evaluation spacing of the runs, in ticks")
     parser.add_argument("--plot", type=pathlib.Path, default=None, help="draw both (mean +/- std over seeds)")
     args = parser.parse_args()
     print(report(args.base, args.eps, args.budget, args.target_ticks, args.eval_every))

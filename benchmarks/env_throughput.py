@@ -70,9 +70,7 @@ class KeepAllAgents(ParallelEnv):
 
     def step(self, actions: dict) -> tuple[dict, dict, dict, dict, dict]:
         live = set(self.env.agents)
-        obs, rewards, terms, truncs, infos = self.env.step(
-            {a: act for a, act in actions.items() if a in live}
-        )
+        obs, rewards, terms, truncs, infos = self.env.step({a: act for a, act in actions.items() if a in live})
         self._last_obs.update(obs)
         self._finished.update(a for a in obs if terms[a] or truncs[a])
         agents = self.possible_agents
@@ -175,9 +173,7 @@ def pick_bridge(requested: str) -> str:
             venv.close()
         return "sb3_eps"
     except Exception as error:  # the bridge is optional here: fall back and say why
-        print(
-            f"sb3_eps.make_vec_env unusable ({type(error).__name__}: {error}); measuring through SuperSuit."
-        )
+        print(f"sb3_eps.make_vec_env unusable ({type(error).__name__}: {error}); measuring through SuperSuit.")
         return "supersuit"
 
 
@@ -199,9 +195,7 @@ def main() -> None:
     def vec_of(env_id: str, env_fn: Callable[[], ParallelEnv]) -> Any:
         return bridge_vec(env_id) if bridge == "sb3_eps" else supersuit_vec(env_fn)
 
-    print(
-        f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, python {platform.python_version()}"
-    )
+    print(f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, python {platform.python_version()}")
     print(f"clock: {args.clock} ({'process CPU time' if args.clock == 'cpu' else 'wall time'})")
     print(f"vec path: {'sb3_eps.make_vec_env' if bridge == 'sb3_eps' else 'SuperSuit + KeepAllAgents'}")
     env = mpe_env()
@@ -211,9 +205,7 @@ def main() -> None:
     mpe_vec = time_vec(mpe_venv, 3, args.seconds, clock)
     mpe_venv.close()
 
-    header = (
-        f"{'env':<28}{'agents':>7}{'raw steps/s':>13}{'vec steps/s':>13}{'raw / mpe2':>11}{'vec / mpe2':>11}"
-    )
+    header = f"{'env':<28}{'agents':>7}{'raw steps/s':>13}{'vec steps/s':>13}{'raw / mpe2':>11}{'vec / mpe2':>11}"
     print(header)
     print("-" * len(header))
     print(f"{'mpe2 simple_spread_v3':<28}{3:>7}{mpe_raw:>13,.0f}{mpe_vec:>13,.0f}{1.0:>11.2f}{1.0:>11.2f}")

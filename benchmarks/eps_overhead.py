@@ -101,9 +101,7 @@ def overhead(args: argparse.Namespace) -> tuple[GDQ, EvolutionCallback]:
     done, slice_index = 0, 0
     while done < args.ticks:
         ticks = min(args.slice, args.ticks - done)
-        order = (
-            runs[slice_index % len(runs) :] + runs[: slice_index % len(runs)]
-        )  # rotate: no run always first
+        order = runs[slice_index % len(runs) :] + runs[: slice_index % len(runs)]  # rotate: no run always first
         for name, model, callback in order:
             set_global_rng_state(rng_states[name])
             start, cpu_start = time.perf_counter(), cpu_time()
@@ -117,9 +115,7 @@ def overhead(args: argparse.Namespace) -> tuple[GDQ, EvolutionCallback]:
         f"== 1. overhead on {args.env}: {args.ticks} training ticks, {args.n_envs} world(s), seed {args.seed}, "
         f"slices of {args.slice} ticks"
     )
-    print(
-        f"{'':10s}{'wall s':>9s}{'CPU s':>9s}{'wall/GDQ':>10s}{'CPU/GDQ':>9s}{'episodes':>10s}{'EPS rounds':>12s}"
-    )
+    print(f"{'':10s}{'wall s':>9s}{'CPU s':>9s}{'wall/GDQ':>10s}{'CPU/GDQ':>9s}{'episodes':>10s}{'EPS rounds':>12s}")
     for name, model, callback in runs:
         n_rounds = (
             ""
@@ -198,9 +194,7 @@ def mutation_size(model: GDQ, callback: EvolutionCallback, args: argparse.Namesp
     with th.no_grad():
         q_values = q_net(test)
     print(f"== 3. one mutation's effect on {len(test)} visited observations (20 mutants per sigma)")
-    print(
-        f"{'sigma':>8s}{'safe: actions changed':>24s}{'mean |dQ|':>11s}{'gaussian: changed':>20s}{'mean |dQ|':>11s}"
-    )
+    print(f"{'sigma':>8s}{'safe: actions changed':>24s}{'mean |dQ|':>11s}{'gaussian: changed':>20s}{'mean |dQ|':>11s}")
     for sigma in (0.0003, 0.001, 0.003, 0.01, 0.03, 0.1):
         row = f"{sigma:8.4f}"
         for sensitivities in ([omega], None):
@@ -215,18 +209,14 @@ def mutation_size(model: GDQ, callback: EvolutionCallback, args: argparse.Namesp
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--env", default="MultiRobotNav-4-v0")
     parser.add_argument("--ticks", type=int, default=20_000, help="training ticks per algorithm")
     parser.add_argument("--warmup", type=int, default=1_000, help="untimed ticks of a throw-away GDQ first")
     parser.add_argument("--slice", type=int, default=10_000, help="ticks per alternating slice")
     parser.add_argument("--n-envs", type=int, default=1, help="worlds per vector env")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument(
-        "--repeats", type=int, default=2, help="alternations of the round-time configurations"
-    )
+    parser.add_argument("--repeats", type=int, default=2, help="alternations of the round-time configurations")
     parser.add_argument("--rounds-per-config", type=int, default=2)
     args = parser.parse_args()
     th.set_num_threads(1)

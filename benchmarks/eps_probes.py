@@ -82,9 +82,7 @@ def probe_mutation(model: GDQ, args: argparse.Namespace) -> None:
     for label, frozen in groups.items():
         names = evolved_parameter_names(q_net, frozen)
         n_weights = sum(theta[name].numel() for name in names)
-        directions = mutation_directions(
-            theta, args.mutants, th.Generator().manual_seed(1), [omega], 0.01, names
-        )
+        directions = mutation_directions(theta, args.mutants, th.Generator().manual_seed(1), [omega], 0.01, names)
         population = population_from_directions(theta, directions, 0.001, 0.2)
         flips, dq = policy_change(population_outputs(q_net, population, observations))
         print(
@@ -109,9 +107,7 @@ def probe_mutation(model: GDQ, args: argparse.Namespace) -> None:
             f"trunk + advantage | {scale:.2e} | {100 * flips[1:].mean():.1f} % | {dq[1:].mean():.4f} |"
         )
     value_only = {  # the value stream alone, paper step: what fitness cannot see
-        name: stacked
-        if name.startswith("value_stream")
-        else theta[name].unsqueeze(0).expand_as(stacked).clone()
+        name: stacked if name.startswith("value_stream") else theta[name].unsqueeze(0).expand_as(stacked).clone()
         for name, stacked in population_from_directions(
             theta,
             mutation_directions(theta, args.mutants, th.Generator().manual_seed(2), [omega], 0.01),
@@ -208,9 +204,7 @@ def probe_margins(model: GDQ, args: argparse.Namespace) -> None:
         pool.close()
         fresh_pool.close()
         summary.append((n_episodes, gains))
-    print(
-        "\n| episodes | rounds | a mutant won | mean selection gain | mean fresh gain | fresh gain > 0 | ticks/round |"
-    )
+    print("\n| episodes | rounds | a mutant won | mean selection gain | mean fresh gain | fresh gain > 0 | ticks/round |")
     print("|---|---|---|---|---|---|---|")
     for n_episodes, gains in summary:
         won = [g for g in gains if g[0] != 0]
@@ -279,9 +273,7 @@ def probe_acceptance(model: GDQ, args: argparse.Namespace) -> None:
     kwargs = {"scenario": "eps_pillars", "max_episode_steps": 400}
     n_episodes = args.episode_counts[0]
     pool = InProcessEnvPool(EPS_ENV, kwargs, args.mutants + 1, n_episodes, q_net)
-    pair_pools = {
-        count: InProcessEnvPool(EPS_ENV, kwargs, 2, count, q_net) for count in (args.fresh, args.truth)
-    }
+    pair_pools = {count: InProcessEnvPool(EPS_ENV, kwargs, 2, count, q_net) for count in (args.fresh, args.truth)}
 
     def pair_gain(population: dict[str, th.Tensor], winner: int, count: int) -> float:
         pair = {name: th.stack([stacked[0], stacked[winner]]) for name, stacked in population.items()}
@@ -306,9 +298,7 @@ def probe_acceptance(model: GDQ, args: argparse.Namespace) -> None:
         accepted = gain > 0.05 and fresh > 0.05
         truth = pair_gain(population, winner, args.truth)
         rows.append((accepted, gain > 0.05, truth))
-        print(
-            f"| {round_index} | {winner} | {gain:.3f} | {fresh:.3f} | {'yes' if accepted else 'no'} | {truth:.3f} |"
-        )
+        print(f"| {round_index} | {winner} | {gain:.3f} | {fresh:.3f} | {'yes' if accepted else 'no'} | {truth:.3f} |")
     for pool_ in (pool, *pair_pools.values()):
         pool_.close()
     # Beyond 0.02 a gain is at least one episode ending better on balance, not the return's tie-break alone.
@@ -328,13 +318,9 @@ def probe_acceptance(model: GDQ, args: argparse.Namespace) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("model", help="a GDQ model of MultiRobotNav-4-v0 (.zip)")
-    parser.add_argument(
-        "--probe", choices=("mutation", "worlds", "quality", "acceptance", "margins"), required=True
-    )
+    parser.add_argument("--probe", choices=("mutation", "worlds", "quality", "acceptance", "margins"), required=True)
     parser.add_argument("--targets", type=float, nargs="+", default=[0.05, 0.1, 0.3], help="(quality)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--ticks", type=int, default=500, help="ticks of greedy play for the observations")
@@ -342,12 +328,8 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=50, help="episodes per world (worlds)")
     parser.add_argument("--episode-counts", type=int, nargs="+", default=[2, 4, 8], help="(margins)")
     parser.add_argument("--rounds", type=int, default=5, help="rounds per episode count (margins)")
-    parser.add_argument(
-        "--fresh", type=int, default=16, help="fresh episodes of copy 0 and the winner (margins, acceptance)"
-    )
-    parser.add_argument(
-        "--truth", type=int, default=24, help="episodes estimating a winner's true gain (acceptance)"
-    )
+    parser.add_argument("--fresh", type=int, default=16, help="fresh episodes of copy 0 and the winner (margins, acceptance)")
+    parser.add_argument("--truth", type=int, default=24, help="episodes estimating a winner's true gain (acceptance)")
     args = parser.parse_args()
     th.set_num_threads(1)
     th.manual_seed(args.seed)

@@ -39,9 +39,7 @@ def main() -> None:
     model = GDQ("MlpPolicy", venv, seed=0, global_values="stored", learning_starts=1_000)
     model.learn(args.train_ticks * venv.n_agents)
     network = model.policy.q_net
-    population = mutate_population(
-        network_parameters(network), args.mutants, 1e-3, th.Generator().manual_seed(0), None
-    )
+    population = mutate_population(network_parameters(network), args.mutants, 1e-3, th.Generator().manual_seed(0), None)
     n_individuals = args.mutants + 1
     pools = {}
     for record in (None, "ticks"):

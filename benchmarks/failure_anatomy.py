@@ -86,9 +86,7 @@ def classify_timeout(
     }
 
 
-def classify_collision(
-    xy: np.ndarray, robot: int, live: np.ndarray, half_extent: np.ndarray | None = None
-) -> str:
+def classify_collision(xy: np.ndarray, robot: int, live: np.ndarray, half_extent: np.ndarray | None = None) -> str:
     """:param xy: ``(n, 2)`` every robot's position at the collision
     :param robot: the robot that collided
     :param live: ``(n,)`` which robots were still driving
@@ -220,17 +218,13 @@ def summarize(records: list[dict[str, Any]]) -> str:
         lines.append("  collisions with: " + ", ".join(f"{k} {v}" for k, v in collisions.most_common()))
     stragglers = [s for record in records for s in record.get("stragglers", [])]
     if stragglers:
-        per_episode = collections.Counter(
-            len(record["stragglers"]) for record in records if "stragglers" in record
-        )
+        per_episode = collections.Counter(len(record["stragglers"]) for record in records if "stragglers" in record)
         lines.append(
             "  robots short of their target per time-out: "
             + ", ".join(f"{k}: {v} episodes" for k, v in sorted(per_episode.items()))
         )
         kinds = collections.Counter(s["kind"] for s in stragglers)
-        lines.append(
-            "  what they did in the last window: " + ", ".join(f"{k} {v}" for k, v in kinds.most_common())
-        )
+        lines.append("  what they did in the last window: " + ", ".join(f"{k} {v}" for k, v in kinds.most_common()))
         for kind in kinds:
             group = [s for s in stragglers if s["kind"] == kind]
             lines.append(
@@ -247,9 +241,7 @@ def summarize(records: list[dict[str, Any]]) -> str:
                 + ", ".join(f"{action_name(a)} x{c}" for a, c in sum_actions(group).most_common(3))
             )
         crowded = sum(s["target_crowded"] for s in stragglers)
-        blocked = sum(
-            s["nearest_parked"] is not None and s["nearest_parked"] < CONTACT_M + 0.1 for s in stragglers
-        )
+        blocked = sum(s["nearest_parked"] is not None and s["nearest_parked"] < CONTACT_M + 0.1 for s in stragglers)
         lines.append(f"  ending within 0.1 m of touching a parked robot: {blocked} of {len(stragglers)}")
         lines.append(
             f"  target crowded by a parked robot (< {CROWDED_M} m): {crowded} of {len(stragglers)}; "
@@ -288,9 +280,7 @@ def animate(model: Any, args: argparse.Namespace, records: list[dict[str, Any]])
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algo", choices=sorted(ALGORITHMS), default="gdq")
     parser.add_argument("--model", help="a model saved by learning_check.py --save-models")
     parser.add_argument("--env", default="MultiRobotNav-4-v0")
@@ -310,9 +300,7 @@ def main() -> None:
         metavar="GIF",
         help="replay the first episode that failed in the most common way and write it as an animation here",
     )
-    parser.add_argument(
-        "--from-records", default=None, help="print the table of a file written by --out; run nothing"
-    )
+    parser.add_argument("--from-records", default=None, help="print the table of a file written by --out; run nothing")
     args = parser.parse_args()
     if args.from_records:
         lines = pathlib.Path(args.from_records).read_text().splitlines()

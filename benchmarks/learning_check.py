@@ -108,9 +108,7 @@ def main() -> None:
     parser.add_argument("--eval-episodes", type=int, default=100)
     parser.add_argument("--out", default="docs/results/learning_check")
     parser.add_argument("--log-interval", type=int, default=20, help="episodes between two log rows")
-    parser.add_argument(
-        "--log-dir", default=None, help="write the train/ and rollout/ logs (progress.csv) here"
-    )
+    parser.add_argument("--log-dir", default=None, help="write the train/ and rollout/ logs (progress.csv) here")
     parser.add_argument(
         "--hyperparams",
         type=json.loads,
@@ -121,7 +119,7 @@ def main() -> None:
         "--env-kwargs",
         type=json.loads,
         default=None,
-        help='JSON dict of world arguments for the training and evaluation worlds, e.g. \'{"lidar_noise_std": 0.01}\'',
+        help="JSON dict of world arguments for the training and evaluation worlds, e.g. '{\"lidar_noise_std\": 0.01}'",
     )
     parser.add_argument(
         "--eps",
@@ -149,9 +147,7 @@ def main() -> None:
     for seed in args.seeds:
         prefix = "eps_" if args.eps is not None else ""
         path = out / f"{prefix}{args.algo}_{args.env}_seed{seed}.jsonl"
-        if path.exists() and any(
-            json.loads(line)["ticks"] >= args.ticks for line in path.read_text().splitlines()
-        ):
+        if path.exists() and any(json.loads(line)["ticks"] >= args.ticks for line in path.read_text().splitlines()):
             print(f"seed {seed}: done already ({path})")
             continue
         path.unlink(missing_ok=True)  # an unfinished seed restarts from scratch
@@ -176,14 +172,10 @@ def main() -> None:
                 )
             eps_kwargs.setdefault("verbose", 1)
             eps = EvolutionCallback(**eps_kwargs)
-        callback = PeriodicTeamEval(
-            args.env, args.eval_every, args.eval_episodes, path, seed, eps, env_kwargs=args.env_kwargs
-        )
+        callback = PeriodicTeamEval(args.env, args.eval_every, args.eval_episodes, path, seed, eps, env_kwargs=args.env_kwargs)
         callbacks: BaseCallback = callback
         if eps is not None:  # training stops when its ticks plus the EPS ticks reach the budget
-            budget = TickBudgetCallback(
-                args.ticks * venv.n_agents, [eps], schedules_follow=not args.schedules_ignore_eps
-            )
+            budget = TickBudgetCallback(args.ticks * venv.n_agents, [eps], schedules_follow=not args.schedules_ignore_eps)
             callbacks = CallbackList([eps, callback, budget])
         model.learn(args.ticks * venv.n_agents, callback=callbacks, log_interval=args.log_interval)
         if callback.next_eval - callback.eval_every < args.ticks:

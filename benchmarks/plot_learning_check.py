@@ -30,9 +30,7 @@ def read_group(pattern: str) -> list[EvaluationRun]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--group", action="append", required=True, help="LABEL=GLOB of JSON-lines files")
     parser.add_argument("--out", required=True, help="the PNG to write")
     parser.add_argument("--title", default="MultiRobotNav-2-v0: greedy team success (100 episodes)")

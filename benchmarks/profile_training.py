@@ -71,22 +71,16 @@ def profile(algo: str, n_robots: int, n_envs: int, ticks: int, warmup: int) -> t
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algo", choices=sorted(ALGORITHMS), default="gdq")
     parser.add_argument("--robots", type=int, nargs="+", default=[4, 8, 12])
     parser.add_argument("--n-envs", type=int, default=4)
     parser.add_argument("--ticks", type=int, default=4_000)
-    parser.add_argument(
-        "--warmup", type=int, default=2_500, help="ticks before the profile (past learning_starts)"
-    )
+    parser.add_argument("--warmup", type=int, default=2_500, help="ticks before the profile (past learning_starts)")
     args = parser.parse_args()
     th.set_num_threads(1)
     results = {n: profile(args.algo, n, args.n_envs, args.ticks, args.warmup) for n in args.robots}
-    print(
-        f"{args.algo}, {args.n_envs} worlds, {args.ticks} profiled ticks after {args.warmup}; share of wall time"
-    )
+    print(f"{args.algo}, {args.n_envs} worlds, {args.ticks} profiled ticks after {args.warmup}; share of wall time")
     print("| part | " + " | ".join(f"{n} robots" for n in args.robots) + " |")
     print("|---|" + "---|" * len(args.robots))
     for part in PARTS:

@@ -67,9 +67,7 @@ TRAIN_MODES = ("dummy", "subproc", "overlap")
 def make(mode: str, n_worlds: int, seed: int = 0) -> Any:
     if mode in ("workers", "overlap"):
         # overlap: the main process learns while the workers step, so it keeps no worlds and leaves them a core
-        workers = (
-            default_n_workers(n_worlds) if mode == "workers" else max(1, default_n_workers(n_worlds) - 1)
-        )
+        workers = default_n_workers(n_worlds) if mode == "workers" else max(1, default_n_workers(n_worlds) - 1)
         kwargs = {"n_workers": workers, "main_worlds": 0}
         return make_vec_env(ENV_ID, n_envs=n_worlds, seed=seed, vec_env_cls="subproc", vec_env_kwargs=kwargs)
     return make_vec_env(ENV_ID, n_envs=n_worlds, seed=seed, vec_env_cls=mode)
@@ -140,18 +138,13 @@ def env_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
             for mode in MODES:
                 samples[mode].append(env_seconds(venvs[mode], actions))
         step = {mode: statistics.median(values) for mode, values in samples.items()}
-        paired = {
-            mode: statistics.median(d / w for d, w in zip(samples["dummy"], samples[mode]))
-            for mode in MODES[1:]
-        }
+        paired = {mode: statistics.median(d / w for d, w in zip(samples["dummy"], samples[mode])) for mode in MODES[1:]}
         default = venvs["subproc"]
         processes = default.n_workers + (1 if default.main_worlds else 0)
         t_w = step["dummy"] / n_worlds
         c = (step["subproc"] - n_worlds / processes * t_w) / max(processes - 1, 1)
         results[f"env{n_worlds}"] = {"step": step, "t_w": t_w, "c": c, "processes": processes}
-        layout = (
-            f"main {default.main_worlds} + {default.n_workers} worker(s), spin {default.spin_s * 1e3:g} ms"
-        )
+        layout = f"main {default.main_worlds} + {default.n_workers} worker(s), spin {default.spin_s * 1e3:g} ms"
         for venv in venvs.values():
             venv.close()
         robots = n_worlds * 4
@@ -199,9 +192,7 @@ def parts_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
             t2 = time.perf_counter()
             venv._gather(range(venv.n_workers), "step")
             t3 = time.perf_counter()
-            venv.step(
-                action
-            )  # a whole step, for the rest (joining the parts): its time minus the parts above
+            venv.step(action)  # a whole step, for the rest (joining the parts): its time minus the parts above
             t4 = time.perf_counter()
             times["send"].append(t1 - t0)
             times["own block"].append(t2 - t1)
@@ -257,16 +248,12 @@ def train_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
                     model.learn(size, reset_num_timesteps=False)
                     seconds[mode].append(time.perf_counter() - start)
             n_steps = args.train_slices * size / (n_agents * n_worlds)  # vector steps per mode
-            parts = {
-                mode: (sum(seconds[mode]) / n_steps, model.env.step_seconds / n_steps)
-                for mode, model in models.items()
-            }
+            parts = {mode: (sum(seconds[mode]) / n_steps, model.env.step_seconds / n_steps) for mode, model in models.items()}
             for model in models.values():
                 model.env.close()
             tick = {mode: sum(values) / (len(values) * size / n_agents) for mode, values in seconds.items()}
             paired = {
-                mode: statistics.median(d / w for d, w in zip(seconds["dummy"], seconds[mode]))
-                for mode in TRAIN_MODES[1:]
+                mode: statistics.median(d / w for d, w in zip(seconds["dummy"], seconds[mode])) for mode in TRAIN_MODES[1:]
             }
             if config == args.train_configs[0]:
                 results[f"train{n_worlds}"] = tick
@@ -289,9 +276,7 @@ def train_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
 
 
 def projection(results: dict[str, Any]) -> None:
-    print(
-        "\nprojection (model: a step of S processes = (n/S) t_w + (S-1) c; measured t_w, c; the rest of a training"
-    )
+    print("\nprojection (model: a step of S processes = (n/S) t_w + (S-1) c; measured t_w, c; the rest of a training")
     print("tick stays in the main process):")
     for n_worlds in (8, 16, 32):
         source = results.get(f"env{n_worlds}") or results.get("env8") or results.get("env4")
@@ -392,18 +377,14 @@ def latency_part(args: argparse.Namespace, results: dict[str, Any]) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parts = ["latency", "env", "parts", "train", "grid"]
     parser.add_argument("--parts", nargs="+", default=parts, choices=parts)
     parser.add_argument("--worlds", nargs="+", type=int, default=[4, 8])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--env-steps", type=int, default=200, help="vector steps per env measurement")
     parser.add_argument("--warmup", type=int, default=2_000, help="agent-steps before timing training")
-    parser.add_argument(
-        "--train-steps", type=int, default=8_000, help="timed agent-steps of training per mode"
-    )
+    parser.add_argument("--train-steps", type=int, default=8_000, help="timed agent-steps of training per mode")
     parser.add_argument("--train-slices", type=int, default=8, help="slices the modes train in, in turn")
     parser.add_argument("--train-configs", nargs="+", default=list(TRAIN_CONFIGS), choices=TRAIN_CONFIGS)
     parser.add_argument("--grid-steps", type=int, default=4_000, help="agent-steps of each grid run")
@@ -411,8 +392,7 @@ def main() -> None:
     args = parser.parse_args()
     th.set_num_threads(1)
     print(
-        f"{os.cpu_count()} cores; torch threads in the main process: {th.get_num_threads()}; "
-        f"load average before: {load()}",
+        f"{os.cpu_count()} cores; torch threads in the main process: {th.get_num_threads()}; load average before: {load()}",
         flush=True,
     )
     results: dict[str, Any] = {}

@@ -115,9 +115,7 @@ def report(spreads: list[Spread], at: int, threshold: float, report_seeds: list[
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--group", action="append", required=True, help="LABEL=GLOB; a label repeated pools")
     parser.add_argument("--at", type=int, required=True, help="the tick whose evaluation is read")
     parser.add_argument("--threshold", type=float, required=True, help="the target, in percent")

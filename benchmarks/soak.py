@@ -165,17 +165,13 @@ def markdown(samples: list[dict[str, Any]]) -> str:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("-n", "--n-timesteps", type=int, default=1_000_000, help="agent-steps")
     parser.add_argument("--eps-period", type=int, default=20_000, help="agent-steps between EPS rounds")
     parser.add_argument("--sample-freq", type=int, default=50_000, help="agent-steps between samples")
     parser.add_argument("--max-growth-mb", type=float, default=50.0)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument(
-        "-f", "--log-folder", default=None, help="run folder parent (default: a temporary one)"
-    )
+    parser.add_argument("-f", "--log-folder", default=None, help="run folder parent (default: a temporary one)")
     parser.add_argument("--out", default="logs/soak/soak.json", help="JSON record of every sample")
     parser.add_argument("--summarise", default=None, metavar="JSON", help="only summarise a recorded run")
     args = parser.parse_args()

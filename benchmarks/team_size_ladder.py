@@ -89,21 +89,15 @@ class LadderEval(BaseCallback):
         record: dict[str, Any] = {
             "ticks": self.total_ticks(),
             "agent_steps": self.steps_before + int(self.model.num_timesteps),
-            "rung": self.rung
-            if self.rungs is None
-            else min(rung_at(self.rungs, self.model.ticks), len(self.rungs) - 1),
+            "rung": self.rung if self.rungs is None else min(rung_at(self.rungs, self.model.ticks), len(self.rungs) - 1),
             "wall_s": round(time.time() - self.start, 1),
         }
         if self.eps is not None:
-            record.update(
-                eps_ticks=self.eps_ticks(), rounds=self.eps.n_rounds, crossovers=self.eps.n_crossovers
-            )
+            record.update(eps_ticks=self.eps_ticks(), rounds=self.eps.n_rounds, crossovers=self.eps.n_crossovers)
         write_evaluation(self.args, self.path, self.seed, self.model, record)
 
 
-def write_evaluation(
-    args: argparse.Namespace, path: pathlib.Path, seed: int, model: Any, record: dict[str, Any]
-) -> None:
+def write_evaluation(args: argparse.Namespace, path: pathlib.Path, seed: int, model: Any, record: dict[str, Any]) -> None:
     """Evaluate ``model`` greedily on every ``--eval-env`` and append the record as one JSON line."""
     for env_id in args.eval_env:
         summary = evaluate_team(model, env_id, args.eval_episodes, n_envs=4, seed=10_000 + seed)
@@ -119,9 +113,7 @@ def write_evaluation(
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algo", choices=sorted(ALGORITHMS), default="gdq")
     parser.add_argument("--rungs", nargs="+", required=True, help="ENV_ID:TICKS, trained in this order")
     parser.add_argument("--eval-env", nargs="+", required=True, help="the first is the target world")
@@ -142,12 +134,8 @@ def main() -> None:
         default="agent",
         help="agent: a fresh learner per rung from the agent network; whole: one model climbs (learn_ladder)",
     )
-    parser.add_argument(
-        "--eps", type=json.loads, default=None, help="JSON dict of EvolutionCallback settings"
-    )
-    parser.add_argument(
-        "--population", type=json.loads, default=None, help="JSON dict of PopulationTrainer settings"
-    )
+    parser.add_argument("--eps", type=json.loads, default=None, help="JSON dict of EvolutionCallback settings")
+    parser.add_argument("--population", type=json.loads, default=None, help="JSON dict of PopulationTrainer settings")
     parser.add_argument("--name", default=None)
     parser.add_argument("--out", required=True)
     parser.add_argument("--save-models", action="store_true")
@@ -164,9 +152,7 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     for seed in args.seeds:
         path = out / f"{name}_seed{seed}.jsonl"
-        if path.exists() and any(
-            json.loads(line)["ticks"] >= total for line in path.read_text().splitlines()
-        ):
+        if path.exists() and any(json.loads(line)["ticks"] >= total for line in path.read_text().splitlines()):
             print(f"seed {seed}: done already ({path})")
             continue
         path.unlink(missing_ok=True)
@@ -214,9 +200,7 @@ def train_whole(
     args: argparse.Namespace, rungs: list[tuple[str, int]], seed: int, path: pathlib.Path, save: pathlib.Path
 ) -> None:
     """One model over every rung (``learn_ladder``); rung ``i``'s worlds seeded ``seed + 1000 i``."""
-    venvs = [
-        make_vec_env(env_id, n_envs=args.n_envs, seed=seed + 1000 * i) for i, (env_id, _) in enumerate(rungs)
-    ]
+    venvs = [make_vec_env(env_id, n_envs=args.n_envs, seed=seed + 1000 * i) for i, (env_id, _) in enumerate(rungs)]
     model = ALGORITHMS[args.algo]("MlpPolicy", venvs[0], seed=seed, **args.hyperparams)
     callback = LadderEval(args, path, seed, 0, 0, 0, args.eval_every, time.time())
     callback.rungs = [Rung(venv, ticks) for venv, (_, ticks) in zip(venvs, rungs)]

@@ -46,9 +46,7 @@ def run(n_parallel: int, torch_default: bool, warmup: int, steps: int) -> list[d
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--warmup", type=int, default=2_000)
     parser.add_argument("--steps", type=int, default=8_000)
     parser.add_argument("--repeats", type=int, default=2)

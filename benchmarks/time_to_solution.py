@@ -65,9 +65,7 @@ class StopAtLevel(BaseCallback):
 
     def evaluate(self, ticks: int) -> float:
         began = time.perf_counter()
-        summary = evaluate_team(
-            self.model, self.args.env, self.args.eval_episodes, n_envs=4, seed=10_000 + self.seed
-        )
+        summary = evaluate_team(self.model, self.args.env, self.args.eval_episodes, n_envs=4, seed=10_000 + self.seed)
         self.eval_s += time.perf_counter() - began
         record = {
             "ticks": ticks,
@@ -90,9 +88,7 @@ def configuration(spec: str) -> tuple[str, dict[str, Any]]:
     try:
         arguments = json.loads(spec)
     except json.JSONDecodeError:
-        raise SystemExit(
-            f"configuration {spec!r}: neither a preset ({', '.join(PRESETS)}) nor a JSON dict"
-        ) from None
+        raise SystemExit(f"configuration {spec!r}: neither a preset ({', '.join(PRESETS)}) nor a JSON dict") from None
     name = "-".join(f"{key}={value}" for key, value in sorted(arguments.items())).replace("/", "_")
     return name or "package-defaults", arguments
 
@@ -129,9 +125,7 @@ def first_at(records: list[dict[str, Any]], level: float) -> tuple[float, int] |
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algo", choices=sorted(ALGORITHMS), default="gdq")
     parser.add_argument("--env", default="MultiRobotNav-4-v0")
     parser.add_argument("--a", default="defaults-2026-12-03", help="a preset name or a JSON dict")
@@ -140,9 +134,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[220, 221, 222])
     parser.add_argument("--ticks", type=int, default=300_000, help="the most world ticks a run may train")
     parser.add_argument("--eval-every", type=int, default=10_000)
-    parser.add_argument(
-        "--eval-start", type=int, default=0, help="the first evaluation's tick (default: --eval-every)"
-    )
+    parser.add_argument("--eval-start", type=int, default=0, help="the first evaluation's tick (default: --eval-every)")
     parser.add_argument("--eval-episodes", type=int, default=100)
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
@@ -159,9 +151,7 @@ def main() -> None:
     for level in args.levels:
         medians = {}
         for spec, runs in results.items():
-            hits = [
-                first_at(records, level) or (records[-1]["train_s"] / 60.0, args.ticks) for records in runs
-            ]
+            hits = [first_at(records, level) or (records[-1]["train_s"] / 60.0, args.ticks) for records in runs]
             medians[spec] = (statistics.median(h[0] for h in hits), statistics.median(h[1] for h in hits))
             print(
                 f"  {level:.0%}  {spec}: {medians[spec][0]:.1f} min, {medians[spec][1]:.0f} ticks "

@@ -56,15 +56,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--env", default="MultiRobotNav-4-v0")
     parser.add_argument("--n-envs", type=int, default=2)
-    parser.add_argument(
-        "--rows", type=int, default=64, help="our batch in joint rows (SB3 DQN: rows x agents)"
-    )
+    parser.add_argument("--rows", type=int, default=64, help="our batch in joint rows (SB3 DQN: rows x agents)")
     parser.add_argument("--steps", type=int, default=20_000, help="timed agent-steps per run")
     parser.add_argument("--learning-starts", type=int, default=2_000)
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument(
-        "--algos", nargs="+", default=["SB3-DQN", "IQL", "GDQ", "QMIX", "VDN", "IQL-noPER-1step"]
-    )
+    parser.add_argument("--algos", nargs="+", default=["SB3-DQN", "IQL", "GDQ", "QMIX", "VDN", "IQL-noPER-1step"])
     args = parser.parse_args()
     th.set_num_threads(1)
     samples: dict[str, list[float]] = {name: [] for name in args.algos}
@@ -74,8 +70,7 @@ def main() -> None:
             print(f"repeat {repeat} {name}: {1 / samples[name][-1]:.0f} agent-steps/s", flush=True)
     baseline = statistics.median(samples["SB3-DQN"]) if "SB3-DQN" in samples else None
     print(
-        f"\n{args.env}, {args.n_envs} worlds, batch {args.rows} rows, {args.steps} timed agent-steps, "
-        f"median of {args.repeats}"
+        f"\n{args.env}, {args.n_envs} worlds, batch {args.rows} rows, {args.steps} timed agent-steps, median of {args.repeats}"
     )
     print(f"{'algorithm':<18}{'agent-steps/s':>14}{'time/step vs SB3 DQN':>22}{'target':>8}")
     for name, values in samples.items():

@@ -41,14 +41,10 @@ class EnvSpec:
 
 _MULTI_AGENT_SPECS: dict[str, EnvSpec] = {
     **{
-        f"MultiRobotNav-{n}-v0": EnvSpec(
-            "envs.turtlebot3:MultiRobotNavEnv", {"n_robots": n, "scenario": "arena"}
-        )
+        f"MultiRobotNav-{n}-v0": EnvSpec("envs.turtlebot3:MultiRobotNavEnv", {"n_robots": n, "scenario": "arena"})
         for n in (2, 4, 8, 12)
     },
-    "MultiRobotNavUnseen-4-v0": EnvSpec(
-        "envs.turtlebot3:MultiRobotNavEnv", {"n_robots": 4, "scenario": "unseen"}
-    ),
+    "MultiRobotNavUnseen-4-v0": EnvSpec("envs.turtlebot3:MultiRobotNavEnv", {"n_robots": 4, "scenario": "unseen"}),
     # The same room, every start and target moved by a seeded offset of up to 0.3 m: 100 episodes, 100 problems.
     "MultiRobotNavUnseen-4-varied-v0": EnvSpec(
         "envs.turtlebot3:MultiRobotNavEnv",
@@ -63,9 +59,7 @@ _DEBUG_SPECS: dict[str, EnvSpec] = {
 
 _SINGLE_AGENT_SPECS: dict[str, EnvSpec] = {
     "SingleRobotNav-v0": EnvSpec("envs.turtlebot3:SingleRobotNavEnv"),
-    "CooperativeNavigationSingle-v0": EnvSpec(
-        "envs.mpe.cooperative_navigation_single:CooperativeNavigationSingleEnv"
-    ),
+    "CooperativeNavigationSingle-v0": EnvSpec("envs.mpe.cooperative_navigation_single:CooperativeNavigationSingleEnv"),
 }
 
 DEBUG_ENV_IDS: tuple[str, ...] = tuple(_DEBUG_SPECS)
@@ -109,9 +103,7 @@ def register(
     table = _MULTI_AGENT_SPECS if multi_agent else _SINGLE_AGENT_SPECS
     known = _PARALLEL_SPECS.get(env_id) or _SINGLE_AGENT_SPECS.get(env_id)
     if known is not None and (known != spec or env_id not in table):
-        raise ValueError(
-            f"env id {env_id!r} is registered already (as {known.entry_point!r}); pick another id"
-        )
+        raise ValueError(f"env id {env_id!r} is registered already (as {known.entry_point!r}); pick another id")
     table[env_id] = spec
     if multi_agent:
         _PARALLEL_SPECS[env_id] = spec
@@ -174,9 +166,7 @@ def make_single_env(env_id: str, **kwargs: Any) -> gymnasium.Env:
 
 def _spec(env_id: str) -> EnvSpec:
     spec = _PARALLEL_SPECS.get(env_id) or _SINGLE_AGENT_SPECS.get(env_id)
-    if (
-        spec is None and env_id in pettingzoo.parallel_registry
-    ):  # registered with pettingzoo.register directly
+    if spec is None and env_id in pettingzoo.parallel_registry:  # registered with pettingzoo.register directly
         spec = EnvSpec(functools.partial(pettingzoo.make, "parallel", env_id))
         _PARALLEL_SPECS[env_id] = spec
     if spec is None:
@@ -198,9 +188,7 @@ def _build(env_id: str, kwargs: dict[str, Any]) -> Any:
     spec = _spec(env_id)
     for name, value in spec.fixed_kwargs.items():
         if name in kwargs and kwargs[name] != value:
-            raise ValueError(
-                f"{env_id!r} fixes {name}={value!r}; got {name}={kwargs[name]!r}. Pick another id instead"
-            )
+            raise ValueError(f"{env_id!r} fixes {name}={value!r}; got {name}={kwargs[name]!r}. Pick another id instead")
     return _load(spec.entry_point)(**{**kwargs, **spec.fixed_kwargs})
 
 

@@ -31,9 +31,7 @@ _COLUMNS = (("success_rate", "success %", 100.0), ("collision_rate", "collision 
 
 def make_parser() -> argparse.ArgumentParser:
     """:return: the parser of ``python -m research.benchmark``."""
-    parser = OneLineArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = OneLineArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("-f", "--log-folder", dest="folder", default="logs")
     parser.add_argument("--algo", nargs="+", choices=list(ALGORITHMS), default=None)
     parser.add_argument("--env", nargs="+", default=None, help="training env ids to include")
@@ -59,11 +57,7 @@ def benchmark_table(results: list[dict[str, Any]]) -> str:
         for key, _, scale in _COLUMNS:
             values = [scale * m[key] for m in members if key in m]
             cells.append(f"{np.mean(values):.2f} +/- {np.std(values):.2f}" if values else "-")
-        lines.append(
-            f"| {ALGORITHMS[algo].label} | {train_env} | {eval_env} | {len(members)} | "
-            + " | ".join(cells)
-            + " |"
-        )
+        lines.append(f"| {ALGORITHMS[algo].label} | {train_env} | {eval_env} | {len(members)} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 

@@ -45,9 +45,7 @@ def sensitivity_by_layer(sensitivity: Parameters, floor: float = 0.01) -> list[d
     return rows
 
 
-def step_by_layer(
-    directions: Parameters, scale: float, max_step: float = float("inf")
-) -> list[dict[str, Any]]:
+def step_by_layer(directions: Parameters, scale: float, max_step: float = float("inf")) -> list[dict[str, Any]]:
     """Summarise the mutation steps ``clip(scale * direction, -max_step, max_step)`` per parameter tensor.
 
     :param directions: ``{name: (m, *shape)}`` (:func:`~sb3_eps.eps.mutations.mutation_directions`)
@@ -96,9 +94,7 @@ def flip_share_curve(
     return np.array(shares)
 
 
-def draw_layer_bars(
-    tables: dict[str, list[dict[str, Any]]], key: str, title: str | None = None, log: bool = True
-) -> Figure:
+def draw_layer_bars(tables: dict[str, list[dict[str, Any]]], key: str, title: str | None = None, log: bool = True) -> Figure:
     """Bars of one column of per-layer tables, side by side for each table (e.g. safe vs Gaussian steps).
 
     :param tables: ``{label: rows}`` from :func:`sensitivity_by_layer` or :func:`step_by_layer`
@@ -128,9 +124,7 @@ def draw_layer_bars(
     return figure
 
 
-def draw_flip_curves(
-    scales: Sequence[float], curves: dict[str, np.ndarray], target: float | None = None
-) -> Figure:
+def draw_flip_curves(scales: Sequence[float], curves: dict[str, np.ndarray], target: float | None = None) -> Figure:
     """Share of greedy actions changed against the noise scale, one line per mutation operator.
 
     :param scales: the noise scales
@@ -153,9 +147,7 @@ def draw_flip_curves(
     return figure
 
 
-def draw_population(
-    result: PopulationResult, flip_share: np.ndarray | None = None, winner: int | None = None
-) -> Figure:
+def draw_population(result: PopulationResult, flip_share: np.ndarray | None = None, winner: int | None = None) -> Figure:
     """One evaluation round: every individual's episodes, its fitness, and how far it moved the greedy policy.
 
     :param result: :func:`~sb3_eps.eps.evaluation.evaluate_population`'s result (individual 0 = unmutated copy)

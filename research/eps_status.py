@@ -267,9 +267,7 @@ def screen8_rows(root: Path = ROOT) -> list[Row]:
     rows = []
     for arm, name in SCREEN8_ARMS.items():
         curves = screen8_curves(arm, (SCREEN8,), root)
-        seeds = sorted(
-            s for s in curves if screen8_score(curves[s]) is not None and scratch.get(s) is not None
-        )
+        seeds = sorted(s for s in curves if screen8_score(curves[s]) is not None and scratch.get(s) is not None)
         if not seeds:
             continue
         rounds = crossovers = 0
@@ -350,9 +348,7 @@ def search_summary(study: str, algo: str) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--searches", action="store_true", help="also summarise the Optuna studies")
     args = parser.parse_args(argv)
     print(table(all_rows()))

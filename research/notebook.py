@@ -61,9 +61,7 @@ class Animation:
     :param shrink: keep every ``shrink``-th pixel (:func:`gif_bytes`)
     """
 
-    def __init__(
-        self, frames: Sequence[np.ndarray], fps: float = 20.0, width: int | None = None, shrink: int = 1
-    ) -> None:
+    def __init__(self, frames: Sequence[np.ndarray], fps: float = 20.0, width: int | None = None, shrink: int = 1) -> None:
         self.data = gif_bytes(frames, fps, shrink)
         self.n_frames = len(frames)
         self.width = width
@@ -174,9 +172,7 @@ def execute_notebook(
         kernel_dir = Path(install(kernel_name=_KERNEL_NAME, prefix=prefix)).parent
         specs = KernelSpecManager(kernel_dirs=[str(kernel_dir)], ensure_native_kernel=False)
         manager = AsyncKernelManager(kernel_name=_KERNEL_NAME, kernel_spec_manager=specs)
-        client = NotebookClient(
-            notebook, km=manager, timeout=timeout, resources={"metadata": {"path": str(path.parent)}}
-        )
+        client = NotebookClient(notebook, km=manager, timeout=timeout, resources={"metadata": {"path": str(path.parent)}})
         try:
             client.execute(env=environment)
         finally:  # nbclient shuts down only the kernels it created itself, not one of a manager given to it

@@ -151,9 +151,7 @@ def _records(path: Path) -> list[dict[str, Any]]:
 
 def one_point(source: str, success: float, team_return: float, collision: float, ticks: int = 0) -> Seed:
     """A seed measured once (an evaluation of a finished model)."""
-    return Seed(
-        source, np.array([ticks]), np.array([success]), np.array([team_return]), np.array([collision])
-    )
+    return Seed(source, np.array([ticks]), np.array([success]), np.array([team_return]), np.array([collision]))
 
 
 def read_record_seed(path: Path) -> Seed:
@@ -183,9 +181,7 @@ def read_run_seed(run_dir: Path) -> Seed:
     training = {}
     if (run_dir / MONITOR_NAME).is_file():  # none before a training episode ends
         _, monitor = read_monitor(run_dir / MONITOR_NAME)
-        training = {
-            key: float(np.mean(monitor[key])) for key in ("r", "collision") if len(monitor.get(key, []))
-        }
+        training = {key: float(np.mean(monitor[key])) for key in ("r", "collision") if len(monitor.get(key, []))}
     return Seed(
         run_dir.name,
         data["ticks"] + data["eps_ticks"],
@@ -198,12 +194,8 @@ def read_run_seed(run_dir: Path) -> Seed:
 
 def run_cell(folder: Path, algo: str, env: str) -> Cell | None:
     """The finished runs of ``algo`` on ``env`` in a grid folder (None when there are none)."""
-    runs = sorted(
-        path for path in (folder / algo).glob(f"{env}_seed*") if (path / EVALUATIONS_NAME).is_file()
-    )
-    runs = [
-        path for path in runs if (path / f"{env}.zip").is_file() or (path / "final_vs_best.txt").is_file()
-    ]
+    runs = sorted(path for path in (folder / algo).glob(f"{env}_seed*") if (path / EVALUATIONS_NAME).is_file())
+    runs = [path for path in runs if (path / f"{env}.zip").is_file() or (path / "final_vs_best.txt").is_file()]
     if not runs:
         return None
     return Cell(
@@ -245,11 +237,7 @@ def _unseen_cell(folder: Path, algo: str) -> Cell | None:
     seeds = []
     for path in runs:
         result = json.loads(path.read_text())
-        seeds.append(
-            one_point(
-                path.parent.name, result["success_rate"], result["team_return_mean"], result["collision_rate"]
-            )
-        )
+        seeds.append(one_point(path.parent.name, result["success_rate"], result["team_return_mean"], result["collision_rate"]))
     return Cell(seeds, f"`fig4_n4/{algo}/*/eval_{UNSEEN}.json`") if seeds else None
 
 
@@ -261,9 +249,7 @@ def collect(folder: Path) -> Findings:
         for algo in FIG4_ALGOS:
             env = f"MultiRobotNav-{n}-v0"
             listed = [s for s in sources.get("fig4", []) if s["algo"] == algo and s["env"] == env]
-            fig4[(n, algo)] = run_cell(folder / f"fig4_n{n}", algo, env) or (
-                record_cell(listed[0]) if listed else None
-            )
+            fig4[(n, algo)] = run_cell(folder / f"fig4_n{n}", algo, env) or (record_cell(listed[0]) if listed else None)
     table2 = {}
     for algo in TABLE2_ALGOS:
         listed = [s for s in sources.get("table2", []) if s["algo"] == algo]
@@ -282,9 +268,7 @@ def collect(folder: Path) -> Findings:
         cell = record_cell(source)
         if cell is not None:
             best.append((source["env"], source["label"], cell))
-    return Findings(
-        {algo: run_cell(folder / "table1", algo, MPE) for algo in TABLE1_ALGOS}, fig4, table2, table3, best
-    )
+    return Findings({algo: run_cell(folder / "table1", algo, MPE) for algo in TABLE1_ALGOS}, fig4, table2, table3, best)
 
 
 # ---------------------------------------------------------------------------------------------- verdicts
@@ -379,16 +363,12 @@ def table2_verdict(cell: Cell | None, algo: str) -> str:
     if cell is None:
         return NOT_RUN
     mean, std = PAPER_TABLE2[algo][1]
-    return (
-        "reproduced" if 100 * float(np.mean(cell.final("collision"))) <= mean + 2 * std else "not reproduced"
-    )
+    return "reproduced" if 100 * float(np.mean(cell.final("collision"))) <= mean + 2 * std else "not reproduced"
 
 
 # ---------------------------------------------------------------------------------------------- the page
 def _table(header: Sequence[str], rows: list[Sequence[str]]) -> list[str]:
-    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)] + [
-        "| " + " | ".join(r) + " |" for r in rows
-    ]
+    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)] + ["| " + " | ".join(r) + " |" for r in rows]
 
 
 def _source(cell: Cell | None) -> str:
@@ -436,9 +416,7 @@ def _paper_table(
 
 def section_table1(findings: Findings) -> list[str]:
     cells = findings.table1
-    ours = {
-        algo: (_training(cell, "r", 1.0, ""), _training(cell, "collision")) for algo, cell in cells.items()
-    }
+    ours = {algo: (_training(cell, "r", 1.0, ""), _training(cell, "collision")) for algo, cell in cells.items()}
     verdicts = {algo: table1_verdict(findings, algo) for algo in cells}
     lines = ["## Table I: MPE Cooperative Navigation", ""]
     lines += [
@@ -499,9 +477,7 @@ def section_fig4(findings: Findings, figure: str | None) -> list[str]:
     if missing:
         lines += [
             "",
-            "Not run yet, one grid per world: "
-            + "; ".join(_grid_command(f"fig4_n{n}", f"fig4_n{n}") for n in missing)
-            + ".",
+            "Not run yet, one grid per world: " + "; ".join(_grid_command(f"fig4_n{n}", f"fig4_n{n}") for n in missing) + ".",
         ]
     return lines
 
@@ -509,9 +485,7 @@ def section_fig4(findings: Findings, figure: str | None) -> list[str]:
 def section_table2(findings: Findings) -> list[str]:
     cells = findings.table2
     ours = {
-        algo: (_spread(cell.final("team_return"), 1.0, ""), _spread(cell.final("collision")))
-        if cell
-        else ("-", "-")
+        algo: (_spread(cell.final("team_return"), 1.0, ""), _spread(cell.final("collision"))) if cell else ("-", "-")
         for algo, cell in cells.items()
     }
     verdicts = {algo: table2_verdict(cell, algo) for algo, cell in cells.items()}
@@ -555,9 +529,7 @@ def section_table3(findings: Findings) -> list[str]:
         ours_pre = "-"
         if cell:
             end = cell.end
-            ours_pre = (
-                _pct(cell.at(PAPER_TABLE3_EPS[0] * 1000)) if end >= 100_000 else f"runs end at {_k(end)}"
-            )
+            ours_pre = _pct(cell.at(PAPER_TABLE3_EPS[0] * 1000)) if end >= 100_000 else f"runs end at {_k(end)}"
         rows.append(
             [
                 f"{round(100 * stage)} %",
@@ -601,13 +573,9 @@ def section_table3(findings: Findings) -> list[str]:
 
 def best_rows(findings: Findings) -> list[tuple[str, str, Cell]]:
     """The configuration with the highest mean greedy success at the end, per world."""
-    candidates = [
-        (f"MultiRobotNav-{n}-v0", label_of(algo), cell) for (n, algo), cell in findings.fig4.items() if cell
-    ]
+    candidates = [(f"MultiRobotNav-{n}-v0", label_of(algo), cell) for (n, algo), cell in findings.fig4.items() if cell]
     candidates += [(MPE, label_of(algo), cell) for algo, cell in findings.table1.items() if cell]
-    candidates += [
-        (UNSEEN, f"{label_of(algo)}, open arena", cell) for algo, cell in findings.table2.items() if cell
-    ]
+    candidates += [(UNSEEN, f"{label_of(algo)}, open arena", cell) for algo, cell in findings.table2.items() if cell]
     candidates += findings.best
     best: dict[str, tuple[str, str, Cell]] = {}
     for env, label, cell in candidates:
@@ -766,9 +734,7 @@ def curves_of(findings: Findings) -> list[RunCurve]:
     for (n, algo), cell in sorted(findings.fig4.items()):
         for seed in cell.seeds if cell else []:
             values = {"r": seed.team_return, "success": seed.success}
-            curves.append(
-                RunCurve(Path(seed.source), algo, f"MultiRobotNav-{n}-v0", seed.ticks.astype(float), values)
-            )
+            curves.append(RunCurve(Path(seed.source), algo, f"MultiRobotNav-{n}-v0", seed.ticks.astype(float), values))
     return curves
 
 
@@ -855,18 +821,14 @@ def run_pipeline(folder: Path, quick: bool, grid_flags: Sequence[str]) -> None:
         for run_dir in sorted((folder / "fig4_n4" / algo).glob("MultiRobotNav-4-v0_seed*"))
         if (run_dir / "MultiRobotNav-4-v0.zip").is_file() and not (run_dir / f"eval_{UNSEEN}.json").is_file()
     ]
-    with ThreadPoolExecutor(
-        max(1, os.cpu_count() or 1)
-    ) as pool:  # one evaluation per core, as the grid's runs
+    with ThreadPoolExecutor(max(1, os.cpu_count() or 1)) as pool:  # one evaluation per core, as the grid's runs
         list(pool.map(lambda args: _python(*args), evaluations))
     pretrain = sorted((folder / "pretrain" / "gdq").glob("SingleRobotNav-v0_seed*"))
     fig4 = yaml.safe_load((SPECS / "fig4_n4.yml").read_text())
     for stage in PRETRAIN_STAGES[:1] if quick else PRETRAIN_STAGES:
         picked = pick_snapshot(pretrain[0], 0.0 if quick else stage) if pretrain else None
         if picked is None:
-            print(
-                f"Pre-GDQ, stage {round(100 * stage)} %: pre-training never reached it; not run", flush=True
-            )
+            print(f"Pre-GDQ, stage {round(100 * stage)} %: pre-training never reached it; not run", flush=True)
             continue
         stage_folder = folder / "table3" / f"stage{round(100 * stage)}"
         stage_folder.mkdir(parents=True, exist_ok=True)
@@ -890,17 +852,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("command", choices=["run", "render"])
-    parser.add_argument(
-        "-f", "--folder", type=Path, default=RUNS, help="the runs' folder (default: %(default)s)"
-    )
+    parser.add_argument("-f", "--folder", type=Path, default=RUNS, help="the runs' folder (default: %(default)s)")
     parser.add_argument("--page", type=Path, default=PAGE, help="the page to write (default: %(default)s)")
-    parser.add_argument(
-        "--readme", default=str(ROOT / "README.md"), help="README with the status markers ('': none)"
-    )
+    parser.add_argument("--readme", default=str(ROOT / "README.md"), help="README with the status markers ('': none)")
     parser.add_argument("--quick", action="store_true", help="run: tiny budgets, one seed, 4 robots only")
-    parser.add_argument(
-        "--check", action="store_true", help="render: exit 1 when the files differ; write nothing"
-    )
+    parser.add_argument("--check", action="store_true", help="render: exit 1 when the files differ; write nothing")
     args, grid_flags = parser.parse_known_args(argv)
     if args.command == "run":
         args.page.parent.mkdir(parents=True, exist_ok=True)

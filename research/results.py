@@ -84,8 +84,7 @@ def read_evaluation_run(path: str | Path, group: str | None = None) -> Evaluatio
     if any("ticks" not in record for record in records):
         raise ValueError(f"{path}: every record needs 'ticks'")
     numeric = sorted(
-        {key for record in records for key, value in record.items() if isinstance(value, int | float)}
-        - {"ticks"}
+        {key for record in records for key, value in record.items() if isinstance(value, int | float)} - {"ticks"}
     )
     metrics = {key: np.array([float(record.get(key, math.nan)) for record in records]) for key in numeric}
     return EvaluationRun(
@@ -146,9 +145,7 @@ def best_covered(runs: Iterable[EvaluationRun], env_id: str) -> dict[str, list[E
             candidates[run.algo][run.group].append(run)
     chosen = {}
     for algo, groups in sorted(candidates.items()):
-        group, members = max(
-            groups.items(), key=lambda item: (len(item[1]), min(int(run.ticks[-1]) for run in item[1]))
-        )
+        group, members = max(groups.items(), key=lambda item: (len(item[1]), min(int(run.ticks[-1]) for run in item[1])))
         chosen[f"{algo} ({group})"] = members
     return chosen
 

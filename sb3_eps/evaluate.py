@@ -25,9 +25,7 @@ PROG = "python -m sb3_eps.evaluate"
 
 def make_parser() -> argparse.ArgumentParser:
     """:return: the parser of ``python -m sb3_eps.evaluate`` (run lookup as ``rl_zoo3.enjoy``)."""
-    parser = OneLineArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = OneLineArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--run", default=None, help="the run folder (or use --algo, --env, -f, --exp-id)")
     parser.add_argument("--algo", choices=list(ALGORITHMS), default=None)
     parser.add_argument("--env", default=None, help="the env id the run trained on")
@@ -39,18 +37,12 @@ def make_parser() -> argparse.ArgumentParser:
         help="the model snapshot at N timesteps (rl_model_N_steps.zip, written every --save-freq)",
     )  # fmt: skip
     parser.add_argument("--load-last-checkpoint", action="store_true", help="the latest model snapshot")
-    parser.add_argument(
-        "--eval-env", default=None, help="env id to evaluate on (default: the training env id)"
-    )
+    parser.add_argument("--eval-env", default=None, help="env id to evaluate on (default: the training env id)")
     parser.add_argument("-n", "--n-episodes", type=int, default=100, help="world (team) episodes")
     parser.add_argument("--n-envs", type=int, default=4, help="worlds run side by side")
     parser.add_argument("--seed", type=int, default=0, help="seed of the evaluation worlds")
-    parser.add_argument(
-        "--stochastic", action="store_true", help="keep the model's exploration (default greedy)"
-    )
-    parser.add_argument(
-        "--env-kwargs", nargs="+", default=[], metavar="KEY:VALUE", help="env constructor arguments"
-    )
+    parser.add_argument("--stochastic", action="store_true", help="keep the model's exploration (default greedy)")
+    parser.add_argument("--env-kwargs", nargs="+", default=[], metavar="KEY:VALUE", help="env constructor arguments")
     parser.add_argument("--gif", default=None, metavar="PATH", help="also write a GIF of greedy episodes")
     parser.add_argument("--gif-episodes", type=int, default=1, help="episodes in the GIF")
     parser.add_argument("--output", default=None, help="JSON file of the results")

@@ -110,9 +110,7 @@ def make_grid(values: dict[str, Any]) -> Grid:
     if isinstance(values.get("seeds"), int) and not isinstance(values["seeds"], bool):
         values["seeds"] = list(range(values["seeds"]))  # a count
     hints = typing.get_type_hints(Grid)
-    grid = Grid(
-        **{key: normalize_value(value, hints[key], f"grid: {key}", key) for key, value in values.items()}
-    )
+    grid = Grid(**{key: normalize_value(value, hints[key], f"grid: {key}", key) for key, value in values.items()})
     for algo in grid.algos:
         if algo not in ALGORITHMS:
             raise _error(f"grid: unknown algorithm {algo!r}; allowed: {', '.join(ALGORITHMS)}")
@@ -162,9 +160,7 @@ def grid_runs(grid: Grid) -> list[RunSpec]:
     try:  # the extra flags must parse as sb3_eps.train's
         make_parser().parse_args([*runs[0].flags, "--run-name", runs[0].name])
     except (SystemExit, ConfigError) as error:
-        raise _error(
-            f"grid: train_args {grid.train_args} are not flags of python -m sb3_eps.train: {error}"
-        ) from None
+        raise _error(f"grid: train_args {grid.train_args} are not flags of python -m sb3_eps.train: {error}") from None
     return runs
 
 
@@ -431,9 +427,7 @@ def run_grid(
     start = time.time()
 
     def report(result: dict[str, Any]) -> None:
-        spec = next(
-            s for s in runs if (s.algo, s.env, s.seed) == (result["algo"], result["env"], result["seed"])
-        )
+        spec = next(s for s in runs if (s.algo, s.env, s.seed) == (result["algo"], result["env"], result["seed"]))
         reports[spec] = result
         if verbose >= 1:
             print(
@@ -452,9 +446,7 @@ def run_grid(
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    ordered = [
-        reports.get(spec) or {**asdict(spec), "action": "not started", "status": "pending"} for spec in runs
-    ]
+    ordered = [reports.get(spec) or {**asdict(spec), "action": "not started", "status": "pending"} for spec in runs]
     for entry in ordered:
         entry.pop("flags", None)
     summary = {
@@ -469,9 +461,7 @@ def run_grid(
     if verbose >= 1:
         counts = Counter(entry["status"] for entry in ordered)
         status = ", ".join(f"{n} {name}" for name, n in counts.items())
-        print(
-            f"Grid of {len(runs)} runs in {summary['wall_seconds']:.0f} s: {status}; summary {folder / SUMMARY_NAME}"
-        )
+        print(f"Grid of {len(runs)} runs in {summary['wall_seconds']:.0f} s: {status}; summary {folder / SUMMARY_NAME}")
     return ordered
 
 
@@ -479,14 +469,10 @@ def make_parser() -> argparse.ArgumentParser:
     """:return: the parser of ``python -m sb3_eps.grid``."""
     from sb3_eps.zoo.cli import OneLineArgumentParser
 
-    parser = OneLineArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = OneLineArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--grid", default=None, metavar="GRID.yml", help="the grid in a YAML file")
     parser.add_argument("--algos", nargs="+", default=None, help="algorithms (e.g. gdq qmix)")
-    parser.add_argument(
-        "--envs", nargs="+", default=None, help="env ids (default: every entry of the configs)"
-    )
+    parser.add_argument("--envs", nargs="+", default=None, help="env ids (default: every entry of the configs)")
     parser.add_argument("--seeds", nargs="+", type=int, default=None, help="seeds (default 0)")
     parser.add_argument("-n", "--n-timesteps", type=int, default=None, help="total timesteps of every run")
     parser.add_argument("-conf", "--conf-file", default=None, help="config file of every run")
@@ -497,21 +483,13 @@ def make_parser() -> argparse.ArgumentParser:
         default=None,
         help='other flags of sb3_eps.train, one string: "--eval-freq 0 --vec-env subproc"',
     )
-    parser.add_argument(
-        "-f", "--log-folder", dest="folder", default="logs/grid", help="the grid's log folder"
-    )
+    parser.add_argument("-f", "--log-folder", dest="folder", default="logs/grid", help="the grid's log folder")
     parser.add_argument("--backend", choices=["local", "ray"], default="local")
-    parser.add_argument(
-        "--n-jobs", type=int, default=None, help="local: runs side by side (default: one per core)"
-    )
+    parser.add_argument("--n-jobs", type=int, default=None, help="local: runs side by side (default: one per core)")
     parser.add_argument("--cpus-per-run", type=int, default=None, help="cores each run reserves (default 1)")
     parser.add_argument("--address", default=None, help="ray: cluster address (auto, ray://head:10001)")
-    parser.add_argument(
-        "--shared-folder", default=None, help="ray: a folder all nodes mount at the same path"
-    )
-    parser.add_argument(
-        "--max-retries", type=int, default=3, help="ray: retries of a task lost with its node"
-    )
+    parser.add_argument("--shared-folder", default=None, help="ray: a folder all nodes mount at the same path")
+    parser.add_argument("--max-retries", type=int, default=3, help="ray: retries of a task lost with its node")
     parser.add_argument("--verbose", type=int, default=1)
     return parser
 

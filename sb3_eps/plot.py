@@ -29,16 +29,10 @@ PROG = "python -m sb3_eps.plot"
 
 def make_parser() -> argparse.ArgumentParser:
     """:return: the parser of ``python -m sb3_eps.plot``."""
-    parser = OneLineArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = OneLineArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("paths", nargs="*", help="run folders or folders holding runs")
-    parser.add_argument(
-        "-f", "--log-folder", dest="folder", default="logs", help="used when no path is given"
-    )
-    parser.add_argument(
-        "--algo", nargs="+", choices=list(ALGORITHMS), default=None, help="keep these algorithms"
-    )
+    parser.add_argument("-f", "--log-folder", dest="folder", default="logs", help="used when no path is given")
+    parser.add_argument("--algo", nargs="+", choices=list(ALGORITHMS), default=None, help="keep these algorithms")
     parser.add_argument("--env", nargs="+", default=None, help="keep these env ids")
     parser.add_argument("-o", "--output", default="learning_curves.png", help="image file (.png, .pdf, .svg)")
     parser.add_argument("--window", type=positive_int, default=100, help="episodes of the smoothing window")

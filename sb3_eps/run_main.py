@@ -85,10 +85,7 @@ def reference_difference(root: Path | None = None) -> dict[str, float] | None:
         if not ((root / base).is_dir() and (root / eps).is_dir()):
             return None
         base_scores, eps_scores = reference_scores(root / base), reference_scores(root / eps)
-        differences += [
-            100 * (eps_scores[seed] - base_scores[seed])
-            for seed in sorted(set(base_scores) & set(eps_scores))
-        ]
+        differences += [100 * (eps_scores[seed] - base_scores[seed]) for seed in sorted(set(base_scores) & set(eps_scores))]
     if len(differences) < 2:
         return None
     mean = sum(differences) / len(differences)
@@ -131,14 +128,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Train, plot, print the paths. :return: the exit status."""
     parser = OneLineArgumentParser(prog=PROG, description=__doc__)
     parser.add_argument("-f", "--log-folder", dest="folder", default="logs", help="folder of the run folders")
-    parser.add_argument(
-        "-n", "--n-timesteps", type=positive_int, default=BUDGET, help="timesteps (agent-steps)"
-    )
+    parser.add_argument("-n", "--n-timesteps", type=positive_int, default=BUDGET, help="timesteps (agent-steps)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("-tb", "--tensorboard-log", default="logs/tensorboard")
-    parser.add_argument(
-        "--algo", choices=["eps_gdq", "gdq"], default="eps_gdq", help="EPS-GDQ (default) or GDQ alone"
-    )
+    parser.add_argument("--algo", choices=["eps_gdq", "gdq"], default="eps_gdq", help="EPS-GDQ (default) or GDQ alone")
     args = parser.parse_args(argv)
 
     from sb3_eps.zoo.exp_manager import TrainOptions, train
@@ -156,19 +149,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     eval_curve = draw_evaluations(run_dir, run_dir / "eval_curve.png", references)
     print()
     if result.status == "interrupted":
-        print(
-            f"Interrupted at {result.num_timesteps} timesteps; continue with: python -m sb3_eps.train --resume {run_dir}"
-        )
+        print(f"Interrupted at {result.num_timesteps} timesteps; continue with: python -m sb3_eps.train --resume {run_dir}")
     print(f"Run folder:      {run_dir}")
     print(f"Learning curve:  {curve}")
     if eval_curve is not None:
-        print(
-            f"Evaluations:     {eval_curve}" + (" (beside the committed 5-seed curves)" if references else "")
-        )
+        print(f"Evaluations:     {eval_curve}" + (" (beside the committed 5-seed curves)" if references else ""))
     print(f"TensorBoard:     tensorboard --logdir {Path(args.tensorboard_log)}")
-    print(
-        f"Evaluate it:     python -m sb3_eps.evaluate --run {run_dir} --eval-env MultiRobotNavUnseen-4-v0 -n 100"
-    )
+    print(f"Evaluate it:     python -m sb3_eps.evaluate --run {run_dir} --eval-env MultiRobotNavUnseen-4-v0 -n 100")
     difference = reference_difference()
     if difference is not None:
         print(reference_summary(difference))

@@ -31,19 +31,11 @@ DEFAULT_ENV = "MultiRobotNav-4-v0"
 
 def make_parser() -> argparse.ArgumentParser:
     """:return: the parser of ``python -m sb3_eps.train`` (flags follow ``rl_zoo3.train``)."""
-    parser = OneLineArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = OneLineArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algo", choices=list(ALGORITHMS), default="gdq", help="algorithm (default gdq)")
-    parser.add_argument(
-        "--env", default=None, help=f"env id (default {DEFAULT_ENV}, or the last rung of --ladder)"
-    )
-    parser.add_argument(
-        "-conf", "--conf-file", default=None, help="config YAML (default zoo_configs/<algo>.yml)"
-    )
-    parser.add_argument(
-        "-n", "--n-timesteps", type=int, default=None, help="total timesteps (agent-steps); default: config"
-    )
+    parser.add_argument("--env", default=None, help=f"env id (default {DEFAULT_ENV}, or the last rung of --ladder)")
+    parser.add_argument("-conf", "--conf-file", default=None, help="config YAML (default zoo_configs/<algo>.yml)")
+    parser.add_argument("-n", "--n-timesteps", type=int, default=None, help="total timesteps (agent-steps); default: config")
     parser.add_argument("--seed", type=int, default=None, help="random seed (default: drawn and recorded)")
     parser.add_argument("-f", "--log-folder", dest="folder", default="logs", help="folder of the run folders")
     parser.add_argument(
@@ -51,9 +43,7 @@ def make_parser() -> argparse.ArgumentParser:
         default=None,
         help="run folder name under <log folder>/<algo>/ (default: <env id>_<next free number>)",
     )
-    parser.add_argument(
-        "--eval-freq", type=int, default=25_000, help="timesteps between team evaluations (0: none)"
-    )
+    parser.add_argument("--eval-freq", type=int, default=25_000, help="timesteps between team evaluations (0: none)")
     parser.add_argument("--eval-episodes", type=int, default=10, help="world episodes per evaluation")
     parser.add_argument("--n-eval-envs", type=int, default=2, help="evaluation worlds run side by side")
     parser.add_argument(
@@ -63,12 +53,8 @@ def make_parser() -> argparse.ArgumentParser:
         help="worlds in this process (dummy) or in worker processes, one per core (subproc); default: config",
     )
     parser.add_argument("--eval-env", default=None, help="env id of the evaluation worlds (default: --env)")
-    parser.add_argument(
-        "--save-freq", type=int, default=100_000, help="timesteps between checkpoints (0: on signals only)"
-    )
-    parser.add_argument(
-        "--keep-checkpoint", action="store_true", help="keep checkpoint.zip after the run finishes"
-    )
+    parser.add_argument("--save-freq", type=int, default=100_000, help="timesteps between checkpoints (0: on signals only)")
+    parser.add_argument("--keep-checkpoint", action="store_true", help="keep checkpoint.zip after the run finishes")
     parser.add_argument("-P", "--progress", action="store_true", help="show a progress bar")
     parser.add_argument("-tb", "--tensorboard-log", default=None, help="TensorBoard folder")
     parser.add_argument("--device", default="auto", help="torch device (auto, cpu, cuda)")
@@ -87,43 +73,27 @@ def make_parser() -> argparse.ArgumentParser:
         metavar="ENV:TICKS",
         help="train one model on these worlds in turn, e.g. MultiRobotNav-4-v0:150000 MultiRobotNav-8-v0:150000",
     )
-    parser.add_argument(
-        "--env-kwargs", nargs="+", default=[], metavar="KEY:VALUE", help="env constructor overrides"
-    )
-    parser.add_argument(
-        "--verbose", type=int, default=None, help="0 silent, 1 info (default 1, or as the resumed run)"
-    )
+    parser.add_argument("--env-kwargs", nargs="+", default=[], metavar="KEY:VALUE", help="env constructor overrides")
+    parser.add_argument("--verbose", type=int, default=None, help="0 silent, 1 info (default 1, or as the resumed run)")
     parser.add_argument("--log-interval", type=int, default=-1, help="episodes between log dumps (-1: 4)")
-    parser.add_argument(
-        "--num-threads", type=int, default=1, help="torch threads (results repeat at equal counts)"
-    )
+    parser.add_argument("--num-threads", type=int, default=1, help="torch threads (results repeat at equal counts)")
     parser.add_argument(
         "--init-from",
         default=None,
         metavar="MODEL.zip",
         help="warm start: load this model's agent network (q_net and target)",
     )
-    parser.add_argument(
-        "--resume", default=None, metavar="RUN_DIR", help="continue an interrupted run to its total"
-    )
+    parser.add_argument("--resume", default=None, metavar="RUN_DIR", help="continue an interrupted run to its total")
     add_gym_packages_flag(parser)
     tuning = parser.add_argument_group("tuning (Optuna)")
-    tuning.add_argument(
-        "-optimize", "--optimize-hyperparameters", action="store_true", help="run a hyper-parameter search"
-    )
+    tuning.add_argument("-optimize", "--optimize-hyperparameters", action="store_true", help="run a hyper-parameter search")
     tuning.add_argument("--n-trials", type=int, default=20, help="trials of this process")
-    tuning.add_argument(
-        "--n-jobs", type=int, default=1, help="trials run in parallel (threads) by this process"
-    )
+    tuning.add_argument("--n-jobs", type=int, default=1, help="trials run in parallel (threads) by this process")
     tuning.add_argument("--sampler", choices=["tpe", "random"], default="tpe")
     tuning.add_argument("--pruner", choices=["median", "halving", "none"], default="median")
-    tuning.add_argument(
-        "--n-startup-trials", type=int, default=5, help="random trials before TPE, unpruned trials"
-    )
+    tuning.add_argument("--n-startup-trials", type=int, default=5, help="random trials before TPE, unpruned trials")
     tuning.add_argument("--n-evaluations", type=int, default=4, help="evaluations per trial (pruning points)")
-    tuning.add_argument(
-        "--storage", default=None, help="Optuna storage URL (default: sqlite file in the tuning folder)"
-    )
+    tuning.add_argument("--storage", default=None, help="Optuna storage URL (default: sqlite file in the tuning folder)")
     tuning.add_argument("--study-name", default=None, help="study name (default <algo>-<env>)")
     tuning.add_argument(
         "--n-seeds-per-trial",

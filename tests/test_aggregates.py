@@ -14,9 +14,7 @@ from sb3_eps.zoo.plotting import AGGREGATES, bootstrap_intervals, interquartile_
 def test_iqm_is_scipys_trimmed_mean_as_rliable_defines_it(n) -> None:
     values = np.random.default_rng(n).normal(size=n) ** 3  # skewed: trimming matters
     assert interquartile_mean(values) == pytest.approx(stats.trim_mean(values, proportiontocut=0.25))
-    assert interquartile_mean([1, 2, 3, 4, 100, -100, 5, 6]) == pytest.approx(
-        3.5
-    )  # by hand: mean of 2, 3, 4, 5
+    assert interquartile_mean([1, 2, 3, 4, 100, -100, 5, 6]) == pytest.approx(3.5)  # by hand: mean of 2, 3, 4, 5
 
 
 def test_point_estimates_pool_every_run() -> None:

@@ -262,8 +262,10 @@ def test_gdq_defaults_are_gdq_lambda_and_the_paper_target_is_one_argument(bootst
     expected = 0.1 if bootstrap is None else 1.0
     assert lambdas and set(lambdas) == {expected}
     # The paper's target does not move with the agents' own next values; GDQ-lambda does.
-    targets = [original(th.zeros(2, 3), th.ones(2, 3), th.zeros(2, 3), th.ones(2), th.zeros(2, 3), own, expected)
-               for own in (th.zeros(2, 3), th.ones(2, 3))]
+    targets = [
+        original(th.zeros(2, 3), th.ones(2, 3), th.zeros(2, 3), th.ones(2), th.zeros(2, 3), own, expected)
+        for own in (th.zeros(2, 3), th.ones(2, 3))
+    ]
     assert th.equal(targets[0], targets[1]) is (bootstrap == 1.0)
 
 
@@ -428,9 +430,7 @@ def test_weight_average_export_and_bad_values(tmp_path) -> None:
     _, plain_json = export_policy(tiny_model(IQL), tmp_path / "plain")  # IQL keeps no average by default
     assert json.loads(open(plain_json).read())["network"] == "q_net"
     obs = np.random.default_rng(5).uniform(-2, 2, (32, 18)).astype(np.float32)
-    (onnx_q,) = onnxruntime.InferenceSession(onnx_path, providers=["CPUExecutionProvider"]).run(
-        ["q_values"], {"obs": obs}
-    )
+    (onnx_q,) = onnxruntime.InferenceSession(onnx_path, providers=["CPUExecutionProvider"]).run(["q_values"], {"obs": obs})
     with th.no_grad():
         expected = model.policy.q_net_average(th.as_tensor(obs)).numpy()
     np.testing.assert_allclose(onnx_q, expected, rtol=1e-5, atol=1e-5)

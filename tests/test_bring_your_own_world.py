@@ -47,9 +47,7 @@ class LineWorld(ParallelEnv):
 
     def _observe(self, i: int) -> np.ndarray:
         scale = self.size - 1
-        return np.array(
-            [self._positions[i] / scale, (self._goals[i] - self._positions[i]) / scale], np.float32
-        )
+        return np.array([self._positions[i] / scale, (self._goals[i] - self._positions[i]) / scale], np.float32)
 
     def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict, dict]:
         if seed is not None:

@@ -76,9 +76,7 @@ def small_network() -> nn.Module:
 # ---------------------------------------------------------------------- the math
 def test_eps_evaluates_in_the_single_agent_world_of_the_training_world(monkeypatch) -> None:
     for env_id in envs.MULTI_AGENT_ENV_IDS:
-        expected = (
-            "CooperativeNavigationSingle-v0" if env_id == "CooperativeNavigation-v0" else "SingleRobotNav-v0"
-        )
+        expected = "CooperativeNavigationSingle-v0" if env_id == "CooperativeNavigation-v0" else "SingleRobotNav-v0"
         assert eps_env_id_for(env_id) == expected
     for env_id in envs.SINGLE_AGENT_ENV_IDS:
         assert eps_env_id_for(env_id) == env_id
@@ -136,18 +134,14 @@ def test_mutate_population_keeps_copy_0_and_uses_the_sensitivity() -> None:
     network = small_network()
     theta = network_parameters(network)
     omega = {name: th.full_like(param, 0.5) for name, param in theta.items()}
-    population = mutate_population(
-        theta, 4, 0.01, th.Generator().manual_seed(3), [omega], floor=0.01, max_step=1.0
-    )
+    population = mutate_population(theta, 4, 0.01, th.Generator().manual_seed(3), [omega], floor=0.01, max_step=1.0)
     plain = mutate_population(theta, 4, 0.01, th.Generator().manual_seed(3), None)
     for name, param in theta.items():
         assert population[name].shape == (5, *param.shape)
         assert th.equal(population[name][0], param) and th.equal(plain[name][0], param)
         # Same generator, same noise: the safe step is the Gaussian step divided by omega = 0.5.
         th.testing.assert_close(population[name][1:] - param, 2 * (plain[name][1:] - param))
-    many = mutate_population(
-        {"w": th.zeros(200, 50)}, 10, 0.03, th.Generator().manual_seed(0), None
-    )  # std of plain noise
+    many = mutate_population({"w": th.zeros(200, 50)}, 10, 0.03, th.Generator().manual_seed(0), None)  # std of plain noise
     assert float(many["w"][1:].std()) == pytest.approx(0.03, rel=0.02)
 
 
@@ -158,9 +152,7 @@ def test_crossover_is_exactly_the_polyak_mean() -> None:
     change = polyak_crossover_(network, best, 0.3)
     for name, param in network.named_parameters():
         assert th.equal(param.detach(), 0.3 * best[name] + 0.7 * current[name])  # Eq. 5
-    expected_change = np.mean(
-        np.concatenate([(0.3 * (best[n] - current[n])).abs().flatten().numpy() for n in current])
-    )
+    expected_change = np.mean(np.concatenate([(0.3 * (best[n] - current[n])).abs().flatten().numpy() for n in current]))
     assert change == pytest.approx(expected_change, rel=1e-5)
     with pytest.raises(ValueError, match="alpha"):
         polyak_crossover_(network, best, 1.5)
@@ -242,9 +234,7 @@ def test_round_crossover_moves_online_and_target_nets_toward_the_winner(monkeypa
     record: dict = {}
     _scripted_evaluation(monkeypatch, [-5.0, -4.0, -1.0, -3.0], record)
     callback = tiny_callback(period=1, period_unit="ticks", alpha=0.3)
-    model.learn(
-        2 * 3 * 2, callback=callback
-    )  # one rollout (2 vector steps of 2 worlds x 3 agents): one round
+    model.learn(2 * 3 * 2, callback=callback)  # one rollout (2 vector steps of 2 worlds x 3 agents): one round
     assert callback.n_rounds == 1 and callback.history[0]["winner"] == 2
     best = {name: stacked[2] for name, stacked in record["population"].items()}
     for name, param in model.policy.q_net.named_parameters():
@@ -505,9 +495,7 @@ def test_rounds_that_cross_nothing_over_leave_training_as_it_was_without_eps() -
 
 
 def test_sb3_dqn_works_too() -> None:
-    model = DQN(
-        "MlpPolicy", envs.make_single_env(MPE_SINGLE), learning_starts=50, policy_kwargs={"net_arch": [16]}
-    )
+    model = DQN("MlpPolicy", envs.make_single_env(MPE_SINGLE), learning_starts=50, policy_kwargs={"net_arch": [16]})
     callback = tiny_callback(period=40, period_unit="ticks", n_workers=0)
     model.learn(200, callback=callback)
     assert callback.n_rounds >= 1

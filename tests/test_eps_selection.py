@@ -111,9 +111,7 @@ def test_directions_give_the_population_of_mutate_population() -> None:
     theta = network_parameters(q_net)
     omega = output_sensitivity(q_net, th.randn(16, 18))
     for sensitivities, max_step in (([omega], 0.05), (None, 0.05)):
-        direct = mutate_population(
-            theta, 3, 0.01, th.Generator().manual_seed(4), sensitivities, 0.01, max_step
-        )
+        direct = mutate_population(theta, 3, 0.01, th.Generator().manual_seed(4), sensitivities, 0.01, max_step)
         directions = mutation_directions(theta, 3, th.Generator().manual_seed(4), sensitivities, 0.01)
         # The clip belongs to the safe step only: Gaussian noise stays unclipped.
         clip = max_step if sensitivities is not None else float("inf")
@@ -163,9 +161,7 @@ def test_outcome_fitness_ranks_success_first_and_waiting_above_crashing() -> Non
     outcome = population_fitness(returns, outcomes, valid, "outcome")
     np.testing.assert_allclose(outcome, [0.0 - 0.03, -1.0 - 0.015, 0.0 - 0.0115])
     assert outcome[0] > outcome[1]  # waiting beats crashing
-    more_success = population_fitness(
-        np.array([[-2.0, -2.0], [1.9, 1.9]]), np.array([[1, 1], [1, 0]]), valid[:2], "outcome"
-    )
+    more_success = population_fitness(np.array([[-2.0, -2.0], [1.9, 1.9]]), np.array([[1, 1], [1, 0]]), valid[:2], "outcome")
     assert more_success[0] > more_success[1]  # two arrivals beat one, whatever the returns
     assert np.isneginf(population_fitness(returns, outcomes, np.array([True, False, True]), "outcome")[1])
     with pytest.raises(ValueError, match="unknown fitness"):
@@ -183,10 +179,7 @@ def test_the_evaluation_records_how_robot_episodes_end() -> None:
             param.zero_()
             if name.startswith("advantage_stream") and name.endswith("bias"):
                 param[0] = 1.0
-    population = {
-        name: value.unsqueeze(0).repeat(2, *[1] * value.dim())
-        for name, value in network_parameters(q_net).items()
-    }
+    population = {name: value.unsqueeze(0).repeat(2, *[1] * value.dim()) for name, value in network_parameters(q_net).items()}
     kwargs = {"scenario": "eps_pillars", "max_episode_steps": 30}
     pool = InProcessEnvPool("SingleRobotNav-v0", kwargs, 2, 2, q_net)
     try:
@@ -200,9 +193,7 @@ def test_the_evaluation_records_how_robot_episodes_end() -> None:
 
 # ---------------------------------------------------------------------- acceptance, schedule, budget
 def test_gain_accepted_and_scheduled_alpha_by_hand() -> None:
-    assert (
-        gain_accepted(0.06, 0.05) and not gain_accepted(0.05, 0.05) and not gain_accepted(float("nan"), 0.0)
-    )
+    assert gain_accepted(0.06, 0.05) and not gain_accepted(0.05, 0.05) and not gain_accepted(float("nan"), 0.0)
     assert gain_accepted(1e-9, 0.0) and not gain_accepted(0.0, 0.0)
     assert scheduled_alpha(0.3, "constant", 0.2) == 0.3
     assert scheduled_alpha(0.3, "linear", 1.0) == 0.3
@@ -250,11 +241,7 @@ def test_reevaluation_decides_the_crossover(monkeypatch, fresh, crossed) -> None
     assert callback.n_crossovers == sum(bool(r.get("accepted")) for r in callback.history if not r.get("skipped"))
     assert callback.n_crossovers >= int(crossed)
     assert sum(active is not None for active in calls) == 1  # one batch of 2 fresh episodes
-    changed = {
-        name
-        for name, param in model.policy.q_net.named_parameters()
-        if not th.equal(param.detach(), before[name])
-    }
+    changed = {name for name, param in model.policy.q_net.named_parameters() if not th.equal(param.detach(), before[name])}
     target_changed = {
         name
         for name, param in model.policy.q_net_target.named_parameters()
@@ -394,9 +381,7 @@ def test_the_team_check_plays_the_training_env_before_and_after_the_crossover(mo
     np.testing.assert_array_equal(policy.predict(observations, deterministic=deterministic)[0], online)
     record = callback.history[0]
     assert record["accepted"] and record["team_check_ticks"] == 2 * 2 * MPE_EPISODE
-    assert {"team_success_before", "team_success_after", "team_return_before", "team_return_after"} <= set(
-        record
-    )
+    assert {"team_success_before", "team_success_after", "team_return_before", "team_return_after"} <= set(record)
     assert callback.eps_ticks == record["ticks_spent"] == (4 * 2 + 2 * 2 + 2 * 2) * MPE_EPISODE
     # the summary that benchmarks/crossover_effects.py prints: one paired change per checked crossover
     skipped, rejected = {"round": 0, "skipped": True}, {**record, "round": 9, "accepted": False}
@@ -502,7 +487,9 @@ def test_a_run_whose_budget_allows_no_round_warns_once() -> None:
 
     model = tiny_model(IQL)
     callback = new_callback(max_eps_share=0.1, period=2)
-    with pytest.warns(UserWarning, match=r"no EPS round in this run: a round is expected to cost 150 ticks.*raise max_eps_share"):
+    with pytest.warns(
+        UserWarning, match=r"no EPS round in this run: a round is expected to cost 150 ticks.*raise max_eps_share"
+    ):
         model.learn(300, callback=callback)
     assert callback.n_rounds == 0
     with warnings.catch_warnings(record=True) as caught:

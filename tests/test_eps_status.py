@@ -22,9 +22,7 @@ def test_the_ten_pairs_of_the_package_defaults() -> None:
     (variant,) = [v for v in eps_status.VARIANTS if v.name.endswith("report and held-out seeds")]
     pairs = eps_status.measure(variant).pairs
     assert pairs["n"] == 10 and pairs["ahead"] == 2
-    assert 100 * pairs["mean"] == pytest.approx(-2.57, abs=0.01) and 100 * pairs["sem"] == pytest.approx(
-        1.33, abs=0.01
-    )
+    assert 100 * pairs["mean"] == pytest.approx(-2.57, abs=0.01) and 100 * pairs["sem"] == pytest.approx(1.33, abs=0.01)
 
 
 def test_seeds_text_joins_runs() -> None:

@@ -36,9 +36,7 @@ VARIANTS = [
 ]
 
 
-@pytest.mark.parametrize(
-    ("conf_file", "env_id", "python"), VARIANTS, ids=["defaults", "paper", "team_share", "early_rounds"]
-)
+@pytest.mark.parametrize(("conf_file", "env_id", "python"), VARIANTS, ids=["defaults", "paper", "team_share", "early_rounds"])
 def test_a_variant_config_builds_its_python_equivalent(conf_file, env_id, python) -> None:
     config = resolve_config("eps_gdq", env_id, conf_file)
     assert config.entry["tuned"] is False  # no search produced any of them

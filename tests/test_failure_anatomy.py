@@ -18,9 +18,7 @@ FULL_AHEAD = 17  # v = 0.21 m/s, w = 0
 
 @pytest.fixture(scope="module")
 def anatomy():
-    spec = importlib.util.spec_from_file_location(
-        "failure_anatomy", ROOT / "benchmarks" / "failure_anatomy.py"
-    )
+    spec = importlib.util.spec_from_file_location("failure_anatomy", ROOT / "benchmarks" / "failure_anatomy.py")
     module = importlib.util.module_from_spec(spec)
     sys.modules["failure_anatomy"] = module
     spec.loader.exec_module(module)
@@ -97,14 +95,8 @@ def test_a_collision_names_what_was_touched(anatomy) -> None:
     assert anatomy.classify_collision(xy, 0, live=np.array([True, False, True])) == "parked robot"
     assert anatomy.classify_collision(xy, 2, live=np.array([True, True, True])) == "wall"
     half = np.array([2.0, 2.0])
-    assert (
-        anatomy.classify_collision(np.array([[1.8, -1.75], [0.0, 0.0]]), 0, np.array([True, True]), half)
-        == "corner"
-    )
-    assert (
-        anatomy.classify_collision(np.array([[1.8, 0.0], [0.0, 0.0]]), 0, np.array([True, True]), half)
-        == "wall"
-    )
+    assert anatomy.classify_collision(np.array([[1.8, -1.75], [0.0, 0.0]]), 0, np.array([True, True]), half) == "corner"
+    assert anatomy.classify_collision(np.array([[1.8, 0.0], [0.0, 0.0]]), 0, np.array([True, True]), half) == "wall"
 
 
 def test_the_most_common_failure_is_animated(anatomy, tmp_path) -> None:
@@ -113,9 +105,7 @@ def test_the_most_common_failure_is_animated(anatomy, tmp_path) -> None:
         records = [anatomy.run_episode(Scripted(FULL_AHEAD), env, seed, window=50) for seed in (0, 1)]
     finally:
         env.close()
-    args = type(
-        "Args", (), {"env": "MultiRobotNav-2-v0", "window": 50, "epsilon": 0.0, "animate": tmp_path / "f.gif"}
-    )
+    args = type("Args", (), {"env": "MultiRobotNav-2-v0", "window": 50, "epsilon": 0.0, "animate": tmp_path / "f.gif"})
     anatomy.animate(Scripted(FULL_AHEAD), args, records)
     assert anatomy.failure_kind(records[0]).startswith("collision: ")
     assert (tmp_path / "f.gif").stat().st_size > 1000

@@ -106,9 +106,7 @@ def crashed_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, where: str) -> 
 
 # ---------------------------------------------------------------------------------------------- 1. interruptions
 @pytest.mark.parametrize("where", ["rollout", "gradient step", "eps round", "checkpoint write"])
-def test_a_crash_at_any_point_resumes_to_the_uninterrupted_run(
-    uninterrupted, tmp_path, monkeypatch, where
-) -> None:
+def test_a_crash_at_any_point_resumes_to_the_uninterrupted_run(uninterrupted, tmp_path, monkeypatch, where) -> None:
     run = crashed_run(tmp_path, monkeypatch, where)
     meta = verify_checkpoint(run / CHECKPOINT_NAME)
     assert 0 < meta["num_timesteps"] < N_TIMESTEPS
@@ -137,23 +135,16 @@ def test_a_corrupt_checkpoint_is_reported_in_one_line_and_the_previous_one_is_us
     else:  # a full disk
         data = b""
     (run / CHECKPOINT_NAME).write_bytes(data)
-    (run / ".checkpoint.zip.abc123.tmp").write_bytes(
-        b"PK\x03\x04 half a checkpoint"
-    )  # a writer killed mid-way
+    (run / ".checkpoint.zip.abc123.tmp").write_bytes(b"PK\x03\x04 half a checkpoint")  # a writer killed mid-way
     capsys.readouterr()
     assert train.main(["--resume", str(run), "--verbose", "0"]) == 0
     warning_lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
     assert len(warning_lines) == 1, warning_lines
-    assert (
-        CHECKPOINT_NAME in warning_lines[0]
-        and f"{PREVIOUS_CHECKPOINT_NAME} at {previous} timesteps" in warning_lines[0]
-    )
+    assert CHECKPOINT_NAME in warning_lines[0] and f"{PREVIOUS_CHECKPOINT_NAME} at {previous} timesteps" in warning_lines[0]
     assert_same_run(run, uninterrupted)
 
 
-def test_when_every_checkpoint_is_corrupt_resume_says_so_and_changes_nothing(
-    tmp_path, monkeypatch, capsys
-) -> None:
+def test_when_every_checkpoint_is_corrupt_resume_says_so_and_changes_nothing(tmp_path, monkeypatch, capsys) -> None:
     run = crashed_run(tmp_path, monkeypatch, "rollout")
     for name in (CHECKPOINT_NAME, PREVIOUS_CHECKPOINT_NAME):
         path = run / name
@@ -161,9 +152,7 @@ def test_when_every_checkpoint_is_corrupt_resume_says_so_and_changes_nothing(
     before = files_of(run)
     status, stderr = run_cli(train.PROG, train.main, ["--resume", str(run)], capsys)
     assert status == 2 and len(stderr.splitlines()) == 1
-    assert (
-        "no usable checkpoint" in stderr and CHECKPOINT_NAME in stderr and PREVIOUS_CHECKPOINT_NAME in stderr
-    )
+    assert "no usable checkpoint" in stderr and CHECKPOINT_NAME in stderr and PREVIOUS_CHECKPOINT_NAME in stderr
     assert files_of(run) == before
 
 
@@ -178,9 +167,7 @@ def test_every_truncation_of_a_checkpoint_is_detected(tmp_path, monkeypatch) -> 
             verify_checkpoint(cut)
 
 
-def test_a_failed_checkpoint_write_keeps_the_previous_one_and_training_completes(
-    tmp_path, monkeypatch
-) -> None:
+def test_a_failed_checkpoint_write_keeps_the_previous_one_and_training_completes(tmp_path, monkeypatch) -> None:
     """A full disk while the second checkpoint is written: a warning, the first one stays, training goes on."""
     written: list[int] = []
     original = checkpoint_module.save_checkpoint
@@ -192,9 +179,7 @@ def test_a_failed_checkpoint_write_keeps_the_previous_one_and_training_completes
         return original(path, model, states, meta)
 
     monkeypatch.setattr("sb3_eps.zoo.callbacks.save_checkpoint", disk_full_once)
-    with pytest.warns(
-        RuntimeWarning, match="not written .*No space left on device.*previous checkpoint is kept"
-    ):
+    with pytest.warns(RuntimeWarning, match="not written .*No space left on device.*previous checkpoint is kept"):
         assert train.main([*ARGV, "-f", str(tmp_path), "--keep-checkpoint"]) == 0
     run = run_folder(tmp_path)
     assert (run / f"{ENV_ID}.zip").is_file() and len(written) >= 4
@@ -220,9 +205,7 @@ def robot_callback(**kwargs: Any) -> EvolutionCallback:
 
 
 @pytest.mark.parametrize("n_workers", [1, 0], ids=["worker", "in-process"])
-def test_a_disconnected_pybullet_client_skips_the_round_and_the_workers_restart(
-    tmp_path, monkeypatch, n_workers
-) -> None:
+def test_a_disconnected_pybullet_client_skips_the_round_and_the_workers_restart(tmp_path, monkeypatch, n_workers) -> None:
     """The EPS world's PyBullet client disconnects in the middle of a round (a crashed physics server)."""
     from envs.turtlebot3.single_robot_nav import SingleRobotNavEnv
 
@@ -252,9 +235,7 @@ def test_a_disconnected_pybullet_client_skips_the_round_and_the_workers_restart(
     with pytest.warns(RuntimeWarning, match="EPS round skipped"):
         model.learn(600, callback=callback, log_interval=1)
     assert marker.exists() and callback.n_skipped_rounds == 1 and callback.history[0]["skipped"]
-    assert (
-        "Not connected" in callback.history[0]["reason"] or "not connected" in callback.history[0]["reason"]
-    )
+    assert "Not connected" in callback.history[0]["reason"] or "not connected" in callback.history[0]["reason"]
     assert callback.n_rounds >= 1 and not callback.history[-1]["skipped"]  # the restarted envs serve
     if n_workers:
         assert first_pids[0] and not callback.worker_pids  # closed at the end; restarted in between
@@ -385,9 +366,7 @@ def test_a_checkpoint_of_non_finite_weights_is_refused(tmp_path) -> None:
     good = (tmp_path / CHECKPOINT_NAME).read_bytes()
     with th.no_grad():
         next(model.policy.q_net.parameters())[0, 0] = float("inf")
-    with pytest.warns(
-        RuntimeWarning, match=r"checkpoint at \d+ timesteps refused: non-finite values in q_net\."
-    ):
+    with pytest.warns(RuntimeWarning, match=r"checkpoint at \d+ timesteps refused: non-finite values in q_net\."):
         assert not checkpoint.save()
     assert (tmp_path / CHECKPOINT_NAME).read_bytes() == good
     assert not (tmp_path / PREVIOUS_CHECKPOINT_NAME).exists()
@@ -413,9 +392,7 @@ def test_a_non_finite_mutant_is_disqualified_with_a_warning(monkeypatch) -> None
         max_eps_share=None,
         target_flip_share=None,
     )
-    with pytest.warns(
-        RuntimeWarning, match=r"individuals \[2\] have non-finite weights; they are disqualified"
-    ):
+    with pytest.warns(RuntimeWarning, match=r"individuals \[2\] have non-finite weights; they are disqualified"):
         model.learn(600, callback=callback)
     rounds = [record for record in callback.history if not record["skipped"]]
     assert rounds and all(record["winner"] != 2 and record["fitness"][2] == -np.inf for record in rounds)
@@ -431,9 +408,7 @@ def run_cli(prog: str, main: Any, argv: list[str], capsys: pytest.CaptureFixture
 
 
 GOOD = f"{MPE}:\n  n_timesteps: 100\n  n_envs: 1\n"
-EPS_ENTRY = (
-    GOOD + "  callback:\n    - sb3_eps.EvolutionCallback: {eval_env_id: SingleRobotNav-v0, n_workers: 0}\n"
-)
+EPS_ENTRY = GOOD + "  callback:\n    - sb3_eps.EvolutionCallback: {eval_env_id: SingleRobotNav-v0, n_workers: 0}\n"
 
 
 @pytest.fixture(scope="module")
@@ -473,12 +448,8 @@ TRAIN_CASES = [
 ]  # fmt: skip
 
 
-@pytest.mark.parametrize(
-    ("case", "conf", "flags", "words"), TRAIN_CASES, ids=[case[0] for case in TRAIN_CASES]
-)
-def test_bad_train_input_is_one_line_and_writes_nothing(
-    case, conf, flags, words, models, tmp_path, capsys
-) -> None:
+@pytest.mark.parametrize(("case", "conf", "flags", "words"), TRAIN_CASES, ids=[case[0] for case in TRAIN_CASES])
+def test_bad_train_input_is_one_line_and_writes_nothing(case, conf, flags, words, models, tmp_path, capsys) -> None:
     argv = ["--algo", "gdq", "--env", MPE, "-f", str(tmp_path / "logs"), "--seed", "0", "-n", "100"]
     if conf is not None:
         path = tmp_path / "bad.yml"
@@ -541,9 +512,7 @@ RESUME_CASES = [
 
 
 @pytest.mark.parametrize(("kind", "words"), RESUME_CASES, ids=[case[0] for case in RESUME_CASES])
-def test_resume_of_a_foreign_run_folder_is_one_line_and_changes_nothing(
-    kind, words, models, tmp_path, capsys
-) -> None:
+def test_resume_of_a_foreign_run_folder_is_one_line_and_changes_nothing(kind, words, models, tmp_path, capsys) -> None:
     run = tmp_path / "run"
     make_foreign_run(run, kind, models)
     before = files_of(run)
@@ -568,9 +537,7 @@ def test_bad_evaluate_input_is_one_line(models, tmp_path, capsys) -> None:
         (["-n", "0"], ["-n", ">= 1"]),
     ]
     for flags, words in cases:
-        status, stderr = run_cli(
-            evaluate_command.PROG, evaluate_command.main, ["--run", str(run), *flags], capsys
-        )
+        status, stderr = run_cli(evaluate_command.PROG, evaluate_command.main, ["--run", str(run), *flags], capsys)
         lines = stderr.strip().splitlines()
         assert status == 2 and len(lines) == 1, (flags, stderr)
         assert all(word in lines[0] for word in words), (words, lines[0])
@@ -606,9 +573,7 @@ def test_bad_python_api_input_is_one_clear_line(case, build, message) -> None:
 
 
 def test_a_model_file_of_another_algorithm_or_observation_size_is_one_clear_line(models) -> None:
-    with pytest.raises(
-        ValueError, match=r"qmix_mpe\.zip holds a model of another algorithm \(policy QMIXPolicy\)"
-    ) as error:
+    with pytest.raises(ValueError, match=r"qmix_mpe\.zip holds a model of another algorithm \(policy QMIXPolicy\)") as error:
         GDQ.load(models / "qmix_mpe.zip")
     assert len(str(error.value).splitlines()) == 1
     venv = make_vec_env(MPE, n_envs=1, seed=0)
@@ -690,12 +655,8 @@ def test_the_exported_policy_loads_without_pickle(tmp_path, monkeypatch) -> None
         monkeypatch.setattr(pickle, name, refuse)
     monkeypatch.setattr(th, "load", refuse)
     description = json.loads(Path(json_path).read_text())
-    session = onnxruntime.InferenceSession(
-        str(tmp_path / description["onnx_file"]), providers=["CPUExecutionProvider"]
-    )
-    observations = (
-        np.random.default_rng(0).uniform(-1, 1, (8, description["input"]["shape"][1])).astype(np.float32)
-    )
+    session = onnxruntime.InferenceSession(str(tmp_path / description["onnx_file"]), providers=["CPUExecutionProvider"])
+    observations = np.random.default_rng(0).uniform(-1, 1, (8, description["input"]["shape"][1])).astype(np.float32)
     (q_values,) = session.run([description["output"]["name"]], {description["input"]["name"]: observations})
     monkeypatch.undo()
     with th.no_grad():
@@ -723,11 +684,7 @@ def curves(run: Path) -> tuple[list[list[str]], list[list[str]]]:
     """The learning curves of a run without wall-clock columns: monitor rows and progress rows."""
     lines = (run / "progress.csv").read_text().splitlines()
     keys = lines[0].split(",")
-    keep = [
-        index
-        for index, key in enumerate(keys)
-        if not key.startswith("time/") or key == "time/total_timesteps"
-    ]
+    keep = [index for index, key in enumerate(keys) if not key.startswith("time/") or key == "time/total_timesteps"]
     keep = [index for index in keep if keys[index] not in ("eps/round_time", "eps/time_share")]
     progress = [[row.split(",")[index] for index in keep] for row in lines]
     return without_wall_time(run / "monitor.csv"), progress

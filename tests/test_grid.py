@@ -174,9 +174,7 @@ def test_ray_grid_retries_a_lost_task_from_its_checkpoint(ray_instance, tmp_path
     results: list = []
     thread = threading.Thread(
         target=lambda: results.extend(
-            grid_module.run_grid(
-                tiny_grid(0, 1), tmp_path / "unused", backend="ray", shared_folder=str(shared)
-            )
+            grid_module.run_grid(tiny_grid(0, 1), tmp_path / "unused", backend="ray", shared_folder=str(shared))
         )
     )
     thread.start()
@@ -193,9 +191,7 @@ def test_ray_grid_retries_a_lost_task_from_its_checkpoint(ray_instance, tmp_path
     assert by_seed[1]["status"] == "complete"
     assert not Path(f"/proc/{train_pid}").exists()  # the lost task's run did not train on behind the retry
     assert (shared / "gdq" / f"{ENV_ID}_seed0.log").read_text().count("--resume") == 1
-    again = grid_module.run_grid(
-        tiny_grid(0, 1), tmp_path / "unused", backend="ray", shared_folder=str(shared)
-    )
+    again = grid_module.run_grid(tiny_grid(0, 1), tmp_path / "unused", backend="ray", shared_folder=str(shared))
     assert {run["action"] for run in again} == {"skipped"}
 
 

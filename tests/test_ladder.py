@@ -49,9 +49,7 @@ def test_a_ladder_counts_every_rungs_ticks_and_runs_the_schedules_once() -> None
     # The schedules run once over the ladder's 800 agent-steps (read before each step of 4, then 8 agent-steps):
     # they do not end with rung 1 and start again on rung 2.
     remaining = [row[2] for row in progress.rows]
-    expected = [1 - 4 * step / 800 for step in range(100)] + [
-        1 - (400 + 8 * step) / 800 for step in range(50)
-    ]
+    expected = [1 - 4 * step / 800 for step in range(100)] + [1 - (400 + 8 * step) / 800 for step in range(50)]
     assert remaining == pytest.approx(expected)
     assert model.replay_buffer.n_agents == 4 and model.replay_buffer.size() > 0
 
@@ -118,9 +116,7 @@ ERROR_CASES = [
 ]  # fmt: skip
 
 
-@pytest.mark.parametrize(
-    ("case", "rungs", "flags", "words"), ERROR_CASES, ids=[case[0] for case in ERROR_CASES]
-)
+@pytest.mark.parametrize(("case", "rungs", "flags", "words"), ERROR_CASES, ids=[case[0] for case in ERROR_CASES])
 def test_a_bad_ladder_gives_one_line_and_no_run_folder(case, rungs, flags, words, tmp_path, capsys) -> None:
     argv = ["--env", "MultiRobotNav-4-v0", "-f", str(tmp_path / "logs"), "--seed", "0", *flags]
     if "--algo" not in flags:
@@ -179,9 +175,7 @@ def uninterrupted(tmp_path_factory) -> Path:
     return the_run(folder)
 
 
-def test_a_ladder_stopped_by_sigterm_in_rung_two_resumes_to_the_uninterrupted_run(
-    uninterrupted, tmp_path
-) -> None:
+def test_a_ladder_stopped_by_sigterm_in_rung_two_resumes_to_the_uninterrupted_run(uninterrupted, tmp_path) -> None:
     folder = tmp_path / "interrupted"
     process = subprocess.Popen([sys.executable, "-m", "sb3_eps.train", *ARGV, "-f", str(folder)])
     deadline = time.time() + 180
@@ -190,9 +184,7 @@ def test_a_ladder_stopped_by_sigterm_in_rung_two_resumes_to_the_uninterrupted_ru
         meta = verify_checkpoint(found[0]) if found else {}
         if meta.get("rung") == 1 and meta["rung_ticks"] > 0:
             break
-        assert process.poll() is None and time.time() < deadline, (
-            "training ended before rung 2 could be stopped"
-        )
+        assert process.poll() is None and time.time() < deadline, "training ended before rung 2 could be stopped"
         time.sleep(0.02)
     process.send_signal(signal.SIGTERM)
     assert process.wait(timeout=120) == 0

@@ -39,9 +39,7 @@ from sb3_eps.eps.mutations import mutation_directions, network_parameters
 
 def _write_records(path, points) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(
-        "".join(json.dumps({"ticks": t, "success_rate": s, "note": "x"}) + "\n" for t, s in points)
-    )
+    path.write_text("".join(json.dumps({"ticks": t, "success_rate": s, "note": "x"}) + "\n" for t, s in points))
 
 
 def test_evaluation_records_are_read_grouped_and_tabulated(tmp_path) -> None:
@@ -57,11 +55,7 @@ def test_evaluation_records_are_read_grouped_and_tabulated(tmp_path) -> None:
     ]
     assert runs[0].final() == pytest.approx(0.6) and "note" not in runs[0].metrics
     rows = results_table(runs)
-    assert (
-        rows[0]["seeds"] == 2
-        and rows[0]["mean"] == pytest.approx(0.7)
-        and rows[0]["std"] == pytest.approx(0.1)
-    )
+    assert rows[0]["seeds"] == 2 and rows[0]["mean"] == pytest.approx(0.7) and rows[0]["std"] == pytest.approx(0.1)
     assert list(best_covered(runs, "MultiRobotNav-4-v0")) == ["eps_gdq (b)", "gdq (a)"]
     assert list(group_runs(runs, ("algo",))) == ["eps_gdq", "gdq"]
     figure = draw_seed_curves(best_covered(runs, "MultiRobotNav-4-v0"))
@@ -135,9 +129,7 @@ def test_animation_of_a_recorded_episode(tmp_path) -> None:
         def predict(self, observations, deterministic=True):
             return np.zeros(len(observations), dtype=np.int64), None
 
-    frames, episodes = record_frames(
-        Still(), "MultiRobotNav-2-v0", env_kwargs={"max_episode_steps": 6}, frame_every=2
-    )
+    frames, episodes = record_frames(Still(), "MultiRobotNav-2-v0", env_kwargs={"max_episode_steps": 6}, frame_every=2)
     assert len(episodes) == 1 and episodes[0]["l"] == 6
     assert len(frames) == 3 and frames[0].ndim == 3  # before ticks 1, 3 and 5
     data = gif_bytes(frames, fps=10)

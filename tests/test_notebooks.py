@@ -23,9 +23,7 @@ def _kernels() -> set[int]:
     import psutil
 
     return {
-        child.pid
-        for child in psutil.Process().children(recursive=True)
-        if "ipykernel_launcher" in " ".join(child.cmdline())
+        child.pid for child in psutil.Process().children(recursive=True) if "ipykernel_launcher" in " ".join(child.cmdline())
     }
 
 

@@ -60,9 +60,7 @@ def test_success_verdicts_at_the_tolerance() -> None:
     assert paper_page.success_verdict(0.96, 0.9) == "better here"
 
 
-def _cell(
-    successes: list[float], every: int = 50_000, training: dict[str, float] | None = None
-) -> paper_page.Cell:
+def _cell(successes: list[float], every: int = 50_000, training: dict[str, float] | None = None) -> paper_page.Cell:
     ticks = np.arange(1, len(successes) + 1) * every
     values = np.array(successes)
     seed = paper_page.Seed("synthetic", ticks, values, values * 10, 1 - values, training=training or {})
@@ -70,9 +68,7 @@ def _cell(
 
 
 def _findings(**cells: paper_page.Cell) -> paper_page.Findings:
-    fig4 = {
-        (n, algo): cells.get(f"{algo}{n}") for n in paper_page.FIG4_WORLDS for algo in paper_page.FIG4_ALGOS
-    }
+    fig4 = {(n, algo): cells.get(f"{algo}{n}") for n in paper_page.FIG4_WORLDS for algo in paper_page.FIG4_ALGOS}
     table1 = {algo: cells.get(f"{algo}_mpe") for algo in paper_page.TABLE1_ALGOS}
     return paper_page.Findings(table1, fig4, {}, {}, [])
 
@@ -93,9 +89,7 @@ def test_fig4_verdicts_read_the_paper_point_or_say_the_runs_end_before_it() -> N
     assert paper_page.fig4_verdict(findings, 8, "qmix")[1] == "reproduced"  # "does not learn": below 20 %
     assert paper_page.fig4_verdict(findings, 8, "eps_gdq")[1] == "not reproduced"  # behind GDQ
     assert paper_page.fig4_verdict(findings, 4, "iql")[1] == "reproduced"  # "lowest of the four"
-    assert (
-        paper_page.fig4_verdict(findings, 8, "gdq")[1] == "no success figure"
-    )  # a reward read from the figure
+    assert paper_page.fig4_verdict(findings, 8, "gdq")[1] == "no success figure"  # a reward read from the figure
     assert paper_page.fig4_verdict(findings, 12, "gdq") == ("-", paper_page.NOT_RUN)
     short = _findings(qmix4=_cell([0.3, 0.6], every=25_000))  # ends at 50k, below the paper's 90 %
     assert paper_page.fig4_verdict(short, 4, "qmix") == ("60.0 % at 50k (runs end there)", paper_page.NOT_RUN)
@@ -132,9 +126,7 @@ def test_the_stage_snapshot_is_the_first_to_reach_its_success(tmp_path: Path) ->
 @pytest.mark.timeout(600)  # 150-280 s measured on 2 cores shared at load 9-10 (about 90 s of CPU)
 def test_the_quick_pipeline_runs_every_item_and_renders_its_page(tmp_path: Path) -> None:
     page = tmp_path / "page" / "README.md"
-    status = paper_page.main(
-        ["run", "--quick", "-f", str(tmp_path / "runs"), "--page", str(page), "--readme", ""]
-    )
+    status = paper_page.main(["run", "--quick", "-f", str(tmp_path / "runs"), "--page", str(page), "--readme", ""])
     assert status == 0
     text = page.read_text()
     table1 = text.split("## Table I")[1].split("## Fig. 4")[0]

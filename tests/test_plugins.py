@@ -128,9 +128,7 @@ def test_a_user_package_is_trained_resumed_and_evaluated_from_the_command_line(t
     assert args["gym_packages"] == ["userpkg"]
     config = yaml.safe_load((run_dir / "LineWorld-2-v0" / "config.yml").read_text())["LineWorld-2-v0"]
     assert config["loss_scale"] == 0.5 and config["reduction"] == "scaled"  # the algorithm's own options
-    assert config["n_steps"] == 3 and config["policy_kwargs"]["net_arch"] == [
-        16
-    ]  # the base's defaults filled in
+    assert config["n_steps"] == 3 and config["policy_kwargs"]["net_arch"] == [16]  # the base's defaults filled in
     counter = yaml.safe_load((tmp_path / "counter.json").read_text())
     assert counter == {
         "count": 1200 // 2 // 2 // 2,
@@ -165,8 +163,6 @@ def test_a_config_setting_an_unknown_option_of_the_plugin_algorithm_is_refused(t
 
 
 def test_a_missing_package_is_one_line(tmp_path) -> None:
-    with pytest.raises(
-        ConfigError, match=r"--gym-packages: cannot import 'no_such_user_package'.*PYTHONPATH"
-    ):
+    with pytest.raises(ConfigError, match=r"--gym-packages: cannot import 'no_such_user_package'.*PYTHONPATH"):
         train.main(["--gym-packages", "no_such_user_package", "--algo", "gdq", "-f", str(tmp_path)])
     assert not any(tmp_path.iterdir())

@@ -185,16 +185,12 @@ TOTAL = 1_000
 
 
 def test_a_run_stopped_by_sigterm_resumes_exactly(tmp_path) -> None:
-    expected = PopulationTrainer(GDQ, ENV_ID, log_path=str(tmp_path / "expected.jsonl"), **RESUMED).learn(
-        TOTAL
-    )
+    expected = PopulationTrainer(GDQ, ENV_ID, log_path=str(tmp_path / "expected.jsonl"), **RESUMED).learn(TOTAL)
 
     script = tmp_path / "run.py"
     script.write_text(textwrap.dedent(SCRIPT.format(env=ENV_ID, settings=RESUMED, total=TOTAL)))
     log, checkpoint = tmp_path / "selections.jsonl", tmp_path / "checkpoint.zip"
-    process = subprocess.Popen(
-        [sys.executable, str(script), str(log), str(checkpoint)], stdout=subprocess.PIPE, text=True
-    )
+    process = subprocess.Popen([sys.executable, str(script), str(log), str(checkpoint)], stdout=subprocess.PIPE, text=True)
     deadline = time.time() + 120
     while not (log.exists() and log.read_text().count("\n") >= 1):  # a selection happened: stop it mid-run
         assert process.poll() is None and time.time() < deadline, "the run ended before it could be stopped"
@@ -249,7 +245,5 @@ def test_a_turn_keeps_the_schedules_of_the_whole_run(tmp_path) -> None:
     first = population.learners[0]
     progress = 1 - first.ticks / 2_000
     assert first._current_progress_remaining == pytest.approx(progress)
-    assert first.policy.optimizer.param_groups[0]["lr"] == pytest.approx(
-        first.lr_schedule(progress), rel=1e-2
-    )
+    assert first.policy.optimizer.param_groups[0]["lr"] == pytest.approx(first.lr_schedule(progress), rel=1e-2)
     assert PopulationTrainer.load(tmp_path / "checkpoint.zip").learners[0].ticks == first.ticks

@@ -89,9 +89,7 @@ def test_time_limit_windows_bootstrap_from_the_truncated_agents(algorithm, monke
     model._compute_loss(batch)
     with th.no_grad():
         terms = model._td_terms(batch)
-        next_total = model.policy.mixer_target(
-            terms.next_values + terms.next_advantage_term, batch.next_states
-        )
+        next_total = model.policy.mixer_target(terms.next_values + terms.next_advantage_term, batch.next_states)
     expected = batch.team_rewards + batch.team_discounts * next_total
     if model.advantage_learning:
         expected = expected - model.advantage_learning * model._team_action_gap(batch)
@@ -111,11 +109,7 @@ def test_q_range_and_mixer_diagnostics_are_logged(tmp_path) -> None:
     for key in ("q_total_min", "q_total_max", "mixer_gain_sum", "mixer_gain_std", "zero_input_gap"):
         assert rows[-1][f"train/{key}"] != "", key
     last = rows[-1]
-    assert (
-        float(last["train/q_total_min"])
-        <= float(last["train/q_total_mean"])
-        <= float(last["train/q_total_max"])
-    )
+    assert float(last["train/q_total_min"]) <= float(last["train/q_total_mean"]) <= float(last["train/q_total_max"])
 
 
 def test_mixer_learns_at_its_fraction_of_the_agents_rate(tmp_path) -> None:
@@ -130,9 +124,7 @@ def test_mixer_learns_at_its_fraction_of_the_agents_rate(tmp_path) -> None:
     decaying.learn(300)
     decaying._current_progress_remaining = 0.5
     decaying._update_learning_rate(decaying.policy.optimizer)
-    assert [group["lr"] for group in decaying.policy.optimizer.param_groups] == pytest.approx(
-        [1.5e-4, 1.5e-5]
-    )
+    assert [group["lr"] for group in decaying.policy.optimizer.param_groups] == pytest.approx([1.5e-4, 1.5e-5])
     model.save(tmp_path / "model")
     loaded = QMIX.load(tmp_path / "model", env=make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=1))
     assert [group["lr"] for group in loaded.policy.optimizer.param_groups] == pytest.approx([1e-3, 1e-4])
@@ -169,9 +161,9 @@ def test_advantage_learning_lowers_the_team_target_by_alpha_times_the_joint_acti
     with th.no_grad():
         gap = model._team_action_gap(batch)
         q_values = model.policy.q_net_target(batch.observations.reshape(-1, batch.observations.shape[-1]))
-        own_gaps = (
-            q_values.max(dim=1).values - q_values.gather(1, batch.actions.reshape(-1, 1)).squeeze(1)
-        ).reshape(batch.actions.shape[:2]) * batch.alive
+        own_gaps = (q_values.max(dim=1).values - q_values.gather(1, batch.actions.reshape(-1, 1)).squeeze(1)).reshape(
+            batch.actions.shape[:2]
+        ) * batch.alive
     assert gap.shape == seen[0].shape and (gap >= -1e-6).all() and (gap > 0).any()
     th.testing.assert_close(seen[0], seen[1] - 0.5 * gap)
     if algorithm is VDN:

@@ -20,9 +20,7 @@ def write_arm(folder: Path, algo: str, finals: dict[int, float]) -> None:
         rows += [{"ticks": 10_000 * k, "success_rate": final, "team_return_mean": 1.0} for k in (13, 14, 15)]
         if algo == "eps_gdq":
             rows[-1]["ticks"] = 150_003
-        rows.append(
-            {"ticks": 160_000, "success_rate": 0.0, "team_return_mean": 0.0}
-        )  # past the budget: not counted
+        rows.append({"ticks": 160_000, "success_rate": 0.0, "team_return_mean": 0.0})  # past the budget: not counted
         lines = "\n".join(json.dumps(row) for row in rows)
         (folder / f"{algo}_MultiRobotNav-4-v0_seed{seed}.jsonl").write_text(lines + "\n")
 

@@ -63,18 +63,12 @@ def test_replay_buffer_class_and_kwargs_as_sb3() -> None:
     assert isinstance(tiny_model(IQL).replay_buffer, PrioritizedJointReplayBuffer)
     uniform = tiny_model(IQL, replay_buffer_class=JointReplayBuffer)
     assert type(uniform.replay_buffer) is JointReplayBuffer and not uniform.prioritized_replay
-    alpha = tiny_model(
-        IQL, replay_buffer_class=PrioritizedJointReplayBuffer, replay_buffer_kwargs={"alpha": 0.3}
-    )
+    alpha = tiny_model(IQL, replay_buffer_class=PrioritizedJointReplayBuffer, replay_buffer_kwargs={"alpha": 0.3})
     assert alpha.replay_buffer.alpha == 0.3 and alpha.prioritized_replay
     model = tiny_model(GDQ, replay_buffer_class=CountingBuffer, replay_buffer_kwargs={"tag": "mine"})
     model.learn(150)
     buffer = model.replay_buffer
-    assert (
-        isinstance(buffer, CountingBuffer)
-        and buffer.tag == "mine"
-        and buffer.alpha == model.prioritized_replay_alpha
-    )
+    assert isinstance(buffer, CountingBuffer) and buffer.tag == "mine" and buffer.alpha == model.prioritized_replay_alpha
     assert buffer.n_added > 0 and buffer.size() > 0 and buffer.n_agents == model.n_agents
 
 
@@ -92,9 +86,7 @@ def test_gdq_replays_uniformly_by_default_and_the_others_prioritise() -> None:
 
 
 def test_the_config_names_a_replay_buffer_class() -> None:
-    entry = resolve_config(
-        "iql", "CooperativeNavigation-v0", hyperparams=["replay_buffer_class:JointReplayBuffer"]
-    ).entry
+    entry = resolve_config("iql", "CooperativeNavigation-v0", hyperparams=["replay_buffer_class:JointReplayBuffer"]).entry
     assert algorithm_kwargs(entry, algorithm_spec("iql"))["replay_buffer_class"] is JointReplayBuffer
     with pytest.raises(Exception, match="replay_buffer_class must be one of"):
         resolve_config("iql", "CooperativeNavigation-v0", hyperparams=["replay_buffer_class:ReplayBuffer"])
@@ -122,9 +114,7 @@ def test_an_incompatible_replay_buffer_is_one_clear_error(kwargs, message) -> No
 
 def test_prioritised_and_uniform_buffers_learn_the_same_as_before() -> None:
     """No class given: prioritized_replay chooses, as before (the same weights as naming the class)."""
-    implicit = tiny_model(IQL, prioritized_replay=False).learn(
-        200
-    )  # trained before the next one seeds the RNGs
+    implicit = tiny_model(IQL, prioritized_replay=False).learn(200)  # trained before the next one seeds the RNGs
     explicit = tiny_model(IQL, prioritized_replay=True, replay_buffer_class=JointReplayBuffer).learn(200)
     for name, tensor in implicit.policy.state_dict().items():
         assert np.array_equal(tensor.numpy(), explicit.policy.state_dict()[name].numpy()), name
@@ -132,9 +122,7 @@ def test_prioritised_and_uniform_buffers_learn_the_same_as_before() -> None:
 
 def test_gdq_options_belong_to_the_entry_not_to_policy_kwargs(tmp_path) -> None:
     path = tmp_path / "gdq.yml"
-    path.write_text(
-        "default:\n  n_timesteps: 1000\n  policy_kwargs: \"dict(net_arch=[16], global_values='stored')\"\n"
-    )
+    path.write_text("default:\n  n_timesteps: 1000\n  policy_kwargs: \"dict(net_arch=[16], global_values='stored')\"\n")
     with pytest.raises(Exception, match="policy_kwargs: unknown key 'global_values'"):
         resolve_config("gdq", "CooperativeNavigation-v0", conf_file=path)
     with pytest.raises(Exception, match="global_values must be one of recomputed, stored, target"):

@@ -33,9 +33,7 @@ def test_a_label_pools_its_folders_and_reads_the_evaluation_at_the_tick(seed_spr
         write_seed(tmp_path / "report", seed, [(140_000, 0.5), (150_000, final), (160_000, 0.1)])
     for seed, final in [(146, 0.88), (147, 0.80)]:
         write_seed(tmp_path / "heldout", seed, [(140_000, 0.5), (150_000, final)])
-    spreads = seed_spread.collect(
-        [f"GDQ={tmp_path}/report/*.jsonl", f"GDQ={tmp_path}/heldout/*.jsonl"], at=150_000
-    )
+    spreads = seed_spread.collect([f"GDQ={tmp_path}/report/*.jsonl", f"GDQ={tmp_path}/heldout/*.jsonl"], at=150_000)
     assert len(spreads) == 1
     (spread,) = spreads
     assert spread.values == pytest.approx({0: 92.0, 1: 84.0, 146: 88.0, 147: 80.0})

@@ -154,9 +154,7 @@ def test_same_seed_same_results_as_in_process(closing, vec_env_kwargs, main_worl
 
 @pytest.mark.parametrize("vec_env_kwargs", [{"n_workers": 2}, {"main_worlds": 1}])
 def test_a_snapshot_continues_mid_episode_in_new_workers(closing, vec_env_kwargs) -> None:
-    venv = subproc(
-        closing, ROBOTS, n_envs=2, seed=1, env_kwargs={"max_episode_steps": 30}, vec_env_kwargs=vec_env_kwargs
-    )
+    venv = subproc(closing, ROBOTS, n_envs=2, seed=1, env_kwargs={"max_episode_steps": 30}, vec_env_kwargs=vec_env_kwargs)
     rollout(venv, 7)  # mid-episode
     copy = pickle.loads(snapshot_dumps(venv))  # what a checkpoint does
     closing(copy)
@@ -176,9 +174,7 @@ def test_gdq_trains_the_same_with_workers() -> None:
     """A seeded GDQ run (PER, n-step returns, the global state every tick) gives the same network in both modes."""
     weights = []
     for vec_env_cls in (DummyVecEnv, SubprocVecEnv):
-        venv = make_vec_env(
-            "MultiRobotNav-2-v0", n_envs=2, env_kwargs={"max_episode_steps": 30}, vec_env_cls=vec_env_cls
-        )
+        venv = make_vec_env("MultiRobotNav-2-v0", n_envs=2, env_kwargs={"max_episode_steps": 30}, vec_env_cls=vec_env_cls)
         model = GDQ(
             "MlpPolicy", venv, seed=3, learning_starts=100, batch_size=16, buffer_size=2_000, train_freq=2,
             prioritized_replay=True, policy_kwargs={"net_arch": [16], "stream_arch": [16], "global_net_arch": [16]},
@@ -375,21 +371,13 @@ def test_a_run_whose_worker_dies_stops_with_one_line_and_keeps_its_checkpoint(tm
     while not list(tmp_path.glob("gdq/*/checkpoint.zip")):
         assert process.poll() is None and time.time() < deadline, "training ended before a checkpoint"
         time.sleep(0.02)
-    workers = [
-        int(path.parent.name)
-        for path in Path("/proc").glob("[0-9]*/stat")
-        if _parent_pid(path) == process.pid
-    ]
+    workers = [int(path.parent.name) for path in Path("/proc").glob("[0-9]*/stat") if _parent_pid(path) == process.pid]
     assert len(workers) >= 1  # the default layout: world 0 in this process, world 1 in a worker (2 cores)
     os.kill(workers[-1], signal.SIGKILL)
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == 1
     (line,) = stderr.strip().splitlines()
-    assert (
-        "error:" in line
-        and re.search(r"worlds? (1|0-1) of Corridor-2-v0", line)
-        and "killed by signal 9" in line
-    )
+    assert "error:" in line and re.search(r"worlds? (1|0-1) of Corridor-2-v0", line) and "killed by signal 9" in line
     assert "--resume" in line and "Traceback" not in stderr
     (run,) = tmp_path.glob("gdq/*")
     assert (run / "checkpoint.zip").is_file()

@@ -77,9 +77,7 @@ def test_set_env_moves_a_pooled_gdq_to_another_team_size_and_back(tmp_path):
     assert model.n_agents == 2 and model.ticks == 220
 
 
-@pytest.mark.parametrize(
-    ("algorithm", "fix"), [(GDQ, "global_head='pooled'"), (QMIX, "--init-from")], ids=["gdq", "qmix"]
-)
+@pytest.mark.parametrize(("algorithm", "fix"), [(GDQ, "global_head='pooled'"), (QMIX, "--init-from")], ids=["gdq", "qmix"])
 def test_a_model_whose_joint_head_reads_a_fixed_team_is_refused_in_one_line(algorithm, fix, tmp_path):
     model = algorithm("MlpPolicy", make_vec_env("MultiRobotNav-2-v0", n_envs=1, seed=0), seed=0, **SMALL)
     model.save(tmp_path / "two")

@@ -19,9 +19,7 @@ print(th.get_num_threads())
 
 
 def threads_after_build(before: str = "", **env: str) -> int:
-    environ = {
-        key: value for key, value in os.environ.items() if key not in ("OMP_NUM_THREADS", "MKL_NUM_THREADS")
-    }
+    environ = {key: value for key, value in os.environ.items() if key not in ("OMP_NUM_THREADS", "MKL_NUM_THREADS")}
     environ.update(env)
     out = subprocess.run(
         [sys.executable, "-c", BUILD.format(before=before)],

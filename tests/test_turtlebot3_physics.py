@@ -36,9 +36,7 @@ STAND_STILL = 2
 
 def bullet_pose(env: MultiRobotNavEnv, robot: int) -> tuple[np.ndarray, float]:
     """The robot's pose as PyBullet holds it (not our numpy mirror)."""
-    position, orientation = p.getBasePositionAndOrientation(
-        env.world.robot_ids[robot], physicsClientId=env.world.client
-    )
+    position, orientation = p.getBasePositionAndOrientation(env.world.robot_ids[robot], physicsClientId=env.world.client)
     yaw = p.getEulerFromQuaternion(orientation)[2]
     return np.array(position[:2]), yaw
 
@@ -131,9 +129,7 @@ def test_beam_facing_a_wall_reads_its_distance(distance: float) -> None:
 
 def test_lidar_sees_other_robots_and_max_range() -> None:
     # 12-robot arena (6 m): robot 0 near the west wall looks east along beam 13 at robot 1, 1.5 m away.
-    starts = [[-2.8, 0.0, -BEAM_ANGLES[13]], [-1.3, 0.0, 0.0]] + [
-        [-2.0 + 0.5 * i, 2.5, 0.0] for i in range(10)
-    ]
+    starts = [[-2.8, 0.0, -BEAM_ANGLES[13]], [-1.3, 0.0, 0.0]] + [[-2.0 + 0.5 * i, 2.5, 0.0] for i in range(10)]
     targets = [[2.5, -2.5 + 0.5 * i] for i in range(12)]
     env = MultiRobotNavEnv(n_robots=12)
     obs, _ = env.reset(options={"start_poses": starts, "targets": targets})
@@ -161,9 +157,7 @@ def test_driving_onto_the_target_arrives_and_parks() -> None:
     ticks = 0
     while True:
         ticks += 1
-        obs, rewards, terminations, truncations, infos = env.step(
-            {"robot_0": STRAIGHT_FULL, "robot_1": STAND_STILL}
-        )
+        obs, rewards, terminations, truncations, infos = env.step({"robot_0": STRAIGHT_FULL, "robot_1": STAND_STILL})
         if terminations["robot_0"]:
             break
         # Eq. 7 dense term: 0.0105 m of progress per tick minus the step penalty.
@@ -220,9 +214,7 @@ def test_wall_collision_ends_the_episode_for_everyone() -> None:
     ticks, terminations = 0, {"robot_0": False}
     while not any(terminations.values()) and ticks < 30:
         ticks += 1
-        _, rewards, terminations, truncations, infos = env.step(
-            {"robot_0": STRAIGHT_FULL, "robot_1": STRAIGHT_FULL}
-        )
+        _, rewards, terminations, truncations, infos = env.step({"robot_0": STRAIGHT_FULL, "robot_1": STRAIGHT_FULL})
     assert ticks == 10  # 0.095 m of gap at 0.0105 m per tick
     assert rewards["robot_0"] == -1.0 and infos["robot_0"]["collided"]
     # Robot 1 did not collide: it gets its dense reward, yet its episode ends too.
@@ -235,15 +227,11 @@ def test_wall_collision_ends_the_episode_for_everyone() -> None:
 
 
 def test_robot_robot_collision_penalises_both() -> None:
-    env = placed_env(
-        [[-0.2, 0.0, 0.0], [0.2, 0.0, np.pi], [0.0, 1.0, 0.0]], [[1.0, -1.0], [-1.0, -1.0], [1.0, 1.0]]
-    )
+    env = placed_env([[-0.2, 0.0, 0.0], [0.2, 0.0, np.pi], [0.0, 1.0, 0.0]], [[1.0, -1.0], [-1.0, -1.0], [1.0, 1.0]])
     ticks, terminations = 0, {"robot_0": False}
     while not any(terminations.values()) and ticks < 30:
         ticks += 1
-        _, rewards, terminations, _, _ = env.step(
-            {"robot_0": STRAIGHT_FULL, "robot_1": STRAIGHT_FULL, "robot_2": STAND_STILL}
-        )
+        _, rewards, terminations, _, _ = env.step({"robot_0": STRAIGHT_FULL, "robot_1": STRAIGHT_FULL, "robot_2": STAND_STILL})
     assert ticks == 10  # gap 0.4 - 0.21 = 0.19 m closing at 0.021 m per tick
     assert rewards["robot_0"] == rewards["robot_1"] == -1.0
     assert rewards["robot_2"] == pytest.approx(-STEP_PENALTY) and terminations["robot_2"]
@@ -381,12 +369,7 @@ def reachable(layout_boxes: np.ndarray, half: float, start: np.ndarray, goal: np
             return True
         for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1)):
             nxt = (i + di, j + dj)
-            if (
-                0 <= nxt[0] < free.shape[0]
-                and 0 <= nxt[1] < free.shape[1]
-                and free[nxt]
-                and nxt not in visited
-            ):
+            if 0 <= nxt[0] < free.shape[0] and 0 <= nxt[1] < free.shape[1] and free[nxt] and nxt not in visited:
                 visited.add(nxt)
                 queue.append(nxt)
     return False

@@ -119,9 +119,7 @@ def run(venv: MultiAgentVecEnv, n_steps: int, seed: int = 0) -> list:
 
 def assert_records_equal(a: list, b: list) -> None:
     for x, y in zip(a, b, strict=True):
-        for u, v in zip(
-            x if isinstance(x, tuple) else (x,), y if isinstance(y, tuple) else (y,), strict=True
-        ):
+        for u, v in zip(x if isinstance(x, tuple) else (x,), y if isinstance(y, tuple) else (y,), strict=True):
             np.testing.assert_array_equal(u, v)
 
 
@@ -200,10 +198,7 @@ def test_dqn_learns_with_timeouts_and_one_episode_per_world(make) -> None:
     assert ticks == venv.total_ticks
     finished_worlds = venv.n_worlds * (ticks // venv.n_worlds // 25)
     assert len(model.ep_info_buffer) == finished_worlds > 0
-    assert all(
-        info["l"] == 25 and {"success", "collision", "n_collisions"} <= info.keys()
-        for info in model.ep_info_buffer
-    )
+    assert all(info["l"] == 25 and {"success", "collision", "n_collisions"} <= info.keys() for info in model.ep_info_buffer)
     assert len(model.ep_success_buffer) == finished_worlds
     # Every MPE episode ends by its time limit: each stored done is a timeout, so DQN bootstraps through it.
     stored = slice(0, model.replay_buffer.pos)
@@ -290,9 +285,7 @@ def test_agents_that_end_early(bridge) -> None:
         assert first["episode"]["r"] == pytest.approx(0.9 + 0.7 - 0.6)  # the three agents' returns
         assert first["episode"]["l"] == 6 and first["is_success"] is False
         np.testing.assert_array_equal(first["terminal_state"], [6, 6, 6])
-        assert all(
-            "episode" not in info and "terminal_state" not in info for info in infos[3 * w + 1 : 3 * w + 3]
-        )
+        assert all("episode" not in info and "terminal_state" not in info for info in infos[3 * w + 1 : 3 * w + 3])
     np.testing.assert_array_equal(venv.get_state(), np.zeros((2, 3)))
     venv.step(actions)  # every agent acts again in the new episode
     assert venv.alive.all()
@@ -335,9 +328,7 @@ def test_dqn_on_four_robots(make) -> None:
     assert len(model.ep_info_buffer) == world_ends > 0
     assert all({"success", "collision", "n_arrived"} <= info.keys() for info in model.ep_info_buffer)
     # The buffer's timeouts are exactly the truncations the bridge reported (collisions are terminations).
-    expected = np.array(
-        [[info.get("TimeLimit.truncated", False) for info in infos] for _, infos in recorder.steps]
-    )
+    expected = np.array([[info.get("TimeLimit.truncated", False) for info in infos] for _, infos in recorder.steps])
     np.testing.assert_array_equal(model.replay_buffer.timeouts[: model.replay_buffer.pos], expected)
 
 

@@ -52,17 +52,13 @@ def test_every_world_has_an_explicitly_marked_entry(algo) -> None:
         entry = entries[env_id]
         assert isinstance(entry.get("tuned"), bool), f"{algo}.yml: {env_id} must say tuned: true/false"
         if not entry["tuned"]:
-            assert set(entry) <= UNTUNED_KEYS, (
-                f"{algo}.yml: untuned {env_id} overrides {set(entry) - UNTUNED_KEYS}"
-            )
+            assert set(entry) <= UNTUNED_KEYS, f"{algo}.yml: untuned {env_id} overrides {set(entry) - UNTUNED_KEYS}"
 
 
 @pytest.mark.parametrize(("algo", "env_id"), ENTRIES, ids=[f"{a}-{e}" for a, e in ENTRIES])
 def test_every_entry_builds_its_model(algo, env_id) -> None:
     path = config_file(algo)
-    config = ResolvedConfig(
-        algo, env_id, merged_entry(load_config_entries(path, algo), env_id, path), str(path)
-    )
+    config = ResolvedConfig(algo, env_id, merged_entry(load_config_entries(path, algo), env_id, path), str(path))
     env = build_env(config, seed=0)
     try:
         model = build_model(config, env, seed=0, device="cpu", verbose=0)
@@ -89,9 +85,7 @@ def test_a_resolved_entry_holds_every_constructor_default(algo) -> None:
         default = signature[name].default
         if name not in set_by_file and default is not None:
             value = algorithm_kwargs(entry, spec)[name]
-            assert value == default or (callable(default) and value(0.5) == default(0.5)), (
-                name
-            )  # lin_x: a schedule
+            assert value == default or (callable(default) and value(0.5) == default(0.5)), name  # lin_x: a schedule
     policy_kwargs = entry["policy_kwargs"]
     set_policy = set_by_file.get("policy_kwargs", {})  # a tuned entry may size its networks
     assert policy_kwargs["net_arch"] == set_policy.get("net_arch", DEFAULT_NET_ARCH)
@@ -100,9 +94,7 @@ def test_a_resolved_entry_holds_every_constructor_default(algo) -> None:
     assert policy_kwargs["agent_target"] is spec.algorithm_class.default_agent_target
     defaults = package_defaults(spec)["policy_kwargs"]
     assert all(
-        policy_kwargs[key] == value
-        for key, value in defaults.items()
-        if key not in set_by_file.get("policy_kwargs", {})
+        policy_kwargs[key] == value for key, value in defaults.items() if key not in set_by_file.get("policy_kwargs", {})
     )
     if spec.eps:  # the EPS arguments the files list are the callback's defaults
         assert callback_class(EVOLUTION_CALLBACK) is EvolutionCallback
@@ -199,9 +191,7 @@ def test_hyperparams_override_and_round_trip(tmp_path) -> None:
     assert entry["callback"][0][EVOLUTION_CALLBACK]["population_size"] == 5  # the others stay (the default)
     assert entry["env_kwargs"] == {"max_cycles": 10} and entry["gamma"] == 0.1 and entry["n_timesteps"] == 123
     kwargs = algorithm_kwargs(entry, config.spec)
-    assert kwargs["learning_rate"](1.0) == pytest.approx(1e-3) and kwargs["learning_rate"](
-        0.5
-    ) == pytest.approx(5e-4)
+    assert kwargs["learning_rate"](1.0) == pytest.approx(1e-3) and kwargs["learning_rate"](0.5) == pytest.approx(5e-4)
     assert kwargs["train_freq"] == (2, "episode")
     # config.yml is read back by -conf into the same entry.
     path = tmp_path / "config.yml"
@@ -224,12 +214,7 @@ def test_weight_average_tau_in_a_config(tmp_path) -> None:
     assert package_defaults(algorithm_spec("qmix"))["advantage_learning"] == 0.0
     gdq_path = tmp_path / "gdq.yml"
     gdq_path.write_text("default:\n  n_timesteps: 100\n  policy_kwargs: {weight_average_tau: null}\n")
-    assert (
-        resolve_config("gdq", "MultiRobotNav-4-v0", conf_file=gdq_path).entry["policy_kwargs"][
-            "weight_average_tau"
-        ]
-        is None
-    )
+    assert resolve_config("gdq", "MultiRobotNav-4-v0", conf_file=gdq_path).entry["policy_kwargs"]["weight_average_tau"] is None
     path = tmp_path / "vdn.yml"
     for value, expected in (("0.0005", 0.0005), ("null", None)):
         path.write_text(f"default:\n  n_timesteps: 100\n  policy_kwargs: {{weight_average_tau: {value}}}\n")

@@ -95,9 +95,7 @@ def stop_and_resume(argv: list[str], folder: Path, stop: signal.Signals, vec_env
     if stop == signal.SIGKILL:  # let it log episodes past the checkpoint, which the resume must cut back
         checkpoint_ticks = verify_checkpoint(next(folder.glob("eps_gdq/*/checkpoint.zip")))["ticks"]
         while max_monitor_ticks(next(folder.glob("eps_gdq/*/monitor.csv"))) <= checkpoint_ticks:
-            assert process.poll() is None and time.time() < deadline, (
-                "training ended before it could be stopped"
-            )
+            assert process.poll() is None and time.time() < deadline, "training ended before it could be stopped"
             time.sleep(0.02)
     workers = worker_processes(process.pid)
     # The default layout: training world 0 in the training process and world 1 in a worker (on 1 core both in
@@ -172,9 +170,7 @@ def test_overlap_training_with_workers_resumes_to_the_in_process_run(tmp_path) -
     expected = tmp_path / "in_process"
     assert train.main([*argv, "-f", str(expected)]) == 0
     folder = tmp_path / "workers"
-    process = subprocess.Popen(
-        [sys.executable, "-m", "sb3_eps.train", *argv, "-f", str(folder), "--vec-env", "subproc"]
-    )
+    process = subprocess.Popen([sys.executable, "-m", "sb3_eps.train", *argv, "-f", str(folder), "--vec-env", "subproc"])
     deadline = time.time() + 120
     while not list(folder.glob("eps_gdq/*/checkpoint.zip")):
         assert process.poll() is None and time.time() < deadline, "training ended before it could be stopped"
@@ -197,9 +193,7 @@ def test_the_training_worlds_of_an_overlapping_config_all_go_to_workers() -> Non
         assert venv.main_worlds == 0 and venv.n_workers >= 1
     finally:
         venv.close()
-    eval_venv = build_env(
-        config, seed=0, n_envs=2, vec_env="subproc"
-    )  # evaluation worlds: the default layout
+    eval_venv = build_env(config, seed=0, n_envs=2, vec_env="subproc")  # evaluation worlds: the default layout
     eval_venv.close()
 
 
@@ -234,9 +228,5 @@ def test_resume_of_a_run_sharing_experience_equals_the_uninterrupted_run(tmp_pat
     run = stop_and_resume(sharing, tmp_path / "interrupted", signal.SIGTERM, "dummy")
     assert_equal_runs(run, expected)
     rounds, expected_rounds = (read_round_log(folder / "eps_rounds.jsonl") for folder in (run, expected))
-    assert [record["shared_rows"] for record in rounds] == [
-        record["shared_rows"] for record in expected_rounds
-    ]
-    assert (
-        sum(record["shared_rows"] for record in rounds) == sum(record["ticks_spent"] for record in rounds) > 0
-    )
+    assert [record["shared_rows"] for record in rounds] == [record["shared_rows"] for record in expected_rounds]
+    assert sum(record["shared_rows"] for record in rounds) == sum(record["ticks_spent"] for record in rounds) > 0

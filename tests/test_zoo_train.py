@@ -76,9 +76,7 @@ def test_run_folder_follows_the_zoo_layout(run_dir) -> None:
     assert sb3_keys | {"eval/success_rate", "eval/std_reward", "time/ticks"} <= set(progress)
     assert not {"eval/team_return", "eval/length", "rollout/team_return"} & set(progress)
     rows = np.isfinite(progress["eval/mean_reward"])
-    assert rows.sum() == 3 and np.allclose(
-        progress["eval/mean_reward"][rows], evaluations["results"].mean(axis=1)
-    )
+    assert rows.sum() == 3 and np.allclose(progress["eval/mean_reward"][rows], evaluations["results"].mean(axis=1))
     assert np.allclose(progress["eval/mean_ep_length"][rows], evaluations["ep_lengths"].mean(axis=1))
 
 
@@ -98,9 +96,7 @@ def test_numbered_model_snapshots_on_save_freq(run_dir, tmp_path, capsys) -> Non
     assert json.loads(output.read_text())["model"].endswith("rl_model_504_steps.zip")
     assert evaluate.main(["--run", str(run_dir), "-n", "2", "--n-envs", "1", "--load-last-checkpoint"]) == 0
     assert (run_dir / "eval_CooperativeNavigation-v0_last.json").is_file()
-    with pytest.raises(
-        ConfigError, match=r"no rl_model_7_steps.zip \(its snapshots are at timesteps \[504, 1002\]\)"
-    ):
+    with pytest.raises(ConfigError, match=r"no rl_model_7_steps.zip \(its snapshots are at timesteps \[504, 1002\]\)"):
         evaluate.main(["--run", str(run_dir), "--load-checkpoint", "7"])
 
 
@@ -143,9 +139,7 @@ def test_rl_zoo_plot_scripts_read_the_log_folder(run_dir, tmp_path, monkeypatch)
             (curve,) = pickle.load(file)[ENV_ID].values()
         evaluations = np.load(run_dir / "evaluations.npz")
         assert list(curve["timesteps"]) == list(evaluations["timesteps"])
-        assert np.allclose(
-            curve["mean"], evaluations[ours].mean(axis=1)
-        )  # one run: the mean over its episodes
+        assert np.allclose(curve["mean"], evaluations[ours].mean(axis=1))  # one run: the mean over its episodes
         plt.close("all")
     monkeypatch.setattr("sys.argv", ["plot_train", "-a", "gdq", "-e", ENV_ID, "-f", str(folder), "-w", "2"])
     plot_train()
@@ -200,9 +194,7 @@ def test_plot_writes_curves_and_aggregates(run_dir, tmp_path, capsys) -> None:
     # A run beside committed greedy-evaluation records (docs/results), and the records alone.
     records = tmp_path / "records"
     records.mkdir()
-    (records / f"gdq_{ENV_ID}_seed0.jsonl").write_text(
-        '{"ticks": 250, "success_rate": 0.5, "team_return_mean": 1}\n'
-    )
+    (records / f"gdq_{ENV_ID}_seed0.jsonl").write_text('{"ticks": 250, "success_rate": 0.5, "team_return_mean": 1}\n')
     assert plot.main([str(run_dir), "-o", str(tmp_path / "both.png"), "--records", str(records)]) == 0
     assert "2 runs" in capsys.readouterr().out
     assert plot.main(["-o", str(tmp_path / "records.png"), "--records", str(records)]) == 0
@@ -226,9 +218,7 @@ def test_single_agent_pretraining_warm_starts_a_multi_agent_model(tmp_path) -> N
     source = tmp_path / "pre" / "gdq" / f"{single}_1" / f"{single}.zip"
     # No gradient step (learning_starts beyond the budget): the multi-agent model keeps the loaded weights.
     warm = [*tiny[:1], "learning_starts:100000", "n_envs:1"]
-    argv = train_args(
-        tmp_path / "multi", "--eval-freq", "0", "--init-from", str(source), "--hyperparams", *warm, n=60
-    )
+    argv = train_args(tmp_path / "multi", "--eval-freq", "0", "--init-from", str(source), "--hyperparams", *warm, n=60)
     assert train.main(argv) == 0
     _, loaded, _ = load_from_zip_file(tmp_path / "multi" / "gdq" / f"{ENV_ID}_1" / f"{ENV_ID}.zip")
     _, original, _ = load_from_zip_file(source)
@@ -238,11 +228,7 @@ def test_single_agent_pretraining_warm_starts_a_multi_agent_model(tmp_path) -> N
     assert any(key.startswith("global_value_net.") for key in loaded["policy"])
     with pytest.raises(ConfigError, match="does not fit"):
         other = "policy_kwargs:dict(net_arch=[32], stream_arch=[16])"
-        train.main(
-            train_args(
-                tmp_path / "bad", "--eval-freq", "0", "--init-from", str(source), "--hyperparams", other, n=60
-            )
-        )
+        train.main(train_args(tmp_path / "bad", "--eval-freq", "0", "--init-from", str(source), "--hyperparams", other, n=60))
     assert not (tmp_path / "bad").exists()
 
 

@@ -55,11 +55,7 @@ def test_three_trials_two_jobs_write_a_sqlite_study_and_best_params(tmp_path, ca
     assert database.is_file() and (folder / "trials.csv").is_file()
     study = optuna.load_study(study_name=f"gdq-{ENV_ID}", storage=f"sqlite:///{database}")
     assert len(study.trials) == 3
-    finished = [
-        t
-        for t in study.trials
-        if t.state in (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
-    ]
+    finished = [t for t in study.trials if t.state in (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)]
     assert len(finished) == 3
     assert all(len(t.intermediate_values) >= 1 for t in finished)  # reported for pruning
     # The best parameters are a ready-to-use entry: -conf reads it.
@@ -123,20 +119,13 @@ def test_eps_searches_its_rounds_and_world_and_the_entries_build() -> None:
         entry = merge_overrides(base, sample_hyperparams(trial, spec, 400_000, env_id), spec)
         (item,) = entry["callback"]
         arguments = item[EVOLUTION_CALLBACK]
-        assert (
-            arguments["period_unit"] == "ticks" and arguments["period"] >= 5_000
-        )  # not the paper's episodes
-        assert (
-            arguments["fitness"] == base["callback"][0][EVOLUTION_CALLBACK]["fitness"]
-        )  # from the base entry
+        assert arguments["period_unit"] == "ticks" and arguments["period"] >= 5_000  # not the paper's episodes
+        assert arguments["fitness"] == base["callback"][0][EVOLUTION_CALLBACK]["fitness"]  # from the base entry
         team = arguments.get("eval_env_id") == env_id
         assert arguments.get("share_experience", False) is team
         worlds.add(team)
         ((_, callback),) = build_callbacks(entry, env_id, 0, "a trial")
-        assert (
-            callback.settings.share_experience is team
-            and callback.settings.max_eps_share == arguments["max_eps_share"]
-        )
+        assert callback.settings.share_experience is team and callback.settings.max_eps_share == arguments["max_eps_share"]
         study.tell(trial, 0.0)
     assert worlds == {False, True}
 
@@ -154,9 +143,7 @@ def test_a_trial_can_train_several_seeds_and_scores_their_mean(tmp_path) -> None
         assert sorted(trial.intermediate_values) == [1, 2, 3, 4]
         first, second = trial.user_attrs["seed_scores"]
         assert trial.value == pytest.approx((first + second) / 2)
-        assert trial.intermediate_values[2] == pytest.approx(first) and trial.intermediate_values[
-            4
-        ] == pytest.approx(second)
+        assert trial.intermediate_values[2] == pytest.approx(first) and trial.intermediate_values[4] == pytest.approx(second)
     assert "seeds 5-6" in load_config_entries(folder / "best_params.yml", "gdq")[ENV_ID]["notes"]
     with pytest.raises(ConfigError, match="--n-seeds-per-trial must be >= 1, got 0"):
         train.main([*argv, "--n-seeds-per-trial", "0"])
@@ -176,14 +163,10 @@ def test_an_eps_trial_pays_its_eps_ticks_from_the_budget(tmp_path, monkeypatch) 
             "--pruner", "none", "--n-evaluations", "3", "--hyperparams", "n_envs:1", "learning_starts:300"]  # fmt: skip
     assert train.main(argv) == 0
     (folder,) = (tmp_path / "eps_gdq").iterdir()
-    (trial,) = optuna.load_study(
-        study_name=f"eps_gdq-{ENV_ID}", storage=f"sqlite:///{folder / 'study.db'}"
-    ).trials
+    (trial,) = optuna.load_study(study_name=f"eps_gdq-{ENV_ID}", storage=f"sqlite:///{folder / 'study.db'}").trials
     (ticks,), (eps_ticks,) = trial.user_attrs["ticks"], trial.user_attrs["eps_ticks"]
     assert eps_ticks > 0 and ticks < budget // 3  # the training stopped early by what EPS spent...
-    assert (
-        budget // 3 <= ticks + eps_ticks < budget // 3 + 200
-    )  # ...at the budget (a round is at most 3 x 25 ticks)
+    assert budget // 3 <= ticks + eps_ticks < budget // 3 + 200  # ...at the budget (a round is at most 3 x 25 ticks)
     # The evaluations fall every third of the budget of training plus EPS (counted on training alone, the third
     # point would never be reached), the last one at the step that ends the budget.
     assert sorted(trial.intermediate_values) == [1, 2, 3]

@@ -72,9 +72,7 @@ class CollisionCounter:
 
     def __init__(self, agents: list[Entity]) -> None:
         n_agents = len(agents)
-        self._pairs = [
-            (i, j, agents[i].size + agents[j].size) for i in range(n_agents) for j in range(i + 1, n_agents)
-        ]
+        self._pairs = [(i, j, agents[i].size + agents[j].size) for i in range(n_agents) for j in range(i + 1, n_agents)]
 
     def __call__(self, agent_pos: list[list[float]]) -> int:
         """Count the colliding pairs now.

@@ -120,9 +120,7 @@ class CooperativeNavigationEnv(ParallelEnv):
 
     def step(
         self, actions: dict[str, Any]
-    ) -> tuple[
-        dict[str, np.ndarray], dict[str, float], dict[str, bool], dict[str, bool], dict[str, dict[str, Any]]
-    ]:
+    ) -> tuple[dict[str, np.ndarray], dict[str, float], dict[str, bool], dict[str, bool], dict[str, dict[str, Any]]]:
         """Advance the world one tick.
 
         :param actions: one Discrete(5) action per live agent
@@ -130,9 +128,7 @@ class CooperativeNavigationEnv(ParallelEnv):
         """
         for agent, action in actions.items():
             if not is_valid_action(action):
-                raise ValueError(
-                    f"action {action!r} of {agent} is outside the action space {self._action_space}"
-                )
+                raise ValueError(f"action {action!r} of {agent} is outside the action space {self._action_space}")
         observations, rewards, terminations, truncations, inner_infos = self._env.step(actions)
         self.agents = list(self._env.agents)
         self._ticks += 1
@@ -160,9 +156,7 @@ class CooperativeNavigationEnv(ParallelEnv):
         self._team_return = 0.0
         self._n_collisions = 0
 
-    def _team_metrics(
-        self, n_new_collisions: int, agent_pos: list[list[float]] | None = None
-    ) -> dict[str, Any]:
+    def _team_metrics(self, n_new_collisions: int, agent_pos: list[list[float]] | None = None) -> dict[str, Any]:
         if agent_pos is None:
             agent_pos = positions(self._world.agents)
         self._n_collisions += n_new_collisions

@@ -102,9 +102,7 @@ class CooperativeNavigationSingleEnv(gymnasium.Env):
         self._team_return = 0.0
         self._n_collisions = 0
 
-    def reset(
-        self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[np.ndarray, dict[str, Any]]:
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         """Start an episode: new landmarks, teammates parked on all but the learner's, a free start.
 
         :param seed: reseeds ``self.np_random`` when given (non-negative int)
@@ -175,10 +173,7 @@ class CooperativeNavigationSingleEnv(gymnasium.Env):
     def _n_overlaps(self) -> int:
         # mpe2's is_collision: centre distance < sum of the sizes.
         position = self._agent.state.p_pos.tolist()
-        return sum(
-            math.dist(position, mate.state.p_pos.tolist()) < self._agent.size + mate.size
-            for mate in self._teammates
-        )
+        return sum(math.dist(position, mate.state.p_pos.tolist()) < self._agent.size + mate.size for mate in self._teammates)
 
     def _metrics(self, distance: float) -> dict[str, Any]:
         # The parked teammates sit on their landmarks: they count as occupied, at distance 0.

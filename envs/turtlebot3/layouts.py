@@ -142,9 +142,7 @@ def eps_layout() -> Layout:
 # 240 degrees the lidar tells the two shapes apart only within a few centimetres), one per other robot of the
 # 4-robot arena, spread so no passage is narrower than 0.9 m.
 PILLAR_HALF_SIZE = 0.1
-EPS_PILLARS = np.array(
-    [[x, y, PILLAR_HALF_SIZE, PILLAR_HALF_SIZE] for x, y in ((-0.8, 0.8), (0.9, 0.2), (-0.2, -0.9))]
-)
+EPS_PILLARS = np.array([[x, y, PILLAR_HALF_SIZE, PILLAR_HALF_SIZE] for x, y in ((-0.8, 0.8), (0.9, 0.2), (-0.2, -0.9))])
 
 
 def eps_pillars_layout() -> Layout:
@@ -214,9 +212,7 @@ def make_layout(scenario: str, n_robots: int) -> Layout:
         raise ValueError(f"n_robots must be an int, got {n_robots!r} ({type(n_robots).__name__}).")
     max_robots = MAX_ROBOTS[scenario]
     if not 1 <= n_robots <= max_robots:
-        raise ValueError(
-            f"n_robots={n_robots} is out of range for scenario {scenario!r}: allowed 1 to {max_robots}."
-        )
+        raise ValueError(f"n_robots={n_robots} is out of range for scenario {scenario!r}: allowed 1 to {max_robots}.")
     if scenario == "arena":
         return arena_layout(int(n_robots))
     if scenario == "eps":
@@ -305,9 +301,7 @@ def sample_targets(rng: np.random.Generator, layout: Layout, starts_xy: np.ndarr
     :param starts_xy: ``(n, 2)`` start positions of all robots
     :return: ``(n, 2)`` targets
     """
-    return _pick_spaced(
-        rng, layout, len(starts_xy), TARGET_CLEARANCE, TARGET_SPACING, starts_xy, TARGET_START_SPACING
-    )
+    return _pick_spaced(rng, layout, len(starts_xy), TARGET_CLEARANCE, TARGET_SPACING, starts_xy, TARGET_START_SPACING)
 
 
 def jitter_starts(rng: np.random.Generator, layout: Layout, starts: np.ndarray, radius: float) -> np.ndarray:
@@ -340,9 +334,7 @@ def jitter_targets(
     :param radius: largest offset [m]
     :return: ``(n, 2)`` targets
     """
-    return _pick_near(
-        rng, layout, targets, radius, TARGET_CLEARANCE, TARGET_SPACING, starts_xy, TARGET_START_SPACING
-    )
+    return _pick_near(rng, layout, targets, radius, TARGET_CLEARANCE, TARGET_SPACING, starts_xy, TARGET_START_SPACING)
 
 
 def _pick_near(

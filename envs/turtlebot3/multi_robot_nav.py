@@ -125,17 +125,13 @@ class MultiRobotNavEnv(ParallelEnv):
         if max_episode_steps < 1:
             raise ValueError(f"max_episode_steps must be a positive int or None, got {max_episode_steps}.")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(
-                f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}."
-            )
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}.")
         if (
             not isinstance(lidar_noise_std, (int, float, np.integer, np.floating))
             or not np.isfinite(lidar_noise_std)
             or lidar_noise_std < 0
         ):
-            raise ValueError(
-                f"lidar_noise_std must be a finite number >= 0 (metres), got {lidar_noise_std!r}."
-            )
+            raise ValueError(f"lidar_noise_std must be a finite number >= 0 (metres), got {lidar_noise_std!r}.")
         self.placement_jitter = self._check_placement_jitter(placement_jitter)
         self.max_episode_steps = int(max_episode_steps)
         self.render_mode = render_mode
@@ -294,9 +290,7 @@ class MultiRobotNavEnv(ParallelEnv):
         except (TypeError, ValueError) as error:
             raise ValueError(f"options[{key!r}] must be a numeric array of shape {shape}.") from error
         if array.shape != shape or not np.isfinite(array).all():
-            raise ValueError(
-                f"options[{key!r}] must be a finite array of shape {shape}, got shape {array.shape}."
-            )
+            raise ValueError(f"options[{key!r}] must be a finite array of shape {shape}, got shape {array.shape}.")
         return array
 
     # --- step --------------------------------------------------------------------------------------------
@@ -364,8 +358,7 @@ class MultiRobotNavEnv(ParallelEnv):
 
         team = self._team_info()
         infos = {
-            agent: {"arrived": a, "collided": c, "team": team}
-            for agent, a, c in zip(acting, arrived_list, collided.tolist())
+            agent: {"arrived": a, "collided": c, "team": team} for agent, a, c in zip(acting, arrived_list, collided.tolist())
         }
         result = (
             dict(zip(acting, obs)),
@@ -384,9 +377,7 @@ class MultiRobotNavEnv(ParallelEnv):
             raw = [actions[agent] for agent in acting]
         except (KeyError, TypeError) as error:
             missing = [agent for agent in acting if not isinstance(actions, dict) or agent not in actions]
-            raise ValueError(
-                f"step() needs a dict with an action for every live robot; missing {missing}."
-            ) from error
+            raise ValueError(f"step() needs a dict with an action for every live robot; missing {missing}.") from error
         try:
             array = np.asarray(raw)
         except ValueError:
@@ -405,9 +396,7 @@ class MultiRobotNavEnv(ParallelEnv):
 
     # --- observations, state, infos ----------------------------------------------------------------------
 
-    def _observe(
-        self, indices: np.ndarray, offset: np.ndarray, distance: np.ndarray, bearing: np.ndarray
-    ) -> np.ndarray:
+    def _observe(self, indices: np.ndarray, offset: np.ndarray, distance: np.ndarray, bearing: np.ndarray) -> np.ndarray:
         """Scan and build the 30-float observations of the robots in ``indices`` (one ray batch).
 
         :param indices: robot indices
@@ -427,9 +416,7 @@ class MultiRobotNavEnv(ParallelEnv):
 
     def _bearing(self, indices: np.ndarray, offset: np.ndarray) -> np.ndarray:
         """The target's bearing relative to each robot's heading, wrapped to [-pi, pi)."""
-        return wrap_angle(
-            np.arctan2(offset[:, 1], offset[:, 0]) - self.world.theta[self.world.rows_of(indices)]
-        )
+        return wrap_angle(np.arctan2(offset[:, 1], offset[:, 0]) - self.world.theta[self.world.rows_of(indices)])
 
     def _team_info(self) -> dict[str, Any]:
         n_arrived = int(self._arrived.sum())

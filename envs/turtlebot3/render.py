@@ -156,7 +156,5 @@ def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: int = 20) -> P
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     # The Pillow GIF writer takes the frame duration in milliseconds.
-    imageio.mimsave(
-        path, [np.asarray(frame, dtype=np.uint8) for frame in frames], duration=1000.0 / fps, loop=0
-    )
+    imageio.mimsave(path, [np.asarray(frame, dtype=np.uint8) for frame in frames], duration=1000.0 / fps, loop=0)
     return path

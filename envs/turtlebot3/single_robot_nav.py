@@ -71,9 +71,7 @@ class SingleRobotNavEnv(gymnasium.Env):
         self.max_episode_steps = self.multi_env.max_episode_steps
         self._np_random = self.multi_env.np_random
 
-    def reset(
-        self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[np.ndarray, dict[str, Any]]:
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         """Start an episode with a new random start pose and target.
 
         :param seed: re-seeds the generator (a non-negative int)

@@ -150,9 +150,7 @@ class NavWorld:
             extent = max(layout.width, layout.height)
             p.resetDebugVisualizerCamera(extent * 1.1, 0.0, -89.9, [0.0, 0.0, 0.0], physicsClientId=cid)
         vertices, indices = box_mesh(layout.boxes, WALL_HEIGHT)
-        mesh = p.createCollisionShape(
-            p.GEOM_MESH, vertices=vertices.tolist(), indices=indices.tolist(), physicsClientId=cid
-        )
+        mesh = p.createCollisionShape(p.GEOM_MESH, vertices=vertices.tolist(), indices=indices.tolist(), physicsClientId=cid)
         self.map_id = p.createMultiBody(0.0, mesh, -1, [0.0, 0.0, 0.0], physicsClientId=cid)
         sphere = p.createCollisionShape(
             p.GEOM_SPHERE,
@@ -196,9 +194,7 @@ class NavWorld:
         at most 1 cm a tick, refreshes the points correctly and needs none of this.
         """
         for body in self.robot_ids:
-            p.setCollisionFilterGroupMask(
-                body, -1, ROBOT_FILTER_GROUP, ROBOT_FILTER_MASK, physicsClientId=self.client
-            )
+            p.setCollisionFilterGroupMask(body, -1, ROBOT_FILTER_GROUP, ROBOT_FILTER_MASK, physicsClientId=self.client)
 
     def move(self, moving: np.ndarray, v: np.ndarray, w: np.ndarray) -> None:
         """Drive the robots in ``moving`` for one decision period (0.05 s) at constant (v, w), exactly.
@@ -225,9 +221,7 @@ class NavWorld:
         sines, cosines = np.sin(half).tolist(), np.cos(half).tolist()
         client, bodies = self.client, self.robot_ids
         for i, (x, y), sz, cz in zip(indices.tolist(), self.xy[rows].tolist(), sines, cosines):
-            p.resetBasePositionAndOrientation(
-                bodies[i], (x, y, 0.0), (0.0, 0.0, sz, cz), physicsClientId=client
-            )
+            p.resetBasePositionAndOrientation(bodies[i], (x, y, 0.0), (0.0, 0.0, sz, cz), physicsClientId=client)
 
     # --- sensing -----------------------------------------------------------------------------------------
 
@@ -236,9 +230,7 @@ class NavWorld:
         angles = self.theta[self.rows_of(indices), None] + BEAM_ANGLES
         return np.cos(angles), np.sin(angles)
 
-    def scan(
-        self, indices: np.ndarray, noise_std: float = 0.0, rng: np.random.Generator | None = None
-    ) -> np.ndarray:
+    def scan(self, indices: np.ndarray, noise_std: float = 0.0, rng: np.random.Generator | None = None) -> np.ndarray:
         """Lidar ranges of the robots in ``indices``, all beams cast in one ``rayTestBatch``.
 
         :param indices: robot indices
@@ -337,12 +329,8 @@ class NavWorld:
         self._target_ids = []
         for i, (tx, ty) in enumerate(targets):
             rgba = [*(ROBOT_COLOURS[i % len(ROBOT_COLOURS)] / 255.0).tolist(), 0.6]
-            shape = p.createVisualShape(
-                p.GEOM_CYLINDER, radius=0.1, length=0.005, rgbaColor=rgba, physicsClientId=self.client
-            )
-            self._target_ids.append(
-                p.createMultiBody(0.0, -1, shape, [tx, ty, 0.003], physicsClientId=self.client)
-            )
+            shape = p.createVisualShape(p.GEOM_CYLINDER, radius=0.1, length=0.005, rgbaColor=rgba, physicsClientId=self.client)
+            self._target_ids.append(p.createMultiBody(0.0, -1, shape, [tx, ty, 0.003], physicsClientId=self.client))
 
     # --- lifetime ----------------------------------------------------------------------------------------
 

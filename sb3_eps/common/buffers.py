@@ -108,9 +108,7 @@ class JointReplayBuffer:
             self.next_states[index] = row.next_state
         if self.store_values:
             if row.values is None or row.next_values is None:
-                raise ValueError(
-                    "this buffer stores the agents' values: the row must carry values and next_values"
-                )
+                raise ValueError("this buffer stores the agents' values: the row must carry values and next_values")
             self.values[index] = row.values
             self.next_values[index] = row.next_values
         self.pos = (self.pos + 1) % self.buffer_size

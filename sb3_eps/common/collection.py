@@ -45,9 +45,7 @@ def collect_rollouts(
         n_collected_steps += 1
         callback.update_locals(locals())
         if not callback.on_step():
-            return RolloutReturn(
-                n_collected_steps * env.num_envs, n_collected_episodes, continue_training=False
-            )
+            return RolloutReturn(n_collected_steps * env.num_envs, n_collected_episodes, continue_training=False)
         model._update_info_buffer(infos, dones)
         n_ended = store_joint_transition(model, actions, new_obs, rewards, dones, infos)
         model._update_current_progress_remaining(model.num_timesteps, model._total_timesteps)
@@ -151,17 +149,13 @@ class _Step(NamedTuple):
     world_ended: np.ndarray  # (n_worlds,): every agent of the world is done
 
 
-def _read_step(
-    new_obs: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]], shape: tuple[int, int]
-) -> _Step:
+def _read_step(new_obs: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]], shape: tuple[int, int]) -> _Step:
     """Read the bridge's flags from a step's infos; patch in the terminal observations SB3 moved to the infos."""
     next_obs = np.array(new_obs, dtype=np.float32, copy=True)
     for index in np.flatnonzero(dones):
         next_obs[index] = infos[index]["terminal_observation"]
     alive = np.fromiter((info.get("alive", True) for info in infos), dtype=bool, count=len(infos))
-    truncated = np.fromiter(
-        (info.get("TimeLimit.truncated", False) for info in infos), dtype=bool, count=len(infos)
-    )
+    truncated = np.fromiter((info.get("TimeLimit.truncated", False) for info in infos), dtype=bool, count=len(infos))
     dones = np.asarray(dones, dtype=bool)
     ended = dones & alive
     return _Step(
@@ -173,9 +167,7 @@ def _read_step(
     )
 
 
-def _non_finite_worlds(
-    observations: np.ndarray, next_observations: np.ndarray, rewards: np.ndarray
-) -> dict[int, str]:
+def _non_finite_worlds(observations: np.ndarray, next_observations: np.ndarray, rewards: np.ndarray) -> dict[int, str]:
     """:return: world -> what was not finite in its tick (``(worlds, agents, ...)`` arrays; empty when all are)."""
     parts = {"observation": observations, "next observation": next_observations, "reward": rewards}
     found: dict[int, str] = {}

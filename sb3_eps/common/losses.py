@@ -26,9 +26,7 @@ def masked_huber(prediction: th.Tensor, target: th.Tensor, mask: th.Tensor, weig
 def weighted_huber(prediction: th.Tensor, target: th.Tensor, weights: th.Tensor) -> th.Tensor:
     """Huber loss of per-row predictions ``(B,)`` weighted by the importance weights ``(B,)``."""
     if not (prediction.shape == target.shape == weights.shape):
-        raise ValueError(
-            f"weighted_huber shapes: {tuple(prediction.shape)}, {tuple(target.shape)}, {tuple(weights.shape)}"
-        )
+        raise ValueError(f"weighted_huber shapes: {tuple(prediction.shape)}, {tuple(target.shape)}, {tuple(weights.shape)}")
     return (F.smooth_l1_loss(prediction, target, reduction="none") * weights).mean()
 
 

@@ -44,9 +44,7 @@ class MultiAgentVecEnv(VecEnv):
     :param env_id: the registered id the worlds were built from, for the record
     """
 
-    def __init__(
-        self, env_fns: Sequence[Callable[[], ParallelEnv | gymnasium.Env]], env_id: str | None = None
-    ):
+    def __init__(self, env_fns: Sequence[Callable[[], ParallelEnv | gymnasium.Env]], env_id: str | None = None):
         if len(env_fns) < 1:
             raise ValueError("MultiAgentVecEnv needs at least one env constructor")
         self._worlds = [FixedAgentSet(_as_parallel_env(env_fn())) for env_fn in env_fns]
@@ -86,9 +84,7 @@ class MultiAgentVecEnv(VecEnv):
         self._seed = None
         self._reset_seeds()
         self._reset_options()
-        self.reset_infos = [
-            world.reset_infos.get(agent, {}) for world in self._worlds for agent in self.possible_agents
-        ]
+        self.reset_infos = [world.reset_infos.get(agent, {}) for world in self._worlds for agent in self.possible_agents]
         self.alive = np.ones(self.num_envs, dtype=bool)
         self._episode_returns = [0.0] * self.n_worlds
         self._episode_start = [self._n_steps] * self.n_worlds
@@ -109,18 +105,11 @@ class MultiAgentVecEnv(VecEnv):
         """Step every world once (a tick) and return ``obs, rewards, dones, infos`` of all agents."""
         actions = self._actions
         if self.n_worlds == 1:
-            obs, rewards, terminations, truncations, infos = self._agent_venvs[0].step(
-                self._per_world(actions)
-            )
+            obs, rewards, terminations, truncations, infos = self._agent_venvs[0].step(self._per_world(actions))
             self.alive = self._worlds[0].step_alive
         else:
-            results = [
-                venv.step(self._per_world(actions[part]))
-                for venv, part in zip(self._agent_venvs, self._slices)
-            ]
-            obs, rewards, terminations, truncations = (
-                np.concatenate([r[i] for r in results]) for i in range(4)
-            )
+            results = [venv.step(self._per_world(actions[part])) for venv, part in zip(self._agent_venvs, self._slices)]
+            obs, rewards, terminations, truncations = (np.concatenate([r[i] for r in results]) for i in range(4))
             infos = [info for result in results for info in result[4]]
             self.alive = np.concatenate([world.step_alive for world in self._worlds])
         dones = np.logical_or(terminations, truncations)
@@ -188,9 +177,7 @@ class MultiAgentVecEnv(VecEnv):
         result per selected sub-env (agents of one world share their world's)."""
         return self._per_sub_env(indices, "method", method_name, method_args, method_kwargs)
 
-    def env_is_wrapped(
-        self, wrapper_class: type[gymnasium.Wrapper], indices: VecEnvIndices = None
-    ) -> list[bool]:
+    def env_is_wrapped(self, wrapper_class: type[gymnasium.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
         """Whether the env of each selected sub-env is a gymnasium env wrapped in ``wrapper_class``."""
         return self._per_sub_env(indices, "is_wrapped", None, (wrapper_class,))
 
@@ -222,10 +209,7 @@ class MultiAgentVecEnv(VecEnv):
         kwargs: dict[str, Any] | None = None,
     ) -> dict[int, Any]:
         """:return: world -> the result of :func:`_apply_to_world` on it (the worker vec env overrides this)."""
-        return {
-            w: _apply_to_world(self._worlds[w], self._user_env(w), kind, name, args, kwargs or {})
-            for w in worlds
-        }
+        return {w: _apply_to_world(self._worlds[w], self._user_env(w), kind, name, args, kwargs or {}) for w in worlds}
 
     def _user_env(self, w: int) -> Any:
         """The env world ``w`` was built from (a ParallelEnv, or the gymnasium env of a one-agent world)."""
@@ -259,9 +243,7 @@ class MultiAgentVecEnv(VecEnv):
             first["is_success"] = bool(team["success"])
         first["terminal_state"] = world.terminal_state
         start = w * self.n_agents
-        self.reset_infos[start : start + self.n_agents] = [
-            world.reset_infos.get(a, {}) for a in self.possible_agents
-        ]
+        self.reset_infos[start : start + self.n_agents] = [world.reset_infos.get(a, {}) for a in self.possible_agents]
         self._episode_returns[w] = 0.0
         self._episode_start[w] = self._n_steps
 
@@ -271,9 +253,7 @@ def _as_parallel_env(env: ParallelEnv | gymnasium.Env) -> ParallelEnv:
         return SingleAgentParallelEnv(env)
     if isinstance(env, ParallelEnv):
         return env
-    raise ValueError(
-        f"an env constructor returned {type(env).__name__}; expected a PettingZoo ParallelEnv or a gymnasium Env"
-    )
+    raise ValueError(f"an env constructor returned {type(env).__name__}; expected a PettingZoo ParallelEnv or a gymnasium Env")
 
 
 def _apply_to_world(

@@ -44,9 +44,7 @@ from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.common.threads import set_torch_threads
 from sb3_eps.common.utils import check_arguments, describe_space, epsilon_greedy, polyak_update_
 
-SelfMultiAgentOffPolicyAlgorithm = TypeVar(
-    "SelfMultiAgentOffPolicyAlgorithm", bound="MultiAgentOffPolicyAlgorithm"
-)
+SelfMultiAgentOffPolicyAlgorithm = TypeVar("SelfMultiAgentOffPolicyAlgorithm", bound="MultiAgentOffPolicyAlgorithm")
 
 
 class TDTerms(NamedTuple):
@@ -146,9 +144,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         _init_setup_model: bool = True,
     ) -> None:
         if isinstance(env, str):
-            raise ValueError(
-                f"pass a vector env, not the id {env!r}: use sb3_eps.make_vec_env({env!r}, n_envs=...)"
-            )
+            raise ValueError(f"pass a vector env, not the id {env!r}: use sb3_eps.make_vec_env({env!r}, n_envs=...)")
         check_arguments(MultiAgentOffPolicyAlgorithm.__init__, locals(), self.argument_ranges)
         set_torch_threads()  # small networks: one thread unless the user chose (sb3_eps/common/threads.py)
         self.n_agents = 0
@@ -218,9 +214,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         state_space = getattr(multi_agent_env, "state_space", None)
         state_dim = int(np.prod(state_space.shape)) if state_space is not None else 0
         if self.state_dim and state_dim != self.state_dim and self.uses_global_state:
-            raise ValueError(
-                f"the model's global state has {self.state_dim} entries; the env's has {state_dim}"
-            )
+            raise ValueError(f"the model's global state has {self.state_dim} entries; the env's has {state_dim}")
         self.state_dim = state_dim
 
     @property
@@ -304,14 +298,10 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         }
         clash = sorted(set(self.replay_buffer_kwargs) & {*owned, "buffer_size", "observation_space"})
         if clash:
-            raise ValueError(
-                f"replay_buffer_kwargs cannot set {clash}: the algorithm sets them (buffer_size, env)"
-            )
+            raise ValueError(f"replay_buffer_kwargs cannot set {clash}: the algorithm sets them (buffer_size, env)")
         defaults = {"alpha": self.prioritized_replay_alpha} if self.prioritized_replay else {}
         try:
-            return buffer_class(
-                self.buffer_size, self.observation_space, **owned, **{**defaults, **self.replay_buffer_kwargs}
-            )
+            return buffer_class(self.buffer_size, self.observation_space, **owned, **{**defaults, **self.replay_buffer_kwargs})
         except TypeError as error:
             raise ValueError(f"replay_buffer_kwargs do not fit {buffer_class.__name__}: {error}") from None
 
@@ -423,9 +413,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         return None
 
     # ------------------------------------------------------------------ learning
-    def _compute_loss(
-        self, batch: JointReplayBufferSamples
-    ) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
+    def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         """:return: ``(loss, per-row absolute TD error for the priorities, values to log under train/)``"""
         raise NotImplementedError(f"{type(self).__name__} must implement _compute_loss")
 
@@ -478,9 +466,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
         # The importance exponent, annealed from prioritized_replay_beta0 to 1 over training.
-        beta = self.prioritized_replay_beta0 + (1.0 - self.prioritized_replay_beta0) * (
-            1.0 - self._current_progress_remaining
-        )
+        beta = self.prioritized_replay_beta0 + (1.0 - self.prioritized_replay_beta0) * (1.0 - self._current_progress_remaining)
         parameters = [param for group in self.policy.optimizer.param_groups for param in group["params"]]
         logs: dict[str, list[float]] = defaultdict(list)
         for _ in range(gradient_steps):
@@ -518,14 +504,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             "rewards": batch.rewards,
         }
         sources = [f"replay batch {name}" for name, tensor in inputs.items() if not th.isfinite(tensor).all()]
-        broken = {
-            name.split(".")[0]
-            for name, param in self.policy.named_parameters()
-            if not th.isfinite(param).all()
-        }
-        sources += [
-            f"{'target network' if name.endswith('_target') else 'network'} {name}" for name in sorted(broken)
-        ]
+        broken = {name.split(".")[0] for name, param in self.policy.named_parameters() if not th.isfinite(param).all()}
+        sources += [f"{'target network' if name.endswith('_target') else 'network'} {name}" for name in sorted(broken)]
         source = ", ".join(sources) or "the loss itself (TD target or prediction overflowed)"
         warnings.warn(
             f"gradient step refused: non-finite loss or gradient from {source} (count: train/n_refused_updates)",
@@ -544,9 +524,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         episodes = list(self.ep_info_buffer or [])
         if episodes:
             if "collision" in episodes[0]:
-                self.logger.record(
-                    "rollout/collision_rate", safe_mean([float(e["collision"]) for e in episodes])
-                )
+                self.logger.record("rollout/collision_rate", safe_mean([float(e["collision"]) for e in episodes]))
             if "success" in episodes[0]:
                 self.logger.record("rollout/success_rate", safe_mean([float(e["success"]) for e in episodes]))
         self.logger.record("time/ticks", self.ticks)
@@ -563,9 +541,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "policy.optimizer"], []
 
-    def load_replay_buffer(
-        self, path: str | pathlib.Path | io.BufferedIOBase, truncate_last_traj: bool = True
-    ) -> None:
+    def load_replay_buffer(self, path: str | pathlib.Path | io.BufferedIOBase, truncate_last_traj: bool = True) -> None:
         buffer = load_from_pkl(path, self.verbose)
         if not isinstance(buffer, JointReplayBuffer) or buffer.n_agents != self.n_agents:
             raise ValueError(f"{path} does not hold a joint replay buffer for {self.n_agents} agents")

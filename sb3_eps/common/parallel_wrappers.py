@@ -90,9 +90,7 @@ class ParallelEnvAsGymnasium(gymnasium.Env):
         self.metadata = dict(getattr(env, "metadata", {}))
         self.render_mode = getattr(env, "render_mode", None)
 
-    def reset(
-        self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[Any, dict[str, Any]]:
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         super().reset(seed=seed)
         observations, infos = self.env.reset(seed=seed, options=options)
         return observations[self.agent], dict(infos.get(self.agent, {}))
@@ -141,13 +139,10 @@ class TeamAsGymnasium(gymnasium.Env):
         self.agent_observation_space = env.observation_space(self.agents[0])
         self.agent_action_space = env.action_space(self.agents[0])
         if any(
-            env.observation_space(agent) != self.agent_observation_space
-            or env.action_space(agent) != self.agent_action_space
+            env.observation_space(agent) != self.agent_observation_space or env.action_space(agent) != self.agent_action_space
             for agent in self.agents
         ) or not isinstance(self.agent_action_space, spaces.Discrete):
-            raise ValueError(
-                "TeamAsGymnasium needs agents that share one observation space and one Discrete action space"
-            )
+            raise ValueError("TeamAsGymnasium needs agents that share one observation space and one Discrete action space")
         box = self.agent_observation_space
         assert isinstance(box, spaces.Box)
         shape = (self.team_size, *box.shape)
@@ -164,9 +159,7 @@ class TeamAsGymnasium(gymnasium.Env):
     def _stack(self, observations: dict[str, Any]) -> np.ndarray:
         return np.stack([observations[agent] for agent in self.agents]).astype(self.observation_space.dtype)
 
-    def reset(
-        self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[np.ndarray, dict[str, Any]]:
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         """:return: the team's observations and the first agent's info."""
         super().reset(seed=seed)
         observations, _ = self.env.reset(seed=seed, options=options)
@@ -231,9 +224,7 @@ class FixedAgentSet(ParallelEnv):
         self.render_mode = getattr(env, "render_mode", None)
         env_state_space = getattr(env, "state_space", None)
         self._has_state = env_state_space is not None
-        self.state_space: spaces.Box = (
-            env_state_space if env_state_space is not None else self._stacked_observation_space()
-        )
+        self.state_space: spaces.Box = env_state_space if env_state_space is not None else self._stacked_observation_space()
         n_agents = len(self.possible_agents)
         self._alive = np.ones(n_agents, dtype=bool)
         self._n_alive = n_agents
@@ -261,9 +252,7 @@ class FixedAgentSet(ParallelEnv):
         observations, infos = self.env.reset(seed=seed, options=options)
         missing = [agent for agent in self.possible_agents if agent not in observations]
         if missing:
-            raise ValueError(
-                f"{missing} got no observation at reset: every possible agent must start the episode"
-            )
+            raise ValueError(f"{missing} got no observation at reset: every possible agent must start the episode")
         self._last_obs = observations
         self._alive[:] = True
         self._n_alive = len(self._alive)
@@ -277,9 +266,7 @@ class FixedAgentSet(ParallelEnv):
         alive = self._alive
         everyone_acts = self._n_alive == len(alive)
         if not everyone_acts:
-            actions = {
-                agent: actions[agent] for agent, is_alive in zip(self.possible_agents, alive) if is_alive
-            }
+            actions = {agent: actions[agent] for agent, is_alive in zip(self.possible_agents, alive) if is_alive}
         observations, rewards, terminations, truncations, infos = self.env.step(actions)
         if everyone_acts and not (any(terminations.values()) or any(truncations.values())):
             # The common case, kept cheap: everyone acted and nobody's episode ended.
@@ -337,16 +324,12 @@ class FixedAgentSet(ParallelEnv):
         """The wrapped env's global state (or all agents' observations concatenated when it has none)."""
         if self._has_state:
             return self.env.state()
-        return np.concatenate([np.ravel(self._last_obs[agent]) for agent in self.possible_agents]).astype(
-            np.float32
-        )
+        return np.concatenate([np.ravel(self._last_obs[agent]) for agent in self.possible_agents]).astype(np.float32)
 
     def _stacked_observation_space(self) -> spaces.Box:
         boxes = [self.env.observation_space(agent) for agent in self.possible_agents]
         if not all(isinstance(box, spaces.Box) for box in boxes):
-            raise ValueError(
-                "an env without state_space needs Box observation spaces to build its global state"
-            )
+            raise ValueError("an env without state_space needs Box observation spaces to build its global state")
         low = np.concatenate([np.ravel(box.low) for box in boxes]).astype(np.float32)
         high = np.concatenate([np.ravel(box.high) for box in boxes]).astype(np.float32)
         return spaces.Box(low, high, dtype=np.float32)

@@ -65,9 +65,7 @@ class DuelingQNetwork(BasePolicy):
         self.trunk = nn.Sequential(*trunk)
         trunk_dim = self.net_arch[-1] if self.net_arch else features_dim
         self.value_stream = nn.Sequential(*create_mlp(trunk_dim, 1, self.stream_arch, activation_fn))
-        self.advantage_stream = nn.Sequential(
-            *create_mlp(trunk_dim, n_actions, self.stream_arch, activation_fn)
-        )
+        self.advantage_stream = nn.Sequential(*create_mlp(trunk_dim, n_actions, self.stream_arch, activation_fn))
 
     def value_advantage(self, obs: PyTorchObs) -> tuple[th.Tensor, th.Tensor]:
         """:return: ``(V (batch, 1), A (batch, n_actions))`` for a batch of observations."""
@@ -186,10 +184,7 @@ class MultiAgentQPolicy(BasePolicy):
         trainable = [self.q_net, *(getattr(self, name) for name in self.joint_module_names())]
         parameters = [param for module in trainable for param in module.parameters()]
         kwargs = dict(self.optimizer_kwargs)
-        if (
-            self.optimizer_class in (th.optim.Adam, th.optim.AdamW)
-            and not {"fused", "foreach"} & kwargs.keys()
-        ):
+        if self.optimizer_class in (th.optim.Adam, th.optim.AdamW) and not {"fused", "foreach"} & kwargs.keys():
             # The fused kernel updates every tensor in one call: about 0.4 ms less per gradient step on a CPU
             # for our small networks (benchmarks/train_throughput.py); pass fused=False to opt out.
             kwargs["fused"] = True
@@ -212,9 +207,7 @@ class MultiAgentQPolicy(BasePolicy):
         ``n_updates`` so far; nothing without ``weight_average_tau``."""
         if self.q_net_average is not None:
             assert self.weight_average_tau is not None
-            polyak_update_(
-                self.q_net_average, self.q_net, weight_average_rate(self.weight_average_tau, n_updates)
-            )
+            polyak_update_(self.q_net_average, self.q_net, weight_average_rate(self.weight_average_tau, n_updates))
 
     def greedy_net(self) -> DuelingQNetwork:
         """:return: the network the greedy actions come from: ``q_net_average`` when kept, else ``q_net``."""

@@ -224,9 +224,7 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         ranges = {"n_workers": "[1, inf)", "main_worlds": f"[0, {n_worlds - 1}]", "spin_s": "[0, inf)"}
         check_arguments(SubprocMultiAgentVecEnv.__init__, values, ranges)
         if start_method is not None and start_method not in mp.get_all_start_methods():
-            raise ValueError(
-                f"start_method {start_method!r} is not available here; use one of {mp.get_all_start_methods()}"
-            )
+            raise ValueError(f"start_method {start_method!r} is not available here; use one of {mp.get_all_start_methods()}")
         if main_worlds is None:
             if n_workers is None:
                 main_worlds, n_workers = default_layout(n_worlds)
@@ -248,8 +246,7 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         self.spin_s = float(spin_s)
         self._t_start = time.time()
         main_payload, *payloads = (
-            ("fns", CloudpickleWrapper(([env_fns[w] for w in block], env_id)))
-            for block in [self._main_block, *self._blocks]
+            ("fns", CloudpickleWrapper(([env_fns[w] for w in block], env_id))) for block in [self._main_block, *self._blocks]
         )
         self._start_workers(payloads, main_payload if main_worlds else None)
 
@@ -285,9 +282,7 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         try:
             if main_payload is not None:  # built while the workers build theirs, after the forks
                 self._local = _Worlds((*main_payload, self._t_start))
-            layouts = [
-                self._pool.recv(i, "building its worlds", START_TIMEOUT) for i in range(self.n_workers)
-            ]
+            layouts = [self._pool.recv(i, "building its worlds", START_TIMEOUT) for i in range(self.n_workers)]
         except BaseException:
             self._pool.terminate()
             raise
@@ -301,9 +296,7 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         self.n_agents = len(self.possible_agents)
         self.state_space = state_space
         self._main_slice = slice(0, len(self._main_block) * self.n_agents)
-        self._slices = [
-            slice(block.start * self.n_agents, block.stop * self.n_agents) for block in self._blocks
-        ]
+        self._slices = [slice(block.start * self.n_agents, block.stop * self.n_agents) for block in self._blocks]
         VecEnv.__init__(self, self.n_worlds * self.n_agents, observation_space, action_space)
         self.alive = np.ones(self.num_envs, dtype=bool)
         self._actions = np.zeros(self.num_envs, dtype=np.int64)
@@ -431,9 +424,7 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         kwargs: dict[str, Any] | None = None,
     ) -> dict[int, Any]:
         if self._step_in_flight:
-            raise RuntimeError(
-                f"cannot run {kind} {name or ''} while a step is in flight: call step_wait() first"
-            )
+            raise RuntimeError(f"cannot run {kind} {name or ''} while a step is in flight: call step_wait() first")
         wanted = set(worlds)
         doing = f"running {kind} {name or ''}".strip()
         asked = []
@@ -446,9 +437,7 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         results: dict[int, Any] = {}
         if mine:  # the main block starts at world 0: its local indices are the global ones
             results.update(
-                self._while_workers_run(
-                    lambda block: block.venv._world_call(mine, kind, name, args, kwargs), doing
-                )
+                self._while_workers_run(lambda block: block.venv._world_call(mine, kind, name, args, kwargs), doing)
             )
         for i, replies in zip(asked, self._pool.gather(asked, doing)):
             start = self._blocks[i].start

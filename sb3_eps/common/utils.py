@@ -96,9 +96,7 @@ def check_seed(seed: Any) -> int | None:
     if seed is None:
         return None
     if not is_int(seed):
-        raise ValueError(
-            f"seed must be None or a non-negative int, got {seed!r} of type {type(seed).__name__}"
-        )
+        raise ValueError(f"seed must be None or a non-negative int, got {seed!r} of type {type(seed).__name__}")
     if seed < 0:
         raise ValueError(f"seed must be None or a non-negative int, got {seed}")
     return int(seed)
@@ -116,15 +114,11 @@ def dueling_aggregation(values: th.Tensor, advantages: th.Tensor) -> th.Tensor:
     ``(..., 1)`` and ``advantages`` ``(..., n_actions)``."""
     # The check is skipped while tracing (ONNX export), where shapes are symbolic.
     if not th.jit.is_tracing() and (values.shape[-1] != 1 or values.shape[:-1] != advantages.shape[:-1]):
-        raise ValueError(
-            f"values {tuple(values.shape)} must be (..., 1) over advantages {tuple(advantages.shape)}"
-        )
+        raise ValueError(f"values {tuple(values.shape)} must be (..., 1) over advantages {tuple(advantages.shape)}")
     return values + advantages - advantages.mean(dim=-1, keepdim=True)
 
 
-def td_target(
-    rewards: th.Tensor, discounts: th.Tensor, dones: th.Tensor, next_values: th.Tensor
-) -> th.Tensor:
+def td_target(rewards: th.Tensor, discounts: th.Tensor, dones: th.Tensor, next_values: th.Tensor) -> th.Tensor:
     """n-step TD target ``y = G + gamma^k * (1 - done) * next_value`` (Sutton & Barto 7.1): ``rewards`` the n-step
     returns ``G``, ``discounts`` ``gamma ** k``, ``dones`` 1 where the episode terminated inside the window."""
     if not (rewards.shape == discounts.shape == dones.shape == next_values.shape):
@@ -153,9 +147,7 @@ def polyak_update_tensors_(
 
 
 #: The tensor lists of each target module and the online module they were gathered with (see :func:`polyak_update_`).
-_POLYAK_LISTS: weakref.WeakKeyDictionary[th.nn.Module, tuple[Any, list[list[th.Tensor]]]] = (
-    weakref.WeakKeyDictionary()
-)
+_POLYAK_LISTS: weakref.WeakKeyDictionary[th.nn.Module, tuple[Any, list[list[th.Tensor]]]] = weakref.WeakKeyDictionary()
 
 
 def polyak_update_(target: th.nn.Module, online: th.nn.Module, tau: float) -> None:

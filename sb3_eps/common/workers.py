@@ -114,9 +114,7 @@ def _worker_main(
                 poll = time.perf_counter() - idle_since <= spin_s
             except (EOFError, OSError):  # the main process is gone
                 break
-            command, data = (
-                ForkingPickler.loads(message) if message[:1] == _PICKLE else served.unpack(message)
-            )
+            command, data = ForkingPickler.loads(message) if message[:1] == _PICKLE else served.unpack(message)
             if command == "close":
                 remote.send(("ok", None))
                 break
@@ -173,9 +171,7 @@ class WorkerPool:
         try:
             for payload in payloads:
                 remote, child = context.Pipe()
-                process = context.Process(
-                    target=_worker_main, args=(child, remote, build, payload, spin_s), daemon=True
-                )
+                process = context.Process(target=_worker_main, args=(child, remote, build, payload, spin_s), daemon=True)
                 process.start()
                 child.close()
                 self._remotes.append(remote)

@@ -78,9 +78,7 @@ class RoundBudget:
             return 0.5 * n_played * self.episode_limit
         return float(played.mean()) * n_played
 
-    def why_no_round(
-        self, eps_ticks: int, start_ticks: int, end_ticks: int, history: list[dict[str, Any]]
-    ) -> str | None:
+    def why_no_round(self, eps_ticks: int, start_ticks: int, end_ticks: int, history: list[dict[str, Any]]) -> str | None:
         """:return: why no round can play between ``start_ticks`` and ``end_ticks`` training ticks (None when one
         can): the tick budget never covers a round's expected cost, or a period in ticks is longer than the run."""
         settings = self.settings

@@ -76,13 +76,9 @@ class EvolutionCallback(BaseCallback):
     def __init__(self, settings: EPSSettings | None = None, verbose: int = 0, **settings_kwargs: Any) -> None:
         super().__init__(verbose=verbose)
         if not isinstance(settings, EPSSettings | None):
-            raise TypeError(
-                f"settings must be an EPSSettings or None, got {settings!r} (the world is eval_env_id=...)"
-            )
+            raise TypeError(f"settings must be an EPSSettings or None, got {settings!r} (the world is eval_env_id=...)")
         if settings is not None and settings_kwargs:
-            raise ValueError(
-                "give EvolutionCallback either settings or keyword arguments of EPSSettings, not both"
-            )
+            raise ValueError("give EvolutionCallback either settings or keyword arguments of EPSSettings, not both")
         self.settings = settings if settings is not None else EPSSettings(**settings_kwargs)
         self.budget = RoundBudget(self.settings)
         self.records = RoundRecords(verbose)
@@ -196,9 +192,7 @@ class EvolutionCallback(BaseCallback):
             rng = np.random.default_rng(seed)
             generator = th.Generator(device=next(q_net.parameters()).device)
             generator.manual_seed(int(rng.integers(2**62)))
-            self.round = EPSRound(
-                self.settings, self.model, evolved_parameter_names(q_net, frozen), rng, generator
-            )
+            self.round = EPSRound(self.settings, self.model, evolved_parameter_names(q_net, frozen), rng, generator)
             self.round.eps_ticks = self._eps_ticks
         if self._state is not None:
             self._restore_round()
@@ -216,9 +210,7 @@ class EvolutionCallback(BaseCallback):
         reason = self.budget.why_no_round(self.eps_ticks, start, end, self.history)
         if reason is not None:
             self._warned_no_round = True
-            warnings.warn(
-                f"EvolutionCallback will play no EPS round in this run: {reason}", UserWarning, stacklevel=2
-            )
+            warnings.warn(f"EvolutionCallback will play no EPS round in this run: {reason}", UserWarning, stacklevel=2)
 
     def _on_step(self) -> bool:
         return True
@@ -262,9 +254,7 @@ class EvolutionCallback(BaseCallback):
 
     def _skip_round(self, error: EvaluationFailed, wall_time: float, record: dict[str, Any]) -> None:
         self.records.skipped(str(error), wall_time, record.get("round_ticks", 0), self._counters())
-        warnings.warn(
-            f"EPS round skipped, restarting the evaluation workers: {error}", RuntimeWarning, stacklevel=2
-        )
+        warnings.warn(f"EPS round skipped, restarting the evaluation workers: {error}", RuntimeWarning, stacklevel=2)
         self.logger.record("eps/skipped_rounds", self.n_skipped_rounds)
         self._close_pool()
         self._start_pool()

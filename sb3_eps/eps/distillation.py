@@ -31,9 +31,7 @@ class DistillationResult:
     loss: float
 
 
-def q_filter(
-    parents: Sequence[nn.Module], observations: th.Tensor, critic: nn.Module | None = None
-) -> th.Tensor:
+def q_filter(parents: Sequence[nn.Module], observations: th.Tensor, critic: nn.Module | None = None) -> th.Tensor:
     """The Q-filter: per state, the parent whose greedy action is valued highest.
 
     :param parents: Q-networks mapping ``(B, obs_dim)`` to ``(B, n_actions)``
@@ -83,9 +81,7 @@ def q_filtered_distillation(
     if len(parents) < 2:
         raise ValueError(f"distillation needs at least 2 parents, got {len(parents)}")
     if observations.dim() != 2 or observations.shape[0] < 1:
-        raise ValueError(
-            f"observations must be a non-empty (N, obs_dim) tensor, got {tuple(observations.shape)}"
-        )
+        raise ValueError(f"observations must be a non-empty (N, obs_dim) tensor, got {tuple(observations.shape)}")
     if n_steps < 1 or batch_size < 1 or not learning_rate > 0:
         raise ValueError(
             f"n_steps and batch_size must be >= 1 and learning_rate > 0, got {n_steps}, {batch_size}, {learning_rate}"
@@ -96,9 +92,7 @@ def q_filtered_distillation(
         all_targets = th.stack([parent(observations) for parent in parents], dim=1)  # (N, P, n_actions)
         targets = all_targets[th.arange(observations.shape[0]), teacher]
     if targets.shape[1:] != child(observations[:1]).shape[1:]:
-        raise ValueError(
-            f"child outputs {tuple(child(observations[:1]).shape[1:])}, parents {tuple(targets.shape[1:])}"
-        )
+        raise ValueError(f"child outputs {tuple(child(observations[:1]).shape[1:])}, parents {tuple(targets.shape[1:])}")
     optimizer = th.optim.Adam(child.parameters(), lr=learning_rate)
     size = min(batch_size, observations.shape[0])
     loss = th.zeros(())

@@ -199,9 +199,7 @@ class _Block(Served):
             obs[index] = self.envs[index].reset(seed=int(seeds[int(index) % self.n_episodes]))[0]
         recorders = self._recorders(obs, active)
         while active.any():
-            outputs = self.forward(
-                th.as_tensor(obs).reshape(self.n_individuals, self.n_episodes * agents, -1)
-            )
+            outputs = self.forward(th.as_tensor(obs).reshape(self.n_individuals, self.n_episodes * agents, -1))
             outputs = outputs.reshape(len(self.envs), agents, -1)
             # A NaN/inf output disqualifies its individual at once: its envs stop, its fitness becomes -inf.
             finite = th.isfinite(outputs).all(dim=-1).all(dim=-1).numpy()
@@ -222,13 +220,9 @@ class _Block(Served):
                 if terminated or truncated:
                     outcomes.flat[index] = episode_outcome(bool(terminated), info)
         episodes = None
-        if (
-            recorders is not None
-        ):  # an individual stopped for non-finite outputs left unfinished episodes: none
+        if recorders is not None:  # an individual stopped for non-finite outputs left unfinished episodes: none
             played = np.repeat(valid, self.n_episodes)
-            episodes = [
-                recorder.episode() if played[index] else None for index, recorder in enumerate(recorders)
-            ]
+            episodes = [recorder.episode() if played[index] else None for index, recorder in enumerate(recorders)]
         return returns, lengths, outcomes, valid, episodes
 
     def handle(self, command: str, data: Any) -> Any:
@@ -274,9 +268,7 @@ class InProcessEnvPool:
         self._block = _Block(env_id, env_kwargs, n_individuals, n_episodes, network, batched, record)
         self.pids: list[int] = []  # no worker process
 
-    def evaluate(
-        self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
-    ) -> PoolAnswer:
+    def evaluate(self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float) -> PoolAnswer:
         """Play every episode of every valid individual (:meth:`_Block.evaluate`) before ``deadline``
         (``time.monotonic()``; a worker pool's), else raise :class:`EvaluationFailed`."""
         try:
@@ -315,10 +307,7 @@ class SubprocessEnvPool:
         n_blocks = max(1, min(n_workers, n_individuals))
         self.blocks = [block for block in np.array_split(np.arange(n_individuals), n_blocks) if len(block)]
         common = {"env_id": env_id, "env_kwargs": env_kwargs, "n_episodes": n_episodes, "network": network}
-        payloads = [
-            {**common, "n_individuals": len(block), "batched": batched, "record": record}
-            for block in self.blocks
-        ]
+        payloads = [{**common, "n_individuals": len(block), "batched": batched, "record": record} for block in self.blocks]
         # The workers build their envs while the main process goes on training; the first evaluation waits for
         # their hellos within its own deadline.
         self._workers = WorkerPool(
@@ -335,9 +324,7 @@ class SubprocessEnvPool:
         """Process ids of the worker processes (empty once closed)."""
         return [] if self._workers.closed else self._workers.pids
 
-    def evaluate(
-        self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float
-    ) -> PoolAnswer:
+    def evaluate(self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float) -> PoolAnswer:
         if not self._ready:  # the workers' hellos: their envs are built
             self._workers.gather(range(len(self.blocks)), "building its envs", deadline)
             self._ready = True
@@ -345,9 +332,7 @@ class SubprocessEnvPool:
             weights = {name: stacked[block].cpu().numpy() for name, stacked in population.items()}
             self._workers.send(i, "evaluate", (weights, list(seeds), valid[block]), "receiving the weights")
         answers = self._workers.gather(range(len(self.blocks)), "evaluating", deadline)
-        returns, lengths, outcomes, valid_parts = (
-            np.concatenate([answer[part] for answer in answers]) for part in range(4)
-        )
+        returns, lengths, outcomes, valid_parts = (np.concatenate([answer[part] for answer in answers]) for part in range(4))
         episodes = None if answers[0][4] is None else [episode for answer in answers for episode in answer[4]]
         return returns, lengths, outcomes, valid_parts, episodes
 
@@ -392,9 +377,7 @@ def episode_outcome(terminated: bool, info: dict[str, Any]) -> int:
     return OUTCOMES["failure"] if terminated else OUTCOMES["timeout"]
 
 
-def population_fitness(
-    returns: np.ndarray, outcomes: np.ndarray, valid: np.ndarray, kind: str = "return"
-) -> np.ndarray:
+def population_fitness(returns: np.ndarray, outcomes: np.ndarray, valid: np.ndarray, kind: str = "return") -> np.ndarray:
     """Eq. 4's fitness ``F`` ``(P,)`` of every individual from its episodes ``(P, E)``; ``-inf`` where not valid.
 
     ``"return"`` (the paper): the mean undiscounted return. ``"outcome"``: the mean outcome (+1 target, 0 timeout,
@@ -423,17 +406,14 @@ def evaluate_population(
     n_individuals = next(iter(population.values())).shape[0]
     if (pool.n_individuals, pool.n_episodes) != (n_individuals, len(episode_seeds)):
         raise ValueError(
-            f"the pool plays {pool.n_individuals} x {pool.n_episodes} episodes, not "
-            f"{n_individuals} x {len(episode_seeds)}"
+            f"the pool plays {pool.n_individuals} x {pool.n_episodes} episodes, not {n_individuals} x {len(episode_seeds)}"
         )
     deadline = time.monotonic() + timeout
     cpu_population = {name: stacked.detach().cpu() for name, stacked in population.items()}
     valid = finite_individuals(cpu_population)
     if active is not None:
         valid &= np.asarray(active, dtype=bool)
-    returns, lengths, outcomes, valid, episodes = pool.evaluate(
-        cpu_population, list(episode_seeds), valid, deadline
-    )
+    returns, lengths, outcomes, valid, episodes = pool.evaluate(cpu_population, list(episode_seeds), valid, deadline)
     scores = population_fitness(returns, outcomes, valid, fitness)
     return PopulationResult(
         returns=returns, lengths=lengths, valid=valid, fitness=scores, outcomes=outcomes, episodes=episodes

@@ -27,9 +27,7 @@ def network_parameters(network: nn.Module) -> Parameters:
     return {name: param.detach().clone() for name, param in network.named_parameters()}
 
 
-def output_sensitivity(
-    network: nn.Module, observations: th.Tensor, chunk_size: int = SENSITIVITY_CHUNK_SIZE
-) -> Parameters:
+def output_sensitivity(network: nn.Module, observations: th.Tensor, chunk_size: int = SENSITIVITY_CHUNK_SIZE) -> Parameters:
     """Per-weight sensitivity of the network's outputs on the visited ``observations`` ``(|b|, obs_dim)``, EPS paper
     Eq. 6: ``omega_w = (1 / |y|) * sum_y (1 / |b|) * sum_{s in b} |d y(s) / d w|``. The absolute value is taken per
     sample, so gradients of opposite sign do not cancel (Lehman et al.'s "gradient washout").
@@ -37,9 +35,7 @@ def output_sensitivity(
     :return: ``omega`` with the network's parameter shapes
     """
     if observations.dim() != 2 or observations.shape[0] < 1:
-        raise ValueError(
-            f"observations must be a non-empty (batch, obs_dim) tensor, got {tuple(observations.shape)}"
-        )
+        raise ValueError(f"observations must be a non-empty (batch, obs_dim) tensor, got {tuple(observations.shape)}")
     parameters = {name: param.detach() for name, param in network.named_parameters()}
     buffers = dict(network.named_buffers())
 
@@ -68,9 +64,7 @@ def safe_mutation_step(noise: th.Tensor, sensitivity: th.Tensor, floor: float, m
     except RuntimeError:
         broadcast = None
     if broadcast != noise.shape:
-        raise ValueError(
-            f"sensitivity {tuple(sensitivity.shape)} does not broadcast to noise {tuple(noise.shape)}"
-        )
+        raise ValueError(f"sensitivity {tuple(sensitivity.shape)} does not broadcast to noise {tuple(noise.shape)}")
     omega = th.where(sensitivity == 0, th.ones_like(sensitivity), sensitivity).clamp_min(floor)
     return (noise / omega).clamp(-max_step, max_step)
 
@@ -95,9 +89,7 @@ def mutate_population(
     """
     directions = mutation_directions(parameters, n_mutants, generator, sensitivities, floor, names)
     # Lehman et al.'s clip belongs to the safe step; plain Gaussian noise is left unclipped.
-    return population_from_directions(
-        parameters, directions, sigma, max_step if sensitivities is not None else float("inf")
-    )
+    return population_from_directions(parameters, directions, sigma, max_step if sensitivities is not None else float("inf"))
 
 
 def mutation_directions(
@@ -122,9 +114,7 @@ def mutation_directions(
     for name, theta in parameters.items():
         if names is not None and name not in names:
             continue
-        noise = th.randn(
-            (n_mutants, *theta.shape), generator=generator, device=theta.device, dtype=theta.dtype
-        )
+        noise = th.randn((n_mutants, *theta.shape), generator=generator, device=theta.device, dtype=theta.dtype)
         if sensitivities is not None:
             omega = th.stack([sensitivity[name] for sensitivity in sensitivities])
             noise = safe_mutation_step(noise, omega, floor, float("inf"))
@@ -238,9 +228,7 @@ def select_best(fitness: np.ndarray) -> int:
     return int(np.argmax(safe))
 
 
-def polyak_crossover_(
-    network: nn.Module, best: Parameters, alpha: float, names: Collection[str] | None = None
-) -> float:
+def polyak_crossover_(network: nn.Module, best: Parameters, alpha: float, names: Collection[str] | None = None) -> float:
     """Mean crossover by Polyak averaging, EPS paper Eq. 5: ``theta = alpha * theta* + (1 - alpha) * theta``, in place
     on ``network``'s parameters ``names`` (None: all). :return: the mean ``|delta theta|``"""
     if not 0.0 <= alpha <= 1.0:
@@ -266,14 +254,8 @@ def evolved_parameter_names(network: nn.Module, frozen_groups: Collection[str]) 
     for group in frozen_groups:
         if not any(name == group or name.startswith(f"{group}.") for name in names):
             groups = sorted({name.split(".")[0] for name in names})
-            raise ValueError(
-                f"frozen_groups: {group!r} names no parameter of the agent network; its groups are {groups}"
-            )
-    evolved = [
-        name
-        for name in names
-        if not any(name == group or name.startswith(f"{group}.") for group in frozen_groups)
-    ]
+            raise ValueError(f"frozen_groups: {group!r} names no parameter of the agent network; its groups are {groups}")
+    evolved = [name for name in names if not any(name == group or name.startswith(f"{group}.") for group in frozen_groups)]
     if not evolved:
         raise ValueError(f"frozen_groups {list(frozen_groups)} leave no parameter to evolve")
     return evolved

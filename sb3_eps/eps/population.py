@@ -164,9 +164,7 @@ class PopulationTrainer:
         self.learners: list[MultiAgentOffPolicyAlgorithm] = []
         if env is not None:
             self.learners = [
-                algorithm_class(
-                    "MlpPolicy", self._make_env(index), seed=_offset(seed, index), **algorithm_kwargs
-                )
+                algorithm_class("MlpPolicy", self._make_env(index), seed=_offset(seed, index), **algorithm_kwargs)
                 for index in range(k)
             ]
             if share_buffer:
@@ -177,16 +175,12 @@ class PopulationTrainer:
         if callable(self.env):
             return self.env(index)
         if self.env is None:
-            raise ValueError(
-                "the population has no env: give env= (an env id or a function of the learner's index)"
-            )
+            raise ValueError("the population has no env: give env= (an env id or a function of the learner's index)")
         import envs  # noqa: F401  # registers the package's worlds
         from sb3_eps.common.vec_env import make_vec_env
 
         n_envs = self.settings["n_envs"]
-        return make_vec_env(
-            self.env, n_envs, _offset(self.settings["seed"], index * n_envs), self.settings["env_kwargs"]
-        )
+        return make_vec_env(self.env, n_envs, _offset(self.settings["seed"], index * n_envs), self.settings["env_kwargs"])
 
     # ------------------------------------------------------------------ training
     @property
@@ -203,9 +197,7 @@ class PopulationTrainer:
             turn; :meth:`load` resumes it exactly); training then returns with ``interrupted`` set
         """
         if not isinstance(total_ticks, int | np.integer) or total_ticks < 0:
-            raise ValueError(
-                f"total_ticks must be an int >= 0 (world ticks, all learners), got {total_ticks!r}"
-            )
+            raise ValueError(f"total_ticks must be an int >= 0 (world ticks, all learners), got {total_ticks!r}")
         if any(learner.env is None for learner in self.learners):
             raise ValueError("the learners have no env: load the population with env=... to train it")
         share = int(total_ticks) // self.settings["k"]
@@ -219,10 +211,7 @@ class PopulationTrainer:
                     turn = min(self.settings["turn_ticks"], remaining) * learner.n_agents
                     learner.learn(turn, callback=horizon, reset_num_timesteps=False)
                 self.next_learner = (self.next_learner + 1) % self.settings["k"]
-                if (
-                    self.next_learner == 0
-                    and self.ticks - self.last_selection_ticks >= self.settings["interval"]
-                ):
+                if self.next_learner == 0 and self.ticks - self.last_selection_ticks >= self.settings["interval"]:
                     self.select()
                 if self._stop_requested:
                     self.save(checkpoint_path, include_training_state=True)  # type: ignore[arg-type]
@@ -271,9 +260,7 @@ class PopulationTrainer:
         ready = np.flatnonzero(np.isfinite(values))
         order = ready[np.argsort(-values[ready], kind="stable")]
         if order.size < 2 or values[order[0]] == values[order[-1]]:
-            record["skipped"] = (
-                "fewer than 2 learners with fitness" if order.size < 2 else "the fitnesses tie"
-            )
+            record["skipped"] = "fewer than 2 learners with fitness" if order.size < 2 else "the fitnesses tie"
         else:
             fittest, weakest = int(order[0]), int(order[-1])
             record.update(fittest=fittest, weakest=weakest, crossover=self.settings["crossover"])
@@ -315,9 +302,7 @@ class PopulationTrainer:
                 rate = learner.learning_rate
                 _set_learning_rate(learner, ScaledSchedule(rate, factor) if callable(rate) else rate * factor)
             else:
-                _set_exploration_final_eps(
-                    learner, float(np.clip(learner.exploration_final_eps * factor, 0.0, 1.0))
-                )
+                _set_exploration_final_eps(learner, float(np.clip(learner.exploration_final_eps * factor, 0.0, 1.0)))
             record[f"{name}_factor"] = factor
 
     def _mutate(self, learner: MultiAgentOffPolicyAlgorithm) -> dict[str, Any]:
@@ -359,10 +344,7 @@ class PopulationTrainer:
         """The child (a copy of the fittest) distilled from the fittest and the second fittest (its network as it was
         before the copy) on both parents' replay states; its target and averaged networks restart from the result."""
         parents = [self.learners[fittest].policy.q_net, second_parent]
-        sampled = [
-            sample_visited_observations(self.learners[i], DISTILLATION_STATES, self.rng)
-            for i in (fittest, second)
-        ]
+        sampled = [sample_visited_observations(self.learners[i], DISTILLATION_STATES, self.rng) for i in (fittest, second)]
         observations = th.cat([batch for batch in sampled if batch is not None])
         policy = self.learners[child].policy
         result = q_filtered_distillation(
@@ -443,9 +425,7 @@ class PopulationTrainer:
         trainer.history = json.loads(members["population.json"])["history"]
         rollouts = pickle.loads(members["training.pkl"]) if "training.pkl" in members else None
         for index in range(settings["k"]):
-            learner = algorithm_class.load(
-                io.BytesIO(members[f"learner_{index}.zip"]), env=None, device=device
-            )
+            learner = algorithm_class.load(io.BytesIO(members[f"learner_{index}.zip"]), env=None, device=device)
             if rollouts is not None:  # set_env without a reset keeps the saved last observations
                 learner.set_env(rollouts[index]["env"], force_reset=False)
                 learner.set_rollout_state(rollouts[index])
@@ -468,9 +448,7 @@ def _set_learning_rate(learner: MultiAgentOffPolicyAlgorithm, rate: float | Call
 
 def _set_exploration_final_eps(learner: MultiAgentOffPolicyAlgorithm, final_eps: float) -> None:
     learner.exploration_final_eps = final_eps
-    learner.exploration_schedule = LinearSchedule(
-        learner.exploration_initial_eps, final_eps, learner.exploration_fraction
-    )
+    learner.exploration_schedule = LinearSchedule(learner.exploration_initial_eps, final_eps, learner.exploration_fraction)
 
 
 def _check(algorithm_class: Any, settings: dict[str, Any]) -> None:

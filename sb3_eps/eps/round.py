@@ -138,16 +138,12 @@ class EPSRound:
         self.scale, _ = calibrate_scale(flip_share_at, settings.target_flip_share, initial)
         return self.scale
 
-    def _play(
-        self, population: Parameters, active: np.ndarray | None = None
-    ) -> tuple[list[int], PopulationResult]:
+    def _play(self, population: Parameters, active: np.ndarray | None = None) -> tuple[list[int], PopulationResult]:
         """Play the population on fresh common-random-number episodes and count their ticks."""
         settings = self.settings
         assert self.pool is not None
         seeds = [int(seed) for seed in self.rng.integers(2**31 - 1, size=settings.n_eval_episodes)]
-        result = evaluate_population(
-            self.pool, population, seeds, settings.eval_timeout, settings.fitness, active
-        )
+        result = evaluate_population(self.pool, population, seeds, settings.eval_timeout, settings.fitness, active)
         self.eps_ticks += int(result.lengths.sum())
         if settings.share_experience and result.episodes is not None:
             rows = share_episodes(self.model, result.episodes)  # before any crossover: the round's network
@@ -162,9 +158,7 @@ class EPSRound:
         record.update(round_ticks=int(result.lengths.sum()), **_episodes_record(seeds, result))
         return result
 
-    def _accept(
-        self, population: Parameters, result: PopulationResult, winner: int, record: dict[str, Any]
-    ) -> bool:
+    def _accept(self, population: Parameters, result: PopulationResult, winner: int, record: dict[str, Any]) -> bool:
         """The acceptance rule: a gain over copy 0 beyond ``min_gain``, and again on fresh episodes."""
         fitness, min_gain = result.fitness, self.settings.min_gain
         gain = float(fitness[winner] - fitness[0]) if np.isfinite(fitness[0]) else float("nan")
@@ -194,9 +188,7 @@ class EPSRound:
             for name in ("returns", "outcomes", "lengths")
         )
         fitness = population_fitness(returns, outcomes, results[-1].valid[pair], self.settings.fitness)
-        record = _episodes_record(
-            seeds, PopulationResult(returns, lengths, results[-1].valid[pair], fitness, outcomes)
-        )
+        record = _episodes_record(seeds, PopulationResult(returns, lengths, results[-1].valid[pair], fitness, outcomes))
         gain = float(fitness[1] - fitness[0]) if np.isfinite(fitness[0]) else float("nan")
         return {**record, "gain": gain, "ticks": int(lengths.sum())}
 

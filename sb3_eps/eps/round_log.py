@@ -131,9 +131,7 @@ class RoundRecords:
             self.file.append(record, n_before=len(self.history))
         self.history.append(record)
 
-    def log(
-        self, logger: Logger, record: dict[str, Any], totals: dict[str, Any], share_experience: bool
-    ) -> None:
+    def log(self, logger: Logger, record: dict[str, Any], totals: dict[str, Any], share_experience: bool) -> None:
         """Record a played round under ``eps/`` (and print it when ``verbose``).
 
         :param totals: ``model_ticks``, ``eps_ticks``, ``shared_rows`` (all rounds) and ``time_share``

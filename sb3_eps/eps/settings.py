@@ -77,8 +77,7 @@ def eps_env_id_for(env_id: str) -> str:
     eps_env_id = EPS_WORLDS.get(env_id) or EPS_WORLDS.get(env_id.split("-")[0])
     if eps_env_id is None:
         raise ValueError(
-            f"EPS has no single-agent world for {env_id!r}: pass eval_env_id, or name one in "
-            f"sb3_eps.eps.settings.EPS_WORLDS"
+            f"EPS has no single-agent world for {env_id!r}: pass eval_env_id, or name one in sb3_eps.eps.settings.EPS_WORLDS"
         )
     return eps_env_id
 
@@ -202,6 +201,4 @@ class EPSSettings:
     def most_episodes_per_round(self) -> int:
         """Every episode a round may play: selection, reevaluation (both individuals) and team checks."""
         per_batch = self.n_eval_episodes
-        return (
-            self.n_individuals + 2 * self.n_reevaluation_batches
-        ) * per_batch + 2 * self.n_team_check_episodes
+        return (self.n_individuals + 2 * self.n_reevaluation_batches) * per_batch + 2 * self.n_team_check_episodes

@@ -59,9 +59,7 @@ def share_episodes(model: MultiAgentOffPolicyAlgorithm, episodes: Sequence[TeamE
     values = model.collection_values(observations, next_observations)  # one pass for the whole round
     offset = n_rows = 0
     for episode in played:
-        collector = NStepJointCollector(
-            model.replay_buffer, 1, model.n_steps, model.gamma, model.team_reward_mode
-        )
+        collector = NStepJointCollector(model.replay_buffer, 1, model.n_steps, model.gamma, model.team_reward_mode)
         for tick in range(episode.n_ticks):
             row = offset + tick
             if not _finite_tick(episode, tick):
@@ -78,9 +76,7 @@ def share_episodes(model: MultiAgentOffPolicyAlgorithm, episodes: Sequence[TeamE
     return n_rows
 
 
-def _episode_tick(
-    episode: TeamEpisode, tick: int, values: tuple[np.ndarray, np.ndarray] | None, row: int
-) -> JointTick:
+def _episode_tick(episode: TeamEpisode, tick: int, values: tuple[np.ndarray, np.ndarray] | None, row: int) -> JointTick:
     """Tick ``tick`` of a team-world episode as the bridge would report it (``MultiAgentVecEnv.step_wait``), with
     row ``row`` of the round's ``values``."""
     terminations, truncations, alive = (
@@ -106,6 +102,4 @@ def _episode_tick(
 
 
 def _finite_tick(episode: TeamEpisode, tick: int) -> bool:
-    return bool(
-        np.isfinite(episode.observations[tick : tick + 2]).all() and np.isfinite(episode.rewards[tick]).all()
-    )
+    return bool(np.isfinite(episode.observations[tick : tick + 2]).all() and np.isfinite(episode.rewards[tick]).all())

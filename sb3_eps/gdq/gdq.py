@@ -178,9 +178,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             _init_setup_model=_init_setup_model,
         )
 
-    def _diagnostics(
-        self, inputs: th.Tensor, terms: TDTerms, batch: JointReplayBufferSamples
-    ) -> dict[str, float]:
+    def _diagnostics(self, inputs: th.Tensor, terms: TDTerms, batch: JointReplayBufferSamples) -> dict[str, float]:
         """What explains GDQ's learning (docs/results/gdq_target.md): the gain ``g_i = dV_G/dv_i`` of the
         global head, the greedy action's margin ``A(s, a*) - A(s, a_2nd)``, and the spread of the agents' values."""
         gain = input_gain(self.policy.global_value_net, inputs)
@@ -238,9 +236,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         values, next_values = both.cpu().numpy().reshape(2, *observations.shape[:2])
         return values, next_values
 
-    def _compute_loss(
-        self, batch: JointReplayBufferSamples
-    ) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
+    def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         stored = batch.values is not None and batch.next_values is not None
         from_target = self.global_values == "target"
         terms = self._td_terms(batch, need_online_next_values=not (stored or from_target))
@@ -271,9 +267,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
                 own_next,
                 self.global_bootstrap,
             )
-            global_targets = td_target(
-                batch.team_rewards, batch.team_discounts, batch.team_dones, global_next
-            )
+            global_targets = td_target(batch.team_rewards, batch.team_discounts, batch.team_dones, global_next)
         agent_loss = masked_huber(q_taken, agent_targets, batch.alive, batch.weights)
         # V_G(v) with v detached: the global loss trains only the head.
         agent_values = batch.values if stored else values.detach()

@@ -42,9 +42,7 @@ def _init_as_linear_sum(linears: list[nn.Linear], n_agents: int, scale: float) -
     last.bias.zero_()
 
 
-def _checked_arch(
-    net_arch: list[int] | None, activation_fn: type[nn.Module], init: str, carriers: int
-) -> list[int]:
+def _checked_arch(net_arch: list[int] | None, activation_fn: type[nn.Module], init: str, carriers: int) -> list[int]:
     """:return: the hidden sizes of a global head, after checking that ``init`` can be built on them: the exact
     ``"sum"`` / ``"mean"`` initialisations need ReLU and ``2 carriers`` units per hidden layer
     (:func:`_init_as_linear_sum`; ``carriers`` is the number of values the first layer reads)"""
@@ -53,9 +51,7 @@ def _checked_arch(
         raise ValueError(f"global_init must be one of {GLOBAL_INITS}, got {init!r}")
     if init != "random":
         if activation_fn is not nn.ReLU:
-            raise ValueError(
-                f"global_init={init!r} needs activation_fn=nn.ReLU, got {activation_fn.__name__}"
-            )
+            raise ValueError(f"global_init={init!r} needs activation_fn=nn.ReLU, got {activation_fn.__name__}")
         if not arch or min(arch) < 2 * carriers:
             raise ValueError(
                 f"global_init={init!r} needs hidden layers of at least 2 * n_agents = {2 * carriers} units, "
@@ -95,9 +91,7 @@ class GlobalValueNetwork(nn.Module):
     def forward(self, agent_values: th.Tensor) -> th.Tensor:
         """:param agent_values: ``(B, n_agents)``; :return: ``V_G`` as ``(B,)``."""
         if agent_values.dim() != 2 or agent_values.shape[1] != self.n_agents:
-            raise ValueError(
-                f"V_G expects (batch, {self.n_agents}) state-values, got {tuple(agent_values.shape)}"
-            )
+            raise ValueError(f"V_G expects (batch, {self.n_agents}) state-values, got {tuple(agent_values.shape)}")
         return self.net(agent_values).squeeze(-1)
 
 

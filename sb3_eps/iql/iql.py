@@ -28,9 +28,7 @@ class IQL(MultiAgentOffPolicyAlgorithm):
 
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": MlpPolicy}
 
-    def _compute_loss(
-        self, batch: JointReplayBufferSamples
-    ) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
+    def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         terms = self._td_terms(batch)
         q_taken, next_values, next_advantages = terms.q_taken, terms.next_values, terms.next_advantage_term
         # Double-Q n-step target per agent (its own reward, its own bootstrap).

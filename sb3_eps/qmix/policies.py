@@ -200,9 +200,7 @@ class VDNPolicy(QMIXPolicy):
         ``None`` takes the greedy actions from the online network.
     """
 
-    def __init__(
-        self, *args: Any, weight_average_tau: float | None = VDN_WEIGHT_AVERAGE_TAU, **kwargs: Any
-    ) -> None:
+    def __init__(self, *args: Any, weight_average_tau: float | None = VDN_WEIGHT_AVERAGE_TAU, **kwargs: Any) -> None:
         super().__init__(*args, weight_average_tau=weight_average_tau, **kwargs)
 
     def _make_mixer(self) -> nn.Module:

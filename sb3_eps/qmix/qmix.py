@@ -121,9 +121,7 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
         super()._update_learning_rate(optimizers)
         apply_lr_scales(self.policy.optimizer)  # the mixer's own rate (policy_kwargs mixer_lr_scale)
 
-    def _compute_loss(
-        self, batch: JointReplayBufferSamples
-    ) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
+    def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         terms = self._td_terms(batch)
         q_total = self.policy.mixer(terms.q_taken * batch.alive, batch.states)
         with th.no_grad():

@@ -94,9 +94,7 @@ class TeamMonitor(BaseCallback):
     :param eps_callbacks: callbacks whose ``eps_ticks`` count towards the curves (EPS)
     """
 
-    def __init__(
-        self, path: str | Path, header: dict[str, Any], eps_callbacks: Sequence[BaseCallback] = ()
-    ) -> None:
+    def __init__(self, path: str | Path, header: dict[str, Any], eps_callbacks: Sequence[BaseCallback] = ()) -> None:
         super().__init__()
         self.path = Path(path)
         self.header = {"t_start": time.time(), **header}
@@ -298,9 +296,7 @@ class TickBudgetCallback(BaseCallback):
         budget, by lowering the model's ``_total_timesteps`` as EPS spends ticks; False: over the whole budget
     """
 
-    def __init__(
-        self, budget: int, eps_callbacks: Sequence[BaseCallback], schedules_follow: bool = True
-    ) -> None:
+    def __init__(self, budget: int, eps_callbacks: Sequence[BaseCallback], schedules_follow: bool = True) -> None:
         super().__init__()
         self.budget = int(budget)
         self.eps_callbacks = list(eps_callbacks)
@@ -376,9 +372,7 @@ class TrainingStateCallback(BaseCallback):
         if self.save_freq > 0:
             self.next_save = (self.num_timesteps // self.save_freq + 1) * self.save_freq
         if self.save() and due and self.snapshot_dir is not None:
-            save_model_atomic(
-                self.model, self.snapshot_dir / run_folder.snapshot_name(self.model.num_timesteps)
-            )
+            save_model_atomic(self.model, self.snapshot_dir / run_folder.snapshot_name(self.model.num_timesteps))
         if self.stop_requested:
             raise TrainingInterrupted(self.stop_requested)
 
@@ -389,9 +383,7 @@ class TrainingStateCallback(BaseCallback):
         :return: whether a checkpoint was written
         """
         tensors = [*self.model.policy.named_parameters(), *self.model.policy.named_buffers()]
-        broken = [
-            name for name, tensor in tensors if tensor.is_floating_point() and not th.isfinite(tensor).all()
-        ]
+        broken = [name for name, tensor in tensors if tensor.is_floating_point() and not th.isfinite(tensor).all()]
         if broken:
             warnings.warn(
                 f"checkpoint at {self.model.num_timesteps} timesteps refused: non-finite values in {', '.join(broken)}; "
@@ -415,8 +407,7 @@ class TrainingStateCallback(BaseCallback):
             save_checkpoint(self.path, self.model, states, meta)  # type: ignore[arg-type]
         except OSError as error:
             warnings.warn(
-                f"checkpoint at {self.model.num_timesteps} timesteps not written ({error}); the previous checkpoint "
-                "is kept",
+                f"checkpoint at {self.model.num_timesteps} timesteps not written ({error}); the previous checkpoint is kept",
                 RuntimeWarning,
                 stacklevel=2,
             )
@@ -465,8 +456,6 @@ class ResumableCSVOutputFormat(CSVOutputFormat):
         if lines:
             self.keys = lines[0].rstrip("\n").split(self.separator)  # SB3 writes the keys unquoted
             column = self.keys.index("time/total_timesteps")
-            kept = [
-                line for line in lines[1:] if float(next(csv.reader([line]))[column] or -1) <= max_timesteps
-            ]  # type: ignore[operator]
+            kept = [line for line in lines[1:] if float(next(csv.reader([line]))[column] or -1) <= max_timesteps]  # type: ignore[operator]
             self.file.writelines([lines[0], *kept])
             self.file.flush()

@@ -235,9 +235,7 @@ def load_checkpoint(path: str | Path) -> Checkpoint:
         )
     except (pickle.UnpicklingError, EOFError, AttributeError, ImportError, TypeError, ValueError) as error:
         reason = " ".join(str(error).split()) or type(error).__name__
-        raise CorruptCheckpoint(
-            f"{Path(path).name} is not a checkpoint this version of sb3_eps can read ({reason})"
-        ) from None
+        raise CorruptCheckpoint(f"{Path(path).name} is not a checkpoint this version of sb3_eps can read ({reason})") from None
 
 
 def restore_model(

@@ -84,7 +84,5 @@ def import_gym_packages(argv: Sequence[str] | None = None, packages: Sequence[st
                 f"--gym-packages: cannot import {name!r} ({error}); put its folder on PYTHONPATH or pip install it"
             ) from None
         except Exception as error:  # the module's own registration failed: say which module and why
-            raise ConfigError(
-                f"--gym-packages: importing {name!r} failed: {type(error).__name__}: {error}"
-            ) from None
+            raise ConfigError(f"--gym-packages: importing {name!r} failed: {type(error).__name__}: {error}") from None
     return names

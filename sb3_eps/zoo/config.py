@@ -110,9 +110,7 @@ def load_yaml(path: str | Path) -> Any:
         raise ConfigError(f"{path}: {error}") from None
     except yaml.constructor.ConstructorError as error:
         line = error.problem_mark.line + 1 if error.problem_mark else "?"
-        raise ConfigError(
-            f"{path}: line {line}: {error.problem}; configs are read as plain data (no Python tags)"
-        ) from None
+        raise ConfigError(f"{path}: line {line}: {error.problem}; configs are read as plain data (no Python tags)") from None
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
         where = f"line {mark.line + 1}: " if mark is not None else ""
@@ -131,9 +129,7 @@ def load_config_entries(path: str | Path, algo: str) -> dict[str, dict[str, Any]
     spec = algorithm_spec(algo)
     data = load_yaml(path)
     if not isinstance(data, Mapping):
-        raise ConfigError(
-            f"{path}: the file must map env ids (and 'default') to entries, got {type(data).__name__}"
-        )
+        raise ConfigError(f"{path}: the file must map env ids (and 'default') to entries, got {type(data).__name__}")
     entries: dict[str, dict[str, Any]] = {}
     for env_id, entry in data.items():
         if env_id != DEFAULT_KEY and not (isinstance(env_id, str) and envs.is_registered(env_id)):
@@ -152,9 +148,7 @@ def merged_entry(entries: Mapping[str, dict[str, Any]], env_id: str, path: str |
     :raises ConfigError: when the file has neither
     """
     if env_id not in entries and DEFAULT_KEY not in entries:
-        raise ConfigError(
-            f"{path} has no entry for {env_id!r} and no 'default' entry; its entries: {allowed(entries)}"
-        )
+        raise ConfigError(f"{path} has no entry for {env_id!r} and no 'default' entry; its entries: {allowed(entries)}")
     return {**entries.get(DEFAULT_KEY, {}), **entries.get(env_id, {})}
 
 

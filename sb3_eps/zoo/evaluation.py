@@ -148,9 +148,7 @@ def format_summary(summary: dict[str, Any]) -> str:
 def save_summary(summary: dict[str, Any], path: str | Path) -> Path:
     """Write an evaluation summary (episodes included) as JSON, atomically."""
     path = Path(path)
-    write_text_atomic(
-        path, json.dumps(summary, indent=2, default=lambda value: value.tolist())
-    )  # NumPy values
+    write_text_atomic(path, json.dumps(summary, indent=2, default=lambda value: value.tolist()))  # NumPy values
     return path
 
 
@@ -170,9 +168,7 @@ def record_gif(
     from envs.turtlebot3 import save_gif
 
     env_id = env_id or run.env_id
-    venv = make_vec_env(
-        env_id, n_envs=1, seed=seed, env_kwargs={**(env_kwargs or {}), "render_mode": "rgb_array"}
-    )
+    venv = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs={**(env_kwargs or {}), "render_mode": "rgb_array"})
     try:
         check_spaces(run.model, venv, env_id, f"the model of {run.run_dir}")
         frames, _ = record_frames(run.model, venv, n_episodes, max_frames=3_000)

@@ -144,9 +144,7 @@ class TrainOptions(NamespaceOptions):
             raise ConfigError(f"--vec-env must be dummy or subproc, got {self.vec_env!r}")
         check_device(self.device)
         if self.init_from is not None and not Path(self.init_from).is_file():
-            raise ConfigError(
-                f"--init-from: {self.init_from} is not a file; pass a model .zip (e.g. a run's best_model.zip)"
-            )
+            raise ConfigError(f"--init-from: {self.init_from} is not a file; pass a model .zip (e.g. a run's best_model.zip)")
         check_optional_features(progress=self.progress, tensorboard=self.tensorboard_log is not None)
 
 
@@ -155,9 +153,7 @@ def check_device(device: str) -> None:
     try:
         th.device("cpu" if device == "auto" else device)
     except (RuntimeError, TypeError) as error:
-        raise ConfigError(
-            f"--device {device!r} is not a torch device (auto, cpu, cuda, cuda:0...): {error}"
-        ) from None
+        raise ConfigError(f"--device {device!r} is not a torch device (auto, cpu, cuda, cuda:0...): {error}") from None
 
 
 def check_optional_features(progress: bool = False, tensorboard: bool = False) -> None:
@@ -254,9 +250,7 @@ def build_model(
         raise ConfigError(f"{config.source}: building {cls.__name__}: {error}") from None
 
 
-def check_callback_worlds(
-    callbacks: list[tuple[str, BaseCallback]], env: MultiAgentVecEnv, source: str
-) -> None:
+def check_callback_worlds(callbacks: list[tuple[str, BaseCallback]], env: MultiAgentVecEnv, source: str) -> None:
     """Check that every callback's own evaluation world (EPS's ``eval_env_id``) shares the training world's
     observation and action spaces, before anything is written (the callback itself checks only when training
     starts).
@@ -270,9 +264,7 @@ def check_callback_worlds(
             spaces = SimpleNamespace(**{kind: agent_space(eval_env, kind) for kind in kinds})
             eval_env.close()
             whose = f"the training world {env.env_id} (its EPS world, the default, is {eps_env_id_for(str(env.env_id))})"
-            check_spaces(
-                env, spaces, callback.settings.eval_env_id, whose, f"{source}: callback {name}: eval_env_id "
-            )
+            check_spaces(env, spaces, callback.settings.eval_env_id, whose, f"{source}: callback {name}: eval_env_id ")
 
 
 def load_agent_weights(model: MultiAgentOffPolicyAlgorithm, path: str | Path) -> None:
@@ -295,9 +287,7 @@ def load_agent_weights(model: MultiAgentOffPolicyAlgorithm, path: str | Path) ->
     check_spaces(model, trained_on, f"the model in {path}", "the new model", "--init-from: ")
     policy: dict[str, Any] = params["policy"]  # type: ignore[assignment]
     online = {key[len("q_net.") :]: value for key, value in policy.items() if key.startswith("q_net.")}
-    target = {
-        key[len("q_net_target.") :]: value for key, value in policy.items() if key.startswith("q_net_target.")
-    }
+    target = {key[len("q_net_target.") :]: value for key, value in policy.items() if key.startswith("q_net_target.")}
     try:
         model.policy.q_net.load_state_dict(online)
         if model.policy.q_net_target is not None:
@@ -311,9 +301,7 @@ def load_agent_weights(model: MultiAgentOffPolicyAlgorithm, path: str | Path) ->
         ) from None
 
 
-def prepare_run(
-    options: TrainOptions, config: ResolvedConfig | None = None, build_model_now: bool = True
-) -> PreparedRun:
+def prepare_run(options: TrainOptions, config: ResolvedConfig | None = None, build_model_now: bool = True) -> PreparedRun:
     """Resolve the config and build envs, model and callbacks; nothing is written.
 
     :param options: the run's options
@@ -325,9 +313,7 @@ def prepare_run(
     if config is None:
         check_env_id(options.env)
         hyperparams = [*options.hyperparams, *(f"env_kwargs.{item}" for item in options.env_kwargs)]
-        config = resolve_config(
-            options.algo, options.env, options.conf_file, hyperparams, options.n_timesteps
-        )
+        config = resolve_config(options.algo, options.env, options.conf_file, hyperparams, options.n_timesteps)
         if LADDER_KEY in config.entry:
             check_ladder_run(config.entry, config.env_id, options.n_timesteps, options.algo, config.source)
     eval_env_id = options.eval_env or config.env_id
@@ -356,9 +342,7 @@ def prepare_run(
             if ladder:
                 config.entry["n_timesteps"] = check_rungs(model, rungs, config.source)
         if options.eval_freq > 0:
-            eval_env = build_env(
-                config, options.seed + EVAL_SEED_OFFSET, eval_env_id, options.n_eval_envs, options.vec_env
-            )
+            eval_env = build_env(config, options.seed + EVAL_SEED_OFFSET, eval_env_id, options.n_eval_envs, options.vec_env)
             if model is not None:
                 check_spaces(model, eval_env, eval_env_id, "the model", "--eval-env: ")
         user_callbacks = build_callbacks(config.entry, config.env_id, options.verbose, config.source)
@@ -377,9 +361,7 @@ def make_logger(options: TrainOptions, run_dir: Path, resume_timesteps: int | No
     if options.verbose >= 1:
         formats.insert(0, HumanOutputFormat(sys.stdout))
     if options.tensorboard_log is not None:
-        formats.append(
-            TensorBoardOutputFormat(str(Path(options.tensorboard_log) / options.algo / run_dir.name))
-        )
+        formats.append(TensorBoardOutputFormat(str(Path(options.tensorboard_log) / options.algo / run_dir.name)))
     return Logger(folder=str(run_dir), output_formats=formats)
 
 
@@ -416,9 +398,7 @@ def train(options: TrainOptions, extra_callbacks: Sequence[BaseCallback] = ()) -
         write_text_atomic(params / run_folder.ARGS_NAME, yaml.safe_dump(options_record, sort_keys=False))
         header = f"resolved from {prepared.config.source}\nrerun: python -m sb3_eps.train --algo {options.algo} -conf <this file> ..."
         write_text_atomic(params / run_folder.CONFIG_NAME, entry_yaml(env_id, prepared.config.entry, header))
-        write_text_atomic(
-            params / run_folder.COMMAND_NAME, (options.command or run_folder.command_line()) + "\n"
-        )
+        write_text_atomic(params / run_folder.COMMAND_NAME, (options.command or run_folder.command_line()) + "\n")
         return _run(prepared, run_dir, restore=None, extra_callbacks=extra_callbacks)
     finally:
         prepared.close()
@@ -433,9 +413,7 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
     :raises ConfigError: when the folder holds no resumable run
     """
     run_dir = run_folder.run_dir_of(run_dir)
-    args_path, config_path = (
-        run_folder.run_file(run_dir, name) for name in (run_folder.ARGS_NAME, run_folder.CONFIG_NAME)
-    )
+    args_path, config_path = (run_folder.run_file(run_dir, name) for name in (run_folder.ARGS_NAME, run_folder.CONFIG_NAME))
     for path in (args_path, config_path):
         if not path.is_file():
             raise ConfigError(f"--resume: {run_dir} is not a run folder of sb3_eps.train (no {path.name})")
@@ -455,8 +433,7 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
     except FileNotFoundError:
         if not final_model.is_file():
             raise ConfigError(
-                f"--resume: {run_dir} has no {CHECKPOINT_NAME} (it stopped before its first checkpoint); start a "
-                "new run"
+                f"--resume: {run_dir} has no {CHECKPOINT_NAME} (it stopped before its first checkpoint); start a new run"
             ) from None
         checkpoint_path, meta, skipped = final_model, {"complete": True}, []
     except CorruptCheckpoint as error:
@@ -491,9 +468,7 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
         prepared.model = restore_model(checkpoint, spec.algorithm_class, options.device)
         prepared.model.verbose = options.verbose
         if options.verbose >= 1:
-            print(
-                f"Resuming {run_dir} at {checkpoint.meta['num_timesteps']} of {options.n_timesteps} timesteps"
-            )
+            print(f"Resuming {run_dir} at {checkpoint.meta['num_timesteps']} of {options.n_timesteps} timesteps")
         return _run(prepared, run_dir, checkpoint)
     finally:
         prepared.close()
@@ -596,9 +571,7 @@ def _run(
         except TrainingInterrupted as stop:
             callback_list.on_training_end()
             saved = (
-                ""
-                if checkpoint.saved_at == model.num_timesteps
-                else ", without a new checkpoint (the last good one is kept)"
+                "" if checkpoint.saved_at == model.num_timesteps else ", without a new checkpoint (the last good one is kept)"
             )
             print(
                 f"Stopped by {stop} at {model.num_timesteps} of {total} timesteps{saved}; checkpoint "

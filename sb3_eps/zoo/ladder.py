@@ -38,9 +38,7 @@ def normalize_ladder(value: Any, where: str) -> list[dict[str, Any]]:
     for index, rung in enumerate(value):
         here = f"{where}: rung {index}"
         if not isinstance(rung, Mapping) or set(rung) != set(_RUNG_KEYS):
-            raise ConfigError(
-                f"{here}: a rung is a mapping with exactly the keys {allowed(_RUNG_KEYS)}, got {rung!r}"
-            )
+            raise ConfigError(f"{here}: a rung is a mapping with exactly the keys {allowed(_RUNG_KEYS)}, got {rung!r}")
         env_id, ticks = rung["env"], rung["ticks"]
         if not (isinstance(env_id, str) and envs.is_registered(env_id)):
             raise ConfigError(
@@ -67,9 +65,7 @@ def ladder_option(items: list[str]) -> str:
     return f"{LADDER_KEY}:[{', '.join(rungs)}]"
 
 
-def check_ladder_run(
-    entry: Mapping[str, Any], env_id: str, n_timesteps: int | None, algo: str, source: str
-) -> None:
+def check_ladder_run(entry: Mapping[str, Any], env_id: str, n_timesteps: int | None, algo: str, source: str) -> None:
     """The checks of a ladder run that need the command line: the last rung is ``--env``; no ``-n``; no EPS.
 
     :raises ConfigError: in one line

@@ -53,9 +53,7 @@ def find_run_dirs(paths: list[str | Path]) -> list[Path]:
     for path in map(Path, paths):
         if not path.exists():
             raise ConfigError(f"{path} does not exist")
-        candidates = (
-            [path] if (path / MONITOR_NAME).is_file() else [p.parent for p in path.rglob(MONITOR_NAME)]
-        )
+        candidates = [path] if (path / MONITOR_NAME).is_file() else [p.parent for p in path.rglob(MONITOR_NAME)]
         found.update(c for c in candidates if is_run_folder(c))
     if not found:
         raise ConfigError(f"no run folder (with {MONITOR_NAME} and args.yml) in {', '.join(map(str, paths))}")
@@ -138,9 +136,7 @@ def draw_learning_curves(curves: list[RunCurve], window: int = 100, title: str |
                     continue
                 label = f"{label_of(algo)} ({int(stats['n_runs'])} run{'s' if stats['n_runs'] > 1 else ''})"
                 axis.plot(stats["x"], stats["mean"], label=label)
-                axis.fill_between(
-                    stats["x"], stats["mean"] - stats["std"], stats["mean"] + stats["std"], alpha=0.2
-                )
+                axis.fill_between(stats["x"], stats["mean"] - stats["std"], stats["mean"] + stats["std"], alpha=0.2)
             axis.set_xlabel("ticks (training + EPS)")
             axis.xaxis.set_major_formatter(FuncFormatter(_thousands))
             axis.set_ylabel(PANELS[key] if window == 1 else f"{PANELS[key]} ({window}-episode mean)")
@@ -157,9 +153,7 @@ def _thousands(value: float, _position: int) -> str:
     return f"{value / 1000:g}k" if value else "0"
 
 
-def plot_learning_curves(
-    curves: list[RunCurve], output: str | Path, window: int = 100, title: str | None = None
-) -> Path:
+def plot_learning_curves(curves: list[RunCurve], output: str | Path, window: int = 100, title: str | None = None) -> Path:
     """Draw the learning curves (:func:`draw_learning_curves`) into an image file.
 
     :return: the image's path
@@ -250,9 +244,7 @@ def format_aggregates(rows: list[dict[str, Any]]) -> str:
     ]
     for row in rows:
         cells = [f"{row[n]:.3f} [{row[n + '_low']:.3f}, {row[n + '_high']:.3f}]" for n in AGGREGATES]
-        lines.append(
-            f"| {row['algo']} | {PANELS[row['metric']]} | {row['n_runs']} | " + " | ".join(cells) + " |"
-        )
+        lines.append(f"| {row['algo']} | {PANELS[row['metric']]} | {row['n_runs']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -268,9 +260,7 @@ def evaluation_curves(run_dirs: list[Path]) -> list[RunCurve]:
         values = {"r": data["results"].mean(axis=1)}
         if not np.isnan(data["successes"]).all():
             values["success"] = np.nanmean(data["successes"], axis=1)
-        curves.append(
-            RunCurve(run_dir, str(args["algo"]), str(args["env"]), data["ticks"] + data["eps_ticks"], values)
-        )
+        curves.append(RunCurve(run_dir, str(args["algo"]), str(args["env"]), data["ticks"] + data["eps_ticks"], values))
     return curves
 
 

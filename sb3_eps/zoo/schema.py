@@ -39,17 +39,14 @@ from sb3_eps.zoo.literal import parse_literal
 
 # ---------------------------------------------------------------------------------------------- allow-lists
 _ACTIVATION_CLASSES: dict[str, type[nn.Module]] = {
-    name: getattr(nn, name)
-    for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid", "Softplus", "Identity")
+    name: getattr(nn, name) for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid", "Softplus", "Identity")
 }
 _OPTIMIZER_CLASSES: dict[str, type[th.optim.Optimizer]] = {
     name: getattr(th.optim, name) for name in ("Adam", "AdamW", "RMSprop", "SGD")
 }
 #: canonical name -> class, e.g. ``"nn.ReLU"``, ``"th.optim.Adam"``
 ACTIVATIONS: dict[str, type[nn.Module]] = {f"nn.{name}": cls for name, cls in _ACTIVATION_CLASSES.items()}
-OPTIMIZERS: dict[str, type[th.optim.Optimizer]] = {
-    f"th.optim.{name}": cls for name, cls in _OPTIMIZER_CLASSES.items()
-}
+OPTIMIZERS: dict[str, type[th.optim.Optimizer]] = {f"th.optim.{name}": cls for name, cls in _OPTIMIZER_CLASSES.items()}
 #: every accepted spelling -> canonical name (``torch.nn.ReLU``, ``th.nn.ReLU``, ``nn.ReLU``, ``ReLU``)
 NAME_SPELLINGS: dict[str, str] = {}
 for _name in _ACTIVATION_CLASSES:
@@ -60,9 +57,7 @@ for _name in _OPTIMIZER_CLASSES:
         NAME_SPELLINGS[f"{_prefix}{_name}"] = f"th.optim.{_name}"
 #: The joint replay buffers a config may name (``replay_buffer_class``): those of :mod:`sb3_eps.common.buffers`.
 REPLAY_BUFFER_CLASSES: dict[str, type[buffers.JointReplayBuffer]] = {
-    name: cls
-    for name, cls in vars(buffers).items()
-    if isinstance(cls, type) and issubclass(cls, buffers.JointReplayBuffer)
+    name: cls for name, cls in vars(buffers).items() if isinstance(cls, type) and issubclass(cls, buffers.JointReplayBuffer)
 }
 
 _SCHEDULE_PATTERN = re.compile(r"^lin_([0-9.eE+-]+)$")
@@ -121,9 +116,7 @@ _POLICY_INTERNALS = (
 _INVALID = object()
 
 
-def params_from_signature(
-    function: Callable[..., Any], skip: Sequence[str] = (), every: bool = False
-) -> dict[str, Any]:
+def params_from_signature(function: Callable[..., Any], skip: Sequence[str] = (), every: bool = False) -> dict[str, Any]:
     """:return: ``{argument: type hint}`` of the keyword arguments of ``function`` whose hint a config can hold
     (:func:`describe`); with ``every``, the others too, as plain data. A keyword whose hint is a dataclass
     (``EPSSettings``) stands for the dataclass's fields."""
@@ -254,23 +247,15 @@ def register_algorithm(
     if not isinstance(name, str) or not re.fullmatch(r"[a-z][a-z0-9_]*", name):
         raise ValueError(f"an algorithm name is lower case letters, digits and _, got {name!r}")
     if not (isinstance(algorithm_class, type) and issubclass(algorithm_class, MultiAgentOffPolicyAlgorithm)):
-        raise ValueError(
-            f"{algorithm_class!r} is not a subclass of sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm"
-        )
+        raise ValueError(f"{algorithm_class!r} is not a subclass of sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm")
     known = ALGORITHMS.get(name)
     if known is not None and known.algorithm_class is not algorithm_class:
-        raise ValueError(
-            f"algorithm name {name!r} is taken by {known.algorithm_class.__name__}; pick another"
-        )
-    own = params_from_signature(
-        algorithm_class.__init__, (*ALGORITHM_PARAMS, *COMMAND_LINE_ARGUMENTS, POLICY_KWARGS_KEY)
-    )
+        raise ValueError(f"algorithm name {name!r} is taken by {known.algorithm_class.__name__}; pick another")
+    own = params_from_signature(algorithm_class.__init__, (*ALGORITHM_PARAMS, *COMMAND_LINE_ARGUMENTS, POLICY_KWARGS_KEY))
     policy_class = algorithm_class.policy_aliases["MlpPolicy"]
     policy_params = dict(COMMON_POLICY_PARAMS)
     if "__init__" in vars(policy_class):  # a policy that only inherits its constructor adds no keys (VDN's)
-        policy_params.update(
-            params_from_signature(policy_class.__init__, (*_POLICY_INTERNALS, *COMMON_POLICY_PARAMS))
-        )
+        policy_params.update(params_from_signature(policy_class.__init__, (*_POLICY_INTERNALS, *COMMON_POLICY_PARAMS)))
     spec = AlgorithmSpec(name, algorithm_class, policy_params, eps, label or algorithm_class.__name__, own)
     ALGORITHMS[name] = spec
     return spec
@@ -310,9 +295,7 @@ def register_callback(callback_class: type[BaseCallback], name: str | None = Non
     canonical = name or f"{callback_class.__module__}.{callback_class.__qualname__}"
     known = CALLBACKS.get(canonical, callback_class)
     if known is not callback_class:
-        raise ValueError(
-            f"callback name {canonical!r} is taken by {known.__module__}.{known.__qualname__}; pick another"
-        )
+        raise ValueError(f"callback name {canonical!r} is taken by {known.__module__}.{known.__qualname__}; pick another")
     CALLBACKS[canonical] = callback_class
     for spelling in (canonical, callback_class.__name__):
         _CALLBACK_SPELLINGS.setdefault(spelling, canonical)
@@ -343,9 +326,7 @@ def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, An
     :raises ConfigError: for an unknown key, a wrong type or value
     """
     if not isinstance(entry, Mapping):
-        raise ConfigError(
-            f"{where}: an entry must be a mapping of keys to values, got {type(entry).__name__}"
-        )
+        raise ConfigError(f"{where}: an entry must be a mapping of keys to values, got {type(entry).__name__}")
     keys = [*RUN_PARAMS, *spec.params, POLICY_KWARGS_KEY, CALLBACK_KEY, LADDER_KEY]
     for key in entry:
         if key not in keys:
@@ -361,9 +342,7 @@ def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, An
         elif key == CALLBACK_KEY:
             result[key] = normalize_callbacks(value, f"{where}: callback")
         elif key == POLICY_KWARGS_KEY:
-            result[key] = normalize_arguments(
-                value, spec.policy_params, f"{where}: policy_kwargs", NAME_SPELLINGS
-            )
+            result[key] = normalize_arguments(value, spec.policy_params, f"{where}: policy_kwargs", NAME_SPELLINGS)
         elif key == LADDER_KEY:
             result[key] = normalize_ladder(value, f"{where}: ladder")
         else:
@@ -438,11 +417,7 @@ def _conform(value: Any, hint: Any, name: str, where: str) -> Any:
         fits = isinstance(value, hint) and (hint is bool or value in CHOICES.get(name, (value,)))
         return value if fits else _INVALID
     number = _as_number(value) if hint is float else value
-    if (
-        isinstance(number, bool)
-        or not isinstance(number, int | float)
-        or (hint is int and isinstance(number, float))
-    ):
+    if isinstance(number, bool) or not isinstance(number, int | float) or (hint is int and isinstance(number, float)):
         return _INVALID
     return hint(number) if _in_range(float(number), RANGES.get(name, "[-inf, inf]")) else _INVALID
 
@@ -495,9 +470,7 @@ def normalize_callbacks(value: Any, where: str) -> list[dict[str, dict[str, Any]
     for item in value if isinstance(value, list) else [value]:
         item = {item: None} if isinstance(item, str) else item
         if not (isinstance(item, Mapping) and len(item) == 1):
-            raise ConfigError(
-                f"{where}: each callback must be a name or {{name: {{arguments}}}}, got {item!r}"
-            )
+            raise ConfigError(f"{where}: each callback must be a name or {{name: {{arguments}}}}, got {item!r}")
         name, kwargs = next(iter(item.items()))
         params = params_from_signature(callback_class(name, where).__init__, every=True)
         canonical = _CALLBACK_SPELLINGS[name]
@@ -554,9 +527,7 @@ def _config_value(value: Any) -> Any:
     are their config names (``nn.ReLU``, ``th.optim.Adam``, ``JointReplayBuffer``)."""
     if isinstance(value, LinearSchedule):
         if value.end != 0.0 or value.end_fraction != 1.0:
-            raise ValueError(
-                f"a default {value!r} has no config form: only lin_<x> (x -> 0 over training) has"
-            )
+            raise ValueError(f"a default {value!r} has no config form: only lin_<x> (x -> 0 over training) has")
         return f"lin_{value.start}"
     if isinstance(value, type):
         names = {cls: name for name, cls in {**ACTIVATIONS, **OPTIMIZERS}.items()}
@@ -576,9 +547,7 @@ def algorithm_kwargs(entry: Mapping[str, Any], spec: AlgorithmSpec) -> dict[str,
     kwargs = {key: to_object(value, spec.params[key]) for key, value in entry.items() if key in spec.params}
     if POLICY_KWARGS_KEY in entry:
         policy_kwargs = entry[POLICY_KWARGS_KEY].items()
-        kwargs[POLICY_KWARGS_KEY] = {
-            key: to_object(value, spec.policy_params[key]) for key, value in policy_kwargs
-        }
+        kwargs[POLICY_KWARGS_KEY] = {key: to_object(value, spec.policy_params[key]) for key, value in policy_kwargs}
     return kwargs
 
 
@@ -597,9 +566,7 @@ def to_object(value: Any, hint: Any) -> Any:
     return value
 
 
-def build_callbacks(
-    entry: Mapping[str, Any], env_id: str, verbose: int, where: str
-) -> list[tuple[str, BaseCallback]]:
+def build_callbacks(entry: Mapping[str, Any], env_id: str, verbose: int, where: str) -> list[tuple[str, BaseCallback]]:
     """Make the callbacks of a canonical entry.
 
     ``EvolutionCallback`` gets ``eval_env_id=eps_env_id_for(env_id)`` unless the entry sets it.

@@ -85,9 +85,7 @@ def sample_hyperparams(
     :param eps_only: sample the EPS arguments alone (``--eps-only``, an ``eps_*`` algorithm's): the base algorithm
         keeps the entry's settings
     """
-    space = next(
-        (SEARCH_SPACES[cls] for cls in spec.algorithm_class.__mro__ if cls in SEARCH_SPACES), sample_common
-    )
+    space = next((SEARCH_SPACES[cls] for cls in spec.algorithm_class.__mro__ if cls in SEARCH_SPACES), sample_common)
     params = {} if eps_only else space(trial, spec, n_timesteps)
     if spec.eps:
         params[CALLBACK_KEY] = [{EVOLUTION_CALLBACK: sample_eps(trial, env_id)}]
@@ -150,9 +148,7 @@ def sample_gdq(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str, A
     """GDQ's search space: what ``docs/results/gdq_tuning.md`` left open (``global_bootstrap`` near 0.1, short and
     long returns, decaying learning rates); what it settled stays at the package defaults."""
     params: dict[str, Any] = {
-        "learning_rate": trial.suggest_categorical(
-            "learning_rate", ["lin_1e-4", "lin_3e-4", "lin_6e-4", "lin_1e-3"]
-        ),
+        "learning_rate": trial.suggest_categorical("learning_rate", ["lin_1e-4", "lin_3e-4", "lin_6e-4", "lin_1e-3"]),
         "global_bootstrap": trial.suggest_categorical("global_bootstrap", [0.05, 0.1, 0.2]),
         "n_steps": trial.suggest_categorical("n_steps", [3, 5, 10, 30]),
         "batch_size": trial.suggest_categorical("batch_size", [64, 128, 256]),
@@ -167,9 +163,7 @@ def sample_gdq(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str, A
     params["learning_starts"] = min(learning_starts, max(n_timesteps // 4, 1))
     params[POLICY_KWARGS_KEY] = {
         "net_arch": _NET_ARCHS[trial.suggest_categorical("net_arch", list(_NET_ARCHS))],
-        "global_net_arch": _GLOBAL_NET_ARCHS[
-            trial.suggest_categorical("global_net_arch", ["small", "medium"])
-        ],
+        "global_net_arch": _GLOBAL_NET_ARCHS[trial.suggest_categorical("global_net_arch", ["small", "medium"])],
     }
     return params
 
@@ -237,9 +231,7 @@ def make_pruner(name: str, n_startup_trials: int, n_evaluations: int) -> Any:
     """:return: the Optuna pruner ``median``, ``halving`` or ``none``."""
     optuna = _import_optuna()
     if name == "median":
-        return optuna.pruners.MedianPruner(
-            n_startup_trials=n_startup_trials, n_warmup_steps=n_evaluations // 3
-        )
+        return optuna.pruners.MedianPruner(n_startup_trials=n_startup_trials, n_warmup_steps=n_evaluations // 3)
     if name == "halving":
         return optuna.pruners.SuccessiveHalvingPruner(min_resource=1, reduction_factor=4)
     if name == "none":
@@ -300,9 +292,7 @@ class _Objective:
                 trial.set_user_attr(key, [int(summary[key]) for summary in summaries])
         for key in ("success_rate", "collision_rate", "team_return_mean", "length_mean"):
             if all(key in summary for summary in summaries):
-                trial.set_user_attr(
-                    key, float(sum(float(summary[key]) for summary in summaries) / len(summaries))
-                )
+                trial.set_user_attr(key, float(sum(float(summary[key]) for summary in summaries) / len(summaries)))
         if len(scores) > 1:
             trial.set_user_attr("seed_scores", scores)
         return float(sum(scores) / len(scores))
@@ -329,9 +319,7 @@ class _Objective:
         try:
             model = build_model(config, env, seed, self.options.device, verbose=0)
             model.set_logger(Logger(folder=None, output_formats=[]))
-            user_callbacks = [
-                callback for _, callback in build_callbacks(config.entry, config.env_id, 0, config.source)
-            ]
+            user_callbacks = [callback for _, callback in build_callbacks(config.entry, config.env_id, 0, config.source)]
             # EPS pays its ticks from the trial's budget: a setting is scored at the ticks it used.
             eps_callbacks = [callback for callback in user_callbacks if hasattr(callback, "eps_ticks")]
             evaluation = TeamEvalCallback(
@@ -352,9 +340,7 @@ class _Objective:
                 summary = {
                     **summary,
                     "eps_rounds": sum(int(getattr(callback, "n_rounds", 0)) for callback in eps_callbacks),
-                    "eps_crossovers": sum(
-                        int(getattr(callback, "n_crossovers", 0)) for callback in eps_callbacks
-                    ),
+                    "eps_crossovers": sum(int(getattr(callback, "n_crossovers", 0)) for callback in eps_callbacks),
                 }
         finally:
             env.close()
@@ -375,13 +361,9 @@ def tune(options: TrainOptions, tuning: TuningOptions) -> Path:
     hyperparams = [*options.hyperparams, *(f"env_kwargs.{item}" for item in options.env_kwargs)]
     config = resolve_config(options.algo, options.env, options.conf_file, hyperparams, options.n_timesteps)
     if "ladder" in config.entry:
-        raise ConfigError(
-            f"-optimize tunes on one world; {config.source} has a ladder: tune its last rung's world"
-        )
+        raise ConfigError(f"-optimize tunes on one world; {config.source} has a ladder: tune its last rung's world")
     if tuning.eps_only and not config.spec.eps:
-        raise ConfigError(
-            f"--eps-only searches the EPS arguments: {options.algo} has none; use eps_{options.algo}"
-        )
+        raise ConfigError(f"--eps-only searches the EPS arguments: {options.algo} has none; use eps_{options.algo}")
     if options.eval_freq <= 0:
         options.eval_freq = 1  # evaluation is the objective: it cannot be turned off here
     prepare_run(options, config).close()  # builds everything once: mistakes surface before any file exists
@@ -395,9 +377,7 @@ def tune(options: TrainOptions, tuning: TuningOptions) -> Path:
     study_name = tuning.study_name or f"{options.algo}-{config.env_id}"
     record = {**vars(options), "tuning": vars(tuning), "study_name": study_name, "run_dir": str(folder)}
     write_text_atomic(folder / ARGS_NAME, yaml.safe_dump(record, sort_keys=False))
-    write_text_atomic(
-        folder / CONFIG_NAME, entry_yaml(config.env_id, config.entry, f"base of the study {study_name}")
-    )
+    write_text_atomic(folder / CONFIG_NAME, entry_yaml(config.env_id, config.entry, f"base of the study {study_name}"))
     if storage is None:
         storage = make_storage(None, folder)
     optuna.logging.set_verbosity(optuna.logging.INFO if options.verbose >= 1 else optuna.logging.WARNING)
