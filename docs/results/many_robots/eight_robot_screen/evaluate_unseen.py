@@ -22,12 +22,6 @@ from sb3_eps.common.evaluation import evaluate_team
 ROOMS = ("MultiRobotNavUnseen-4-v0", "MultiRobotNavUnseen-4-varied-v0")
 EVAL_SEED = 20_000
 
-parser = argparse.ArgumentParser()
-parser.add_argument("models", nargs="+", type=pathlib.Path)
-parser.add_argument("--out", required=True, type=pathlib.Path)
-args = parser.parse_args()
-th.set_num_threads(1)
-
 
 def load(path: pathlib.Path) -> GDQ:
     """The saved model; one saved before the package dropped the ``angle_features`` policy option (scratch, seed
@@ -39,19 +33,34 @@ def load(path: pathlib.Path) -> GDQ:
     return GDQ.load(path, device="cpu", custom_objects={"policy_kwargs": policy_kwargs})
 
 
-done = set()
-if args.out.exists():
-    done = {(r["arm"], r["seed"], r["room"]) for r in map(json.loads, args.out.read_text().splitlines())}
-for path in args.models:
-    arm, seed = re.fullmatch(r"(.+)_seed(\d+)(_rung\d+)?", path.stem).group(1, 2)
-    model = None
-    for room in ROOMS:
-        if (arm, int(seed), room) in done:
-            continue
-        model = model or load(path)
-        summary = evaluate_team(model, room, 100, n_envs=4, seed=EVAL_SEED)
-        summary.pop("episodes")
-        record = {"arm": arm, "seed": int(seed), "room": room, **summary}
-        with args.out.open("a") as file:
-            file.write(json.dumps(record) + "\n")
-        print(arm, seed, room, record["success_rate"], record["collision_rate"], flush=True)
+def evaluate_models(models: list[pathlib.Path], out: pathlib.Path, rooms: tuple[str, ...] = ROOMS) -> None:
+    """Evaluate every model on every room, appending one JSON line each to ``out`` (lines already there are kept)."""
+    th.set_num_threads(1)
+    done = set()
+    if out.exists():
+        done = {(r["arm"], r["seed"], r["room"]) for r in map(json.loads, out.read_text().splitlines())}
+    for path in models:
+        arm, seed = re.fullmatch(r"(.+)_seed(\d+)(_rung\d+)?", path.stem).group(1, 2)
+        model = None
+        for room in rooms:
+            if (arm, int(seed), room) in done:
+                continue
+            model = model or load(path)
+            summary = evaluate_team(model, room, 100, n_envs=4, seed=EVAL_SEED)
+            summary.pop("episodes")
+            record = {"arm": arm, "seed": int(seed), "room": room, **summary}
+            with out.open("a") as file:
+                file.write(json.dumps(record) + "\n")
+            print(arm, seed, room, record["success_rate"], record["collision_rate"], flush=True)
+
+
+def main(rooms: tuple[str, ...] = ROOMS) -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("models", nargs="+", type=pathlib.Path)
+    parser.add_argument("--out", required=True, type=pathlib.Path)
+    args = parser.parse_args()
+    evaluate_models(args.models, args.out, rooms)
+
+
+if __name__ == "__main__":
+    main()
