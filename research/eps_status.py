@@ -219,24 +219,78 @@ def paper_algorithm_row(root: Path = ROOT) -> Row:
     )
 
 
-#: The 8-robot screen (``docs/results/many_robots/eight_robot_screen/``, ``benchmarks/team_size_ladder.py``): its EPS
-#: and population arms against GDQ from scratch with the package defaults, 300k total world ticks (EPS world ticks
-#: and every learner's paid from them), 50 greedy episodes every 25k ticks. The scratch arm's seed 220 is the
-#: team-size ladder screen's record, made with the same script and protocol.
-SCREEN8 = "docs/results/many_robots/eight_robot_screen"
-SCREEN8_SCRATCH = ("docs/results/many_robots/team_size_ladder", SCREEN8)
-SCREEN8_ARMS = {
-    "eps_early": "EPS-GDQ, early rounds (every 10k ticks up to 60k), 8 robots",
-    "eps_team4": "EPS-GDQ, early rounds in a 4-robot team world, 8 robots",
-    "pop_copy": "population of 4 GDQ learners, copy + safe mutation (rounds: selections; crossovers: copies), 8 robots",
-    "pop_distill": "population of 4 GDQ learners, distillation crossover (rounds: selections; crossovers: copies), 8 robots",
-}
-SCREEN8_MARKS = (250_000, 275_000, 300_000)
+@dataclass(frozen=True)
+class Screen:
+    """A screen of ``benchmarks/team_size_ladder.py`` (held-out seeds): EPS or population arms against GDQ from
+    scratch with the package defaults at equal total world ticks (EPS world ticks and every learner's paid from them).
+
+    :param folder: the screen's records (``<arm>_seed<k>.jsonl``; a population's ``_selections.jsonl`` beside)
+    :param scratch_folders: where the scratch arm's records are, each seed from the last folder that has it
+    :param arms: arm -> the page's name of the variant
+    :param marks: the evaluations whose mean is a run's score (:func:`screen_score`)
+    :param every: the evaluation spacing, in ticks
+    :param robots: the robots of the training worlds
+    :param section: the page's section that reports it
+    :param unseen_room: score the final model on this room instead (``unseen_room.jsonl`` in ``folder``)
+    """
+
+    folder: str
+    scratch_folders: tuple[str, ...]
+    arms: dict[str, str]
+    marks: tuple[int, ...]
+    every: int
+    robots: int
+    section: str
+    unseen_room: str | None = None
 
 
-def screen8_curves(arm: str, folders: Sequence[str], root: Path = ROOT) -> dict[int, list[dict]]:
-    """:return: seed -> the evaluations of one arm of the 8-robot screen, by ticks."""
-    curves = {}
+#: The 8-robot screen (``docs/results/many_robots/eight_robot_screen/``), 300k total world ticks, 50 greedy episodes
+#: every 25k ticks. The scratch arm's seed 220 is the team-size ladder screen's record, same script and protocol.
+SCREEN8 = Screen(
+    "docs/results/many_robots/eight_robot_screen",
+    ("docs/results/many_robots/team_size_ladder", "docs/results/many_robots/eight_robot_screen"),
+    {
+        "eps_early": "EPS-GDQ, early rounds (every 10k ticks up to 60k), 8 robots",
+        "eps_team4": "EPS-GDQ, early rounds in a 4-robot team world, 8 robots",
+        "pop_copy": "population of 4 GDQ learners, copy + safe mutation (rounds: selections; crossovers: copies), 8 robots",
+        "pop_distill": "population of 4 GDQ learners, distillation crossover (rounds: selections; crossovers: copies), 8 robots",
+    },
+    (250_000, 275_000, 300_000),
+    25_000,
+    8,
+    "8-robot-screen",
+)
+#: The 12-robot screen (``docs/results/many_robots/twelve_robot_screen/``), 400k ticks, 50 episodes every 50k.
+SCREEN12 = Screen(
+    "docs/results/many_robots/twelve_robot_screen",
+    ("docs/results/many_robots/twelve_robot_screen",),
+    {"eps_early": "EPS-GDQ, early rounds (every 10k ticks up to 60k), 12 robots"},
+    (300_000, 350_000, 400_000),
+    50_000,
+    12,
+    "12-robot-screen",
+)
+#: EPS on the varied unseen room (``docs/results/eps/unseen_room_eps/``): 4-robot models trained 150k ticks on the
+#: open arena, scored by their final model's success on 100 distinct problems of the room.
+SCREEN_UNSEEN = Screen(
+    "docs/results/eps/unseen_room_eps",
+    ("docs/results/eps/unseen_room_eps",),
+    {
+        "eps_default": "EPS-GDQ, package defaults, 4 robots, scored on the varied unseen room",
+        "eps_early": "EPS-GDQ, early rounds (every 10k ticks up to 60k), 4 robots, scored on the varied unseen room",
+    },
+    (150_000,),
+    25_000,
+    4,
+    "unseen-room",
+    unseen_room="MultiRobotNavUnseen-4-varied-v0",
+)
+SCREENS = (SCREEN8, SCREEN12, SCREEN_UNSEEN)
+
+
+def screen_curves(arm: str, folders: Sequence[str], root: Path = ROOT) -> dict[int, list[dict]]:
+    """:return: seed -> the evaluations of one arm of a screen, by ticks (each seed from the last folder that has it)."""
+    curves: dict[int, list[dict]] = {}
     for folder in folders:
         for path in sorted((root / folder).glob(f"{arm}_seed*.jsonl")):
             seed = re.fullmatch(rf"{arm}_seed(\d+)", path.stem)
@@ -246,52 +300,68 @@ def screen8_curves(arm: str, folders: Sequence[str], root: Path = ROOT) -> dict[
     return curves
 
 
-def screen8_at(curve: list[dict], mark: int) -> dict | None:
+def screen_at(curve: list[dict], mark: int) -> dict | None:
     """:return: the evaluation that stands for ``mark`` ticks: the first at or after it, within 25k (a round or a
     rollout carries an evaluation a few ticks past its point); None if there is none."""
     return next((record for record in curve if mark <= record["ticks"] < mark + 25_000), None)
 
 
-def screen8_score(curve: list[dict]) -> float | None:
-    """:return: the mean success of the evaluations at 250k, 275k and 300k ticks (:func:`screen8_at`); None for an
-    unfinished run."""
-    found = [screen8_at(curve, mark) for mark in SCREEN8_MARKS]
+def screen_score(curve: list[dict], marks: Sequence[int] = SCREEN8.marks) -> float | None:
+    """:return: the mean success of the evaluations at ``marks`` (:func:`screen_at`); None for an unfinished run."""
+    found = [screen_at(curve, mark) for mark in marks]
     return None if None in found else sum(r["success_rate"] for r in found) / len(found)  # type: ignore[index]
 
 
-def screen8_rows(root: Path = ROOT) -> list[Row]:
-    """:return: one row per EPS or population arm of the 8-robot screen over the seeds both it and scratch finished
-    (none for an arm without such a seed).
-    A population's rounds are its selections and its crossovers the copies made; it plays no EPS ticks."""
-    scratch = {s: screen8_score(c) for s, c in screen8_curves("scratch", SCREEN8_SCRATCH, root).items()}
+def unseen_scores(screen: Screen, arm: str, root: Path = ROOT) -> dict[int, float]:
+    """:return: seed -> the final model's success on ``screen.unseen_room`` (``unseen_room.jsonl``)."""
+    path = root / screen.folder / "unseen_room.jsonl"
+    records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
+    return {r["seed"]: r["success_rate"] for r in records if r["arm"] == arm and r["room"] == screen.unseen_room}
+
+
+def screen_rows(screen: Screen, root: Path = ROOT) -> list[Row]:
+    """:return: one row per EPS or population arm of ``screen`` over the seeds both it and scratch finished (none for
+    an arm without such a seed). A population's rounds are its selections and its crossovers the copies made; it
+    plays no EPS ticks."""
+    base_arm = "gdq" if screen.unseen_room else "scratch"
+    if screen.unseen_room:
+        scratch = unseen_scores(screen, base_arm, root)
+    else:
+        scratch = {s: screen_score(c, screen.marks) for s, c in screen_curves(base_arm, screen.scratch_folders, root).items()}
     rows = []
-    for arm, name in SCREEN8_ARMS.items():
-        curves = screen8_curves(arm, (SCREEN8,), root)
-        seeds = sorted(s for s in curves if screen8_score(curves[s]) is not None and scratch.get(s) is not None)
+    for arm, name in screen.arms.items():
+        curves = screen_curves(arm, (screen.folder,), root)
+        scores = (
+            unseen_scores(screen, arm, root)
+            if screen.unseen_room
+            else {s: screen_score(curve, screen.marks) for s, curve in curves.items()}
+        )
+        seeds = sorted(s for s in curves if scores.get(s) is not None and scratch.get(s) is not None)
         if not seeds:
             continue
         rounds = crossovers = 0
         for seed in seeds:
             if arm.startswith("pop"):
-                with open(root / SCREEN8 / f"{arm}_seed{seed}_selections.jsonl") as file:
+                with open(root / screen.folder / f"{arm}_seed{seed}_selections.jsonl") as file:
                     selections = [json.loads(line) for line in file if line.strip()]
                 rounds += len(selections)
                 crossovers += sum("skipped" not in selection for selection in selections)
             else:
                 rounds += curves[seed][-1]["rounds"]
                 crossovers += curves[seed][-1]["crossovers"]
-        variant = Variant(name, "GDQ, package defaults", (), (), 300_000, every=25_000, section="8-robot-screen",
-                          robots=8)  # fmt: skip
+        variant = Variant(name, "GDQ, package defaults", (), (), screen.marks[-1], every=screen.every,
+                          section=screen.section, robots=screen.robots)  # fmt: skip
         rows.append(Row(
-            variant, seeds, [scratch[s] for s in seeds], [screen8_score(curves[s]) for s in seeds], rounds,
+            variant, seeds, [scratch[s] for s in seeds], [scores[s] for s in seeds], rounds,
             crossovers, [int(curves[s][-1].get("eps_ticks", 0)) for s in seeds],
         ))  # fmt: skip
     return rows
 
 
 def all_rows(root: Path = ROOT) -> list[Row]:
-    """:return: the page's table rows: :data:`VARIANTS`, Algorithm 1 and the 8-robot screen."""
-    return [measure(variant, root) for variant in VARIANTS] + [paper_algorithm_row(root), *screen8_rows(root)]
+    """:return: the page's table rows: :data:`VARIANTS`, Algorithm 1 and the screens of :data:`SCREENS`."""
+    screens = [row for screen in SCREENS for row in screen_rows(screen, root)]
+    return [measure(variant, root) for variant in VARIANTS] + [paper_algorithm_row(root), *screens]
 
 
 def seeds_text(seeds: Sequence[int]) -> str:

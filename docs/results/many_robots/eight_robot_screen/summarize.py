@@ -1,10 +1,11 @@
-"""The 8-robot screen's table (rule: ``rules.md`` beside this file): per arm and seed, greedy team success at every
+"""A screen's table (rules: ``rules.md`` beside the records): per arm and seed, greedy team success at every
 evaluation, the score (mean of the last three), the first ticks at 80 % and the final collisions and time-outs. The
-evaluation that stands for each mark and the score are ``research/eps_status.py``'s (``screen8_at``,
-``screen8_score``), so this table and the EPS page's agree.
+evaluation that stands for each mark and the score are ``research/eps_status.py``'s (``screen_at``,
+``screen_score``, the screen's marks), so this table and the EPS page's agree.
 
     python docs/results/many_robots/eight_robot_screen/summarize.py docs/results/many_robots/eight_robot_screen \
         docs/results/many_robots/team_size_ladder/scratch_seed220.jsonl
+    python docs/results/many_robots/eight_robot_screen/summarize.py --robots 12 docs/results/many_robots/twelve_robot_screen
 """
 
 from __future__ import annotations
@@ -16,24 +17,22 @@ import re
 import sys
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[4]))
-from research.eps_status import screen8_at, screen8_score
+from research.eps_status import SCREEN8, SCREEN12, screen_at, screen_score
 
 
 def read(path: pathlib.Path) -> list[dict]:
-    return sorted(
-        (json.loads(line) for line in path.read_text().splitlines() if line.strip()), key=lambda r: r["ticks"]
-    )
+    return sorted((json.loads(line) for line in path.read_text().splitlines() if line.strip()), key=lambda r: r["ticks"])
 
 
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("paths", nargs="+", type=pathlib.Path, help="record files or folders of them")
+    parser.add_argument("--robots", type=int, choices=(8, 12), default=8, help="the screen: 8 or 12 robots")
     args = parser.parse_args()
-    found = [
-        p for path in args.paths for p in (sorted(path.glob("*_seed*.jsonl")) if path.is_dir() else [path])
-    ]
+    screen = SCREEN8 if args.robots == 8 else SCREEN12
+    found = [p for path in args.paths for p in (sorted(path.glob("*_seed*.jsonl")) if path.is_dir() else [path])]
     files = sorted(p for p in found if "_rounds" not in p.name and "_selections" not in p.name)
-    marks = list(range(25_000, 300_001, 25_000))
+    marks = list(range(screen.every, screen.marks[-1] + 1, screen.every))
     print(
         "| arm, seed | "
         + " | ".join(str(m // 1000) for m in marks)
@@ -45,9 +44,9 @@ def main() -> None:
         match = re.match(r"(.+)_seed(\d+)\.jsonl", path.name)
         arm, seed = match.group(1), int(match.group(2))
         curve = read(path)
-        at = [screen8_at(curve, mark) for mark in marks]
+        at = [screen_at(curve, mark) for mark in marks]
         cells = ["" if record is None else f"{100 * record['success_rate']:.0f}" for record in at]
-        score = screen8_score(curve)
+        score = screen_score(curve, screen.marks)
         if score is not None:
             score *= 100
             scores.setdefault(arm, []).append(score)
