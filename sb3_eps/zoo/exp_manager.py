@@ -68,10 +68,10 @@ from sb3_eps.zoo.evaluation import check_spaces
 from sb3_eps.zoo.ladder import LADDER_KEY, build_rungs, check_ladder_run, check_rungs, ladder_progress
 from sb3_eps.zoo.population import check_population_run, run_population
 from sb3_eps.zoo.schema import (
+    POPULATION_KEY,
     algorithm_kwargs,
     algorithm_spec,
     build_callbacks,
-    POPULATION_KEY,
     check_complete,
     normalize_value,
 )
