@@ -112,8 +112,9 @@ def test_a_population_run_fills_the_run_folder_and_its_model_evaluates(uninterru
     assert verify_checkpoint(run / "checkpoint.zip")["complete"] is True
 
     population = PopulationTrainer.load(run / "population.zip")
-    assert population.ticks == 1600 // 2  # n_timesteps counts agent-steps of both learners of 2 robots
-    assert [learner.ticks for learner in population.learners] == [400, 400]
+    # n_timesteps counts agent-steps of both learners of 2 robots: 400 ticks each (a turn ends with a rollout of
+    # train_freq 3 ticks, so it may run 2 ticks over)
+    assert all(400 <= learner.ticks < 403 for learner in population.learners)
     selections = [json.loads(line) for line in (run / "population_selections.jsonl").read_text().splitlines()]
     assert selections == population.history and any("fittest" in record for record in selections)
     monitor = (run / "monitor.csv").read_text().splitlines()

@@ -197,7 +197,8 @@ class PopulationTrainer:
         after_turn: Callable[[], bool] | None = None,
     ) -> PopulationTrainer:
         """Train until every learner has its share (``total_ticks // k``) of the run's ``total_ticks`` world ticks (a
-        loaded population goes on from where it was).
+        loaded population goes on from where it was). The learners' schedules run over that share: give the run's
+        whole total to one call (a call per evaluation mark would run them to their end at every mark).
 
         :param total_ticks: world ticks of the whole run, all learners together
         :param checkpoint_path: where a SIGTERM during training writes a checkpoint (at the end of the running
