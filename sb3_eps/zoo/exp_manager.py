@@ -39,8 +39,8 @@ from sb3_eps.zoo.callbacks import (
     TeamMonitor,
     TrainingInterrupted,
     TrainingStateCallback,
-    final_against_best,
     stop_on_signals,
+    write_final_report,
 )
 from sb3_eps.zoo.checkpoint import (
     CHECKPOINT_NAME,
@@ -594,11 +594,7 @@ def _run(
             checkpoint.save(complete=True)
         else:
             remove_checkpoints(run_dir / CHECKPOINT_NAME)
-    report = None if eval_callback is None else final_against_best(eval_callback.records, run_dir)
-    if report is not None:
-        (run_dir / run_folder.FINAL_REPORT_NAME).write_text(report + "\n")
-        if options.verbose >= 1 or "WARNING" in report:
-            print(report, flush=True)
+    write_final_report(None if eval_callback is None else eval_callback.records, run_dir, options.verbose)
     if options.verbose >= 1:
         minutes = (time.time() - start) / 60
         print(

@@ -38,7 +38,7 @@ from sb3_eps.common.snapshots import snapshot_dumps
 from sb3_eps.common.vec_env import MultiAgentVecEnv
 from sb3_eps.eps.population import PopulationTrainer
 from sb3_eps.zoo import run_folder
-from sb3_eps.zoo.callbacks import TeamEvalCallback, TeamMonitor, final_against_best, stop_on_signals
+from sb3_eps.zoo.callbacks import TeamEvalCallback, TeamMonitor, stop_on_signals, write_final_report
 from sb3_eps.zoo.checkpoint import (
     CHECKPOINT_NAME,
     atomic_path,
@@ -351,11 +351,7 @@ def _train(
             checkpoint(complete=True)
         else:
             remove_checkpoints(checkpoint_path)
-    report = None if evaluation is None else final_against_best(evaluation.records, run_dir)
-    if report is not None:
-        (run_dir / run_folder.FINAL_REPORT_NAME).write_text(report + "\n")
-        if options.verbose >= 1 or "WARNING" in report:
-            print(report, flush=True)
+    write_final_report(None if evaluation is None else evaluation.records, run_dir, options.verbose)
     if options.verbose >= 1:
         print(
             f"Done in {(time.time() - start) / 60:.1f} min: {model.num_timesteps} timesteps ({model.ticks} ticks) of "
