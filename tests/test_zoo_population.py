@@ -11,13 +11,14 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch as th
 
 import envs  # noqa: F401
 from sb3_eps import GDQ, evaluate, make_vec_env, train
 from sb3_eps.eps.population import PopulationTrainer
-from sb3_eps.zoo.checkpoint import verify_checkpoint
+from sb3_eps.zoo.checkpoint import CorruptCheckpoint, verify_checkpoint
 from sb3_eps.zoo.config import resolve_config
 from sb3_eps.zoo.errors import run_command
 from sb3_eps.zoo.exp_manager import TrainOptions
@@ -135,10 +136,13 @@ def test_a_population_stopped_by_sigterm_resumes_to_the_uninterrupted_run(uninte
     folder = tmp_path / "logs"
     process = subprocess.Popen([sys.executable, "-m", "sb3_eps.train", *argv(tmp_path, folder, "--keep-checkpoint")])
     deadline = time.time() + 300
-    while True:  # the first periodic checkpoint after a copy: training runs, selections have acted
+    while True:  # the second periodic checkpoint: after a copy and an evaluation, before the end
         found = list(folder.glob("gdq/*/checkpoint.zip"))
-        selections = list(folder.glob("gdq/*/population_selections.jsonl"))
-        if found and selections and "fittest" in selections[0].read_text():
+        try:
+            meta = verify_checkpoint(found[0]) if found else {}
+        except CorruptCheckpoint:  # replaced while being read
+            meta = {}
+        if meta.get("num_timesteps", 0) >= 800:
             break
         assert process.poll() is None and time.time() < deadline, "training ended before it could be stopped"
         time.sleep(0.02)
@@ -146,7 +150,10 @@ def test_a_population_stopped_by_sigterm_resumes_to_the_uninterrupted_run(uninte
     assert process.wait(timeout=300) == 0
     run = the_run(folder)
     meta = verify_checkpoint(run / "checkpoint.zip")
-    assert 0 < meta["num_timesteps"] < 1600 and meta["complete"] is False
+    assert 800 <= meta["num_timesteps"] < 1600 and meta["complete"] is False
+    assert "fittest" in (run / "population_selections.jsonl").read_text()  # a copy before the stop
+    with np.load(run / "evaluations.npz") as evaluations:
+        assert list(evaluations["timesteps"]) and evaluations["timesteps"][-1] <= meta["num_timesteps"]
     assert not (run / f"{ENV_ID}.zip").exists()
 
     assert train.main(["--resume", str(run), "--verbose", "0"]) == 0
