@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 import torch as th
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.utils import FloatSchedule, LinearSchedule
 from stable_baselines3.common.vec_env import VecEnv
 
@@ -188,13 +189,24 @@ class PopulationTrainer:
         """World ticks of all learners together."""
         return sum(learner.ticks for learner in self.learners)
 
-    def learn(self, total_ticks: int, checkpoint_path: str | Path | None = None) -> PopulationTrainer:
+    def learn(
+        self,
+        total_ticks: int,
+        checkpoint_path: str | Path | None = None,
+        callback: BaseCallback | None = None,
+        after_turn: Callable[[], bool] | None = None,
+    ) -> PopulationTrainer:
         """Train until every learner has its share (``total_ticks // k``) of the run's ``total_ticks`` world ticks (a
-        loaded population goes on from where it was).
+        loaded population goes on from where it was). The learners' schedules run over that share: give the run's
+        whole total to one call (a call per evaluation mark would run them to their end at every mark).
 
         :param total_ticks: world ticks of the whole run, all learners together
         :param checkpoint_path: where a SIGTERM during training writes a checkpoint (at the end of the running
             turn; :meth:`load` resumes it exactly); training then returns with ``interrupted`` set
+        :param callback: an SB3 callback run in every turn (each turn's ``learn`` initialises it with that turn's
+            learner, ``learners[next_learner]``)
+        :param after_turn: called after every turn and the selection it made due, where every learner is between two
+            of its turns (where a checkpoint resumes exactly); returning False ends training there
         """
         if not isinstance(total_ticks, int | np.integer) or total_ticks < 0:
             raise ValueError(f"total_ticks must be an int >= 0 (world ticks, all learners), got {total_ticks!r}")
@@ -209,10 +221,13 @@ class PopulationTrainer:
                 if remaining > 0:
                     horizon = ScheduleHorizon(share * learner.n_agents)
                     turn = min(self.settings["turn_ticks"], remaining) * learner.n_agents
-                    learner.learn(turn, callback=horizon, reset_num_timesteps=False)
+                    turn_callback = horizon if callback is None else CallbackList([horizon, callback])
+                    learner.learn(turn, callback=turn_callback, reset_num_timesteps=False)
                 self.next_learner = (self.next_learner + 1) % self.settings["k"]
                 if self.next_learner == 0 and self.ticks - self.last_selection_ticks >= self.settings["interval"]:
                     self.select()
+                if after_turn is not None and not after_turn():
+                    break
                 if self._stop_requested:
                     self.save(checkpoint_path, include_training_state=True)  # type: ignore[arg-type]
                     self.interrupted = True

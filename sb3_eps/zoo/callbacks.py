@@ -83,6 +83,16 @@ def final_against_best(records: dict[str, list[Any]], run_dir: str | Path, drop:
     return line
 
 
+def write_final_report(records: dict[str, list[Any]] | None, run_dir: str | Path, verbose: int) -> None:
+    """Write :func:`final_against_best`'s line to ``final_vs_best.txt`` (none without evaluations); print it when
+    ``verbose`` or when it warns."""
+    report = None if records is None else final_against_best(records, run_dir)
+    if report is not None:
+        (Path(run_dir) / run_folder.FINAL_REPORT_NAME).write_text(report + "\n")
+        if verbose >= 1 or "WARNING" in report:
+            print(report, flush=True)
+
+
 # ---------------------------------------------------------------------------------------------- monitor
 class TeamMonitor(BaseCallback):
     """One CSV row per world (team) episode: ``r`` team return, ``l`` ticks, ``t`` seconds, the model's ``ticks`` and

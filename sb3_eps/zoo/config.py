@@ -3,9 +3,9 @@
 A file maps env ids (and ``default``) to entries (schema: :mod:`sb3_eps.zoo.schema`). The entry of an env id is
 the constructors' defaults (:func:`~sb3_eps.zoo.schema.package_defaults`), then its ``default`` entry updated key by
 key (a shallow merge) with the env id's own entry, then with the command line's
-``--hyperparams key:value`` overrides (``policy_kwargs.net_arch:[64]``, ``env_kwargs.<arg>:...`` and
-``callback.<arg>:...`` update one item of a mapping) and ``-n``. YAML is read with a safe loader that also refuses
-duplicate keys; nothing is executed.
+``--hyperparams key:value`` overrides (``policy_kwargs.net_arch:[64]``, ``env_kwargs.<arg>:...``,
+``population.<setting>:...`` and ``callback.<arg>:...`` update one item of a mapping) and ``-n``. YAML is read
+with a safe loader that also refuses duplicate keys; nothing is executed.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from sb3_eps.zoo.schema import (
 DEFAULT_KEY = "default"
 #: Environment variable naming a folder of config files to use instead of the shipped ``zoo_configs/``.
 CONFIG_DIR_VARIABLE = "SB3_EPS_CONFIG_DIR"
-_MAPPING_KEYS = ("policy_kwargs", "env_kwargs")
+_MAPPING_KEYS = ("policy_kwargs", "env_kwargs", "population")
 
 
 @dataclass

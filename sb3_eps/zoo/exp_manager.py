@@ -39,8 +39,8 @@ from sb3_eps.zoo.callbacks import (
     TeamMonitor,
     TrainingInterrupted,
     TrainingStateCallback,
-    final_against_best,
     stop_on_signals,
+    write_final_report,
 )
 from sb3_eps.zoo.checkpoint import (
     CHECKPOINT_NAME,
@@ -66,7 +66,9 @@ from sb3_eps.zoo.config import (
 from sb3_eps.zoo.errors import ConfigError, RunFailed
 from sb3_eps.zoo.evaluation import check_spaces
 from sb3_eps.zoo.ladder import LADDER_KEY, build_rungs, check_ladder_run, check_rungs, ladder_progress
+from sb3_eps.zoo.population import check_population_run, run_population
 from sb3_eps.zoo.schema import (
+    POPULATION_KEY,
     algorithm_kwargs,
     algorithm_spec,
     build_callbacks,
@@ -316,6 +318,8 @@ def prepare_run(options: TrainOptions, config: ResolvedConfig | None = None, bui
         config = resolve_config(options.algo, options.env, options.conf_file, hyperparams, options.n_timesteps)
         if LADDER_KEY in config.entry:
             check_ladder_run(config.entry, config.env_id, options.n_timesteps, options.algo, config.source)
+        if POPULATION_KEY in config.entry:
+            check_population_run(config, options)
     eval_env_id = options.eval_env or config.env_id
     check_env_id(eval_env_id, "--eval-env")
     if options.seed is None:
@@ -399,6 +403,8 @@ def train(options: TrainOptions, extra_callbacks: Sequence[BaseCallback] = ()) -
         header = f"resolved from {prepared.config.source}\nrerun: python -m sb3_eps.train --algo {options.algo} -conf <this file> ..."
         write_text_atomic(params / run_folder.CONFIG_NAME, entry_yaml(env_id, prepared.config.entry, header))
         write_text_atomic(params / run_folder.COMMAND_NAME, (options.command or run_folder.command_line()) + "\n")
+        if POPULATION_KEY in prepared.config.entry:
+            return run_population(prepared, run_dir, None, extra_callbacks)
         return _run(prepared, run_dir, restore=None, extra_callbacks=extra_callbacks)
     finally:
         prepared.close()
@@ -458,6 +464,8 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
         )
     prepared = prepare_run(options, config, build_model_now=False)
     try:
+        if POPULATION_KEY in entry:
+            return run_population(prepared, run_dir, checkpoint_path)
         checkpoint = load_checkpoint(checkpoint_path)
         # The training worlds come back from the checkpoint, mid-episode (a ladder's: those of its rung).
         rung = resumed_rung(prepared, checkpoint.meta, checkpoint_path)
@@ -586,11 +594,7 @@ def _run(
             checkpoint.save(complete=True)
         else:
             remove_checkpoints(run_dir / CHECKPOINT_NAME)
-    report = None if eval_callback is None else final_against_best(eval_callback.records, run_dir)
-    if report is not None:
-        (run_dir / run_folder.FINAL_REPORT_NAME).write_text(report + "\n")
-        if options.verbose >= 1 or "WARNING" in report:
-            print(report, flush=True)
+    write_final_report(None if eval_callback is None else eval_callback.records, run_dir, options.verbose)
     if options.verbose >= 1:
         minutes = (time.time() - start) / 60
         print(

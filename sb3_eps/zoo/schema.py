@@ -1,7 +1,7 @@
 """The schema of a config entry: which keys exist, what each may hold, and how an entry becomes objects.
 
 An entry (one env id of a ``zoo_configs/<algo>.yml`` file, ``docs/usage.md``) holds run keys (:data:`RUN_PARAMS`,
-``callback``, ``ladder``: :mod:`sb3_eps.zoo.ladder`) and the algorithm's constructor arguments, ``policy_kwargs``
+``callback``, ``ladder``: :mod:`sb3_eps.zoo.ladder`, ``population``: :mod:`sb3_eps.zoo.population`) and the algorithm's constructor arguments, ``policy_kwargs``
 among them, read from the signatures; an unknown key is an error that lists the allowed ones. :func:`normalize_entry` returns an entry in canonical form
 (plain YAML data, what ``config.yml`` holds); :func:`algorithm_kwargs` and :func:`build_callbacks` make objects
 of it.
@@ -30,6 +30,7 @@ from sb3_eps.common import buffers
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.eps import EvolutionCallback, eps_env_id_for
+from sb3_eps.eps.population import PopulationTrainer
 from sb3_eps.gdq import GDQ
 from sb3_eps.iql import IQL
 from sb3_eps.qmix import QMIX, VDN
@@ -98,6 +99,7 @@ RUN_PARAMS: dict[str, Any] = {
 }
 CALLBACK_KEY = "callback"
 POLICY_KWARGS_KEY = "policy_kwargs"
+POPULATION_KEY = "population"
 #: Constructor arguments that come from the command line, never from a config.
 COMMAND_LINE_ARGUMENTS = (
     "policy",
@@ -194,6 +196,15 @@ ALGORITHM_PARAMS: dict[str, Any] = params_from_signature(
 )
 #: ``policy_kwargs`` keys of every algorithm, read from the shared policy's signature.
 COMMON_POLICY_PARAMS: dict[str, Any] = params_from_signature(MultiAgentQPolicy.__init__, _POLICY_INTERNALS)
+
+
+#: The ``PopulationTrainer`` settings an entry's ``population`` may set, read from its signature; the run sets the
+#: others (the algorithm, worlds and ``n_envs`` from the entry, seed, records file, verbosity).
+POPULATION_PARAMS: dict[str, Any] = params_from_signature(
+    PopulationTrainer.__init__,
+    ("algorithm_class", "env", "n_envs", "env_kwargs", "log_path", "seed", "verbose"),
+    every=True,
+)
 
 
 # ---------------------------------------------------------------------------------------------- algorithms
@@ -327,7 +338,7 @@ def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, An
     """
     if not isinstance(entry, Mapping):
         raise ConfigError(f"{where}: an entry must be a mapping of keys to values, got {type(entry).__name__}")
-    keys = [*RUN_PARAMS, *spec.params, POLICY_KWARGS_KEY, CALLBACK_KEY, LADDER_KEY]
+    keys = [*RUN_PARAMS, *spec.params, POLICY_KWARGS_KEY, CALLBACK_KEY, LADDER_KEY, POPULATION_KEY]
     for key in entry:
         if key not in keys:
             raise ConfigError(f"{where}: unknown key {key!r}; allowed keys: {allowed(keys)}")
@@ -345,6 +356,8 @@ def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, An
             result[key] = normalize_arguments(value, spec.policy_params, f"{where}: policy_kwargs", NAME_SPELLINGS)
         elif key == LADDER_KEY:
             result[key] = normalize_ladder(value, f"{where}: ladder")
+        elif key == POPULATION_KEY:
+            result[key] = normalize_arguments(value, POPULATION_PARAMS, f"{where}: population")
         else:
             hint = RUN_PARAMS[key] if key in RUN_PARAMS else spec.params[key]
             result[key] = normalize_value(value, hint, f"{where}: {key}", key)
@@ -502,7 +515,7 @@ def with_package_defaults(entry: Mapping[str, Any], spec: AlgorithmSpec) -> dict
     defaults = package_defaults(spec)
     merged = {**defaults, **entry}
     merged[POLICY_KWARGS_KEY] = {**defaults[POLICY_KWARGS_KEY], **entry.get(POLICY_KWARGS_KEY, {})}
-    order = [*RUN_PARAMS, *spec.params, POLICY_KWARGS_KEY, CALLBACK_KEY, LADDER_KEY]
+    order = [*RUN_PARAMS, *spec.params, POLICY_KWARGS_KEY, CALLBACK_KEY, LADDER_KEY, POPULATION_KEY]
     return {key: merged[key] for key in order if key in merged}
 
 
