@@ -216,13 +216,16 @@ def train_whole(
 def train_population(
     args: argparse.Namespace, rung: tuple[str, int], seed: int, path: pathlib.Path, save: pathlib.Path
 ) -> None:
-    """A population of learners on one world, its fittest learner evaluated every ``--eval-every`` ticks of all."""
+    """A population of learners on one world, its fittest learner evaluated every ``--eval-every`` ticks of all.
+
+    One ``learn`` call over the whole total, the evaluations made between turns: the learners' schedules (learning
+    rate, exploration) run once over the run, as in a command-line run (a call per mark would restart them)."""
     env_id, total = rung
     settings = {"log_path": str(save) + "_selections.jsonl", "seed": seed, **args.population}
     population = PopulationTrainer(ALGORITHMS[args.algo], env_id, **settings, **args.hyperparams)
-    start = time.time()
-    for mark in range(args.eval_every, total + args.eval_every, args.eval_every):
-        population.learn(min(mark, total))
+    start, marks = time.time(), list(range(args.eval_every, total + args.eval_every, args.eval_every))
+
+    def evaluate() -> None:
         best = population.best
         record = {
             "ticks": population.ticks,
@@ -233,9 +236,20 @@ def train_population(
             "selections": len(population.history),
         }
         write_evaluation(args, path, seed, best, record)
+
+    def after_turn() -> bool:
+        if marks and population.ticks >= min(marks[0], total) and population.next_learner == 0:
+            while marks and population.ticks >= min(marks[0], total):
+                marks.pop(0)
+            evaluate()
+        return True
+
+    population.learn(total, after_turn=after_turn)
+    if marks:
+        evaluate()
     if args.save_models:
         population.save(str(save) + "_population.zip")
-        best.save(str(save) + ".zip")
+        population.best.save(str(save) + ".zip")
 
 
 if __name__ == "__main__":
