@@ -17,7 +17,7 @@ from sb3_eps.common.utils import check_arguments, input_gain, td_target
 from sb3_eps.gdq.policies import DEFAULT_GLOBAL_HEAD, GDQPolicy, MlpPolicy
 
 #: Where ``v`` and ``v'`` (the inputs of ``V_G`` and ``V_G'``) come from (``GDQ(global_values=...)``).
-GlobalValues = Literal["recomputed", "stored", "target"]
+GlobalValues = Literal["recomputed", "target"]
 DEFAULT_GLOBAL_VALUES: GlobalValues = "target"
 
 
@@ -85,10 +85,10 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     greedy action's margin) are logged under ``train/``. Other arguments are those of
     :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`.
 
-    :param global_values: where ``v`` and ``v'`` come from: ``"target"``, ``v'`` from the agent target network
-        (needs ``policy_kwargs=dict(agent_target=True)``, the default), so that every bootstrap input moves slowly;
-        ``"recomputed"`` at update time by the current agent network from the stored observations; ``"stored"`` in
-        the replay rows at collection time, as the paper did
+    :param global_values: where ``v'`` comes from: ``"target"``, the agent target network (needs
+        ``policy_kwargs=dict(agent_target=True)``, the default), so that every bootstrap input moves slowly;
+        ``"recomputed"``, the current agent network at update time. ``v`` always comes from the current agent
+        network on the stored observations
     :param global_bootstrap: ``lambda`` of the agents' bootstrap value ``lambda V_G'(v') + (1 - lambda) V_i(s'_i)``:
         1 is the paper's GDQ, 0 independent learning with a global head trained beside it. Default 0.1
         (``docs/results/gdq_target.md``)
@@ -212,34 +212,12 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         if self.global_values == "target" and self.policy.q_net_target is None:
             raise ValueError(
                 "global_values='target' (the default) reads v' from the agent target network: with "
-                "agent_target=False set global_values='recomputed' or 'stored'"
+                "agent_target=False set global_values='recomputed'"
             )
-
-    def _stores_agent_values(self) -> bool:
-        return self.global_values == "stored"
-
-    def collection_values(
-        self, observations: np.ndarray, next_observations: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray] | None:
-        """``global_values="stored"``: v and v' as the agent network sees them at collection time (the paper's
-        way), one forward pass over both."""
-        if self.replay_buffer is None or not self.replay_buffer.store_values:
-            return None
-        n_obs = observations.shape[-1]
-        with th.no_grad():
-            both = self.policy.q_net.value(
-                th.as_tensor(
-                    np.concatenate([observations.reshape(-1, n_obs), next_observations.reshape(-1, n_obs)]),
-                    device=self.device,
-                )
-            )
-        values, next_values = both.cpu().numpy().reshape(2, *observations.shape[:2])
-        return values, next_values
 
     def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
-        stored = batch.values is not None and batch.next_values is not None
         from_target = self.global_values == "target"
-        terms = self._td_terms(batch, need_online_next_values=not (stored or from_target))
+        terms = self._td_terms(batch, need_online_next_values=not from_target)
         values, q_taken, own_next, next_advantages = (
             terms.values,
             terms.q_taken,
@@ -247,14 +225,9 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             terms.next_advantage_term,
         )
         with th.no_grad():
-            # v': the agents' state-values of the next joint observation, from the current agent network
-            # (computed in the same forward pass as the bootstrap's online advantages).
-            # With global_values="stored", v and v' are those computed at collection time (the paper's way).
-            # With global_values="target", v' comes from the agent target network, like the rest of the bootstrap.
-            if stored:
-                next_values = batch.next_values
-            else:
-                next_values = terms.next_values if from_target else terms.online_next_values
+            # v': the agents' state-values of the next joint observation, from the agent target network like the rest
+            # of the bootstrap ("target"), or from the current one in the bootstrap's forward pass ("recomputed").
+            next_values = terms.next_values if from_target else terms.online_next_values
             assert next_values is not None
             # V_G' reads the agents still driving after the window; those that ended in it enter as 0.
             global_next = self.policy.global_value_net_target(next_values * batch.next_alive)
@@ -270,7 +243,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             global_targets = td_target(batch.team_rewards, batch.team_discounts, batch.team_dones, global_next)
         agent_loss = masked_huber(q_taken, agent_targets, batch.alive, batch.weights)
         # V_G(v) with v detached: the global loss trains only the head.
-        agent_values = batch.values if stored else values.detach()
+        agent_values = values.detach()
         global_values = self.policy.global_value_net(agent_values * batch.alive)  # type: ignore[operator]
         global_loss = weighted_huber(global_values, global_targets, batch.weights)
         priorities = row_priority(q_taken - agent_targets, batch.alive)
