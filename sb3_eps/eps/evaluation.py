@@ -11,7 +11,6 @@ team-world episodes (:class:`TeamEpisode`).
 
 from __future__ import annotations
 
-import copy
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -25,7 +24,7 @@ from torch.func import functional_call, vmap
 
 from sb3_eps.common.parallel_wrappers import TeamAsGymnasium, TeamTick
 from sb3_eps.common.workers import Served, WorkerError, WorkerPool
-from sb3_eps.eps.mutations import Parameters, finite_individuals, individual
+from sb3_eps.eps.mutations import Parameters, finite_individuals
 
 
 @dataclass
@@ -118,17 +117,15 @@ def agent_space(env: gymnasium.Env, kind: str) -> gymnasium.Space:
 
 class PopulationForward:
     """Outputs of a block of individuals, each on its own batch of observations: one ``vmap``-ed
-    ``functional_call`` over the stacked weights (``batched``), or one module copy per individual.
+    ``functional_call`` over the stacked weights.
 
     :param network: the agent network; only its architecture is used
     """
 
-    def __init__(self, network: nn.Module, batched: bool = True) -> None:
+    def __init__(self, network: nn.Module) -> None:
         self.network = network
-        self.batched = batched
         self._buffers = dict(network.named_buffers())
         self._population: Parameters = {}
-        self._copies: list[nn.Module] = []
         self._vmapped = vmap(self._forward_one, in_dims=(0, 0))
 
     def _forward_one(self, weights: Parameters, obs: th.Tensor) -> th.Tensor:
@@ -137,23 +134,11 @@ class PopulationForward:
     def load(self, population: Parameters) -> None:
         """Take the weights to evaluate (each tensor ``(P, *shape)``)."""
         self._population = population
-        if self.batched:
-            return
-        size = next(iter(population.values())).shape[0]
-        while len(self._copies) < size:
-            self._copies.append(copy.deepcopy(self.network))
-        with th.no_grad():
-            for index in range(size):
-                weights = individual(population, index)
-                for name, param in self._copies[index].named_parameters():
-                    param.copy_(weights[name])
 
     def __call__(self, obs: th.Tensor) -> th.Tensor:
         """:param obs: ``(P, E, obs_dim)``; :return: outputs ``(P, E, n_outputs)``."""
         with th.no_grad():
-            if self.batched:
-                return self._vmapped(self._population, obs)
-            return th.stack([self._copies[index](obs[index]) for index in range(obs.shape[0])])
+            return self._vmapped(self._population, obs)
 
 
 class _Block(Served):
@@ -168,7 +153,6 @@ class _Block(Served):
         n_individuals: int,
         n_episodes: int,
         network: nn.Module,
-        batched: bool,
         record: str | None = None,
     ) -> None:
         self.n_individuals, self.n_episodes = n_individuals, n_episodes
@@ -179,7 +163,7 @@ class _Block(Served):
         if record is not None and not self.team_size:
             raise ValueError(f"only team worlds record their ticks; {env_id!r} is a single-agent env")
         self.record = record
-        self.forward = PopulationForward(network, batched)
+        self.forward = PopulationForward(network)
 
     def evaluate(self, population: Parameters, seeds: Sequence[int], valid: np.ndarray) -> PoolAnswer:
         """Play every episode of every ``valid`` individual greedily, all envs in lockstep; an individual whose
@@ -261,11 +245,10 @@ class InProcessEnvPool:
         n_individuals: int,
         n_episodes: int,
         network: nn.Module,
-        batched: bool = True,
         record: str | None = None,
     ) -> None:
         self.n_individuals, self.n_episodes = n_individuals, n_episodes
-        self._block = _Block(env_id, env_kwargs, n_individuals, n_episodes, network, batched, record)
+        self._block = _Block(env_id, env_kwargs, n_individuals, n_episodes, network, record)
         self.pids: list[int] = []  # no worker process
 
     def evaluate(self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float) -> PoolAnswer:
@@ -287,7 +270,6 @@ class SubprocessEnvPool:
     :param env_id: an id :func:`check_eval_env_id` accepts, built with ``env_kwargs``
     :param n_individuals: individuals per round, each playing ``n_episodes`` episodes
     :param network: architecture template (CPU; copied into the workers)
-    :param batched: batched forward pass (:class:`PopulationForward`)
     :param n_workers: number of worker processes (at most ``n_individuals``)
     :param record: what to record of every episode (:data:`RECORD_MODES`), sent back with the answer
     """
@@ -299,7 +281,6 @@ class SubprocessEnvPool:
         n_individuals: int,
         n_episodes: int,
         network: nn.Module,
-        batched: bool = True,
         n_workers: int = 2,
         record: str | None = None,
     ) -> None:
@@ -307,7 +288,7 @@ class SubprocessEnvPool:
         n_blocks = max(1, min(n_workers, n_individuals))
         self.blocks = [block for block in np.array_split(np.arange(n_individuals), n_blocks) if len(block)]
         common = {"env_id": env_id, "env_kwargs": env_kwargs, "n_episodes": n_episodes, "network": network}
-        payloads = [{**common, "n_individuals": len(block), "batched": batched, "record": record} for block in self.blocks]
+        payloads = [{**common, "n_individuals": len(block), "record": record} for block in self.blocks]
         # The workers build their envs while the main process goes on training; the first evaluation waits for
         # their hellos within its own deadline.
         self._workers = WorkerPool(
