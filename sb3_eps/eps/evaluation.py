@@ -72,8 +72,6 @@ class _EpisodeRecorder:
         return TeamEpisode(np.stack(self.observations), np.stack(self.actions), *ticks, states=states)
 
 
-#: What an evaluation block records of its episodes: nothing, every tick of a team world, or also its global states.
-RECORD_MODES = (None, "ticks", "ticks+states")
 #: Returns, lengths, outcomes ``(P, E)``, valid ``(P,)`` and the recorded episodes (individual-major) or None.
 PoolAnswer = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[TeamEpisode | None] | None]
 
@@ -143,7 +141,7 @@ class PopulationForward:
 
 class _Block(Served):
     """The envs of a block of individuals and the forward pass that drives them (in a worker or in process);
-    env ``p * n_episodes + j`` plays episode ``j`` of individual ``p``. ``record``: see :data:`RECORD_MODES`. A
+    env ``p * n_episodes + j`` plays episode ``j`` of individual ``p``. ``record``: None, ``"ticks"`` (every tick of a team world) or ``"ticks+states"`` (also its global states). A
     worker's block answers ``evaluate`` with the numpy weights of its individuals."""
 
     def __init__(
@@ -158,10 +156,6 @@ class _Block(Served):
         self.n_individuals, self.n_episodes = n_individuals, n_episodes
         self.envs = [make_eval_env(env_id, env_kwargs) for _ in range(n_individuals * n_episodes)]
         self.team_size = int(getattr(self.envs[0], "team_size", 0))  # 0: a single-agent env
-        if record not in RECORD_MODES:
-            raise ValueError(f"record must be one of {RECORD_MODES}, got {record!r}")
-        if record is not None and not self.team_size:
-            raise ValueError(f"only team worlds record their ticks; {env_id!r} is a single-agent env")
         self.record = record
         self.forward = PopulationForward(network)
 
@@ -271,7 +265,7 @@ class SubprocessEnvPool:
     :param n_individuals: individuals per round, each playing ``n_episodes`` episodes
     :param network: architecture template (CPU; copied into the workers)
     :param n_workers: number of worker processes (at most ``n_individuals``)
-    :param record: what to record of every episode (:data:`RECORD_MODES`), sent back with the answer
+    :param record: what to record of every episode (see :class:`_Block`), sent back with the answer
     """
 
     def __init__(

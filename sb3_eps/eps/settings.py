@@ -17,7 +17,6 @@ Mutation = Literal["safe", "gaussian"]
 PeriodUnit = Literal["episodes", "ticks"]
 AlphaSchedule = Literal["constant", "linear"]
 Fitness = Literal["return", "outcome"]
-ALPHA_SCHEDULES: tuple[str, ...] = typing.get_args(AlphaSchedule)
 assert typing.get_args(Fitness) == FITNESS_KINDS
 #: The intervals of :class:`EPSSettings`'s numbers (its type hints give the rest of its schema).
 RANGES = {
