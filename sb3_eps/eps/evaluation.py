@@ -141,8 +141,9 @@ class PopulationForward:
 
 class _Block(Served):
     """The envs of a block of individuals and the forward pass that drives them (in a worker or in process);
-    env ``p * n_episodes + j`` plays episode ``j`` of individual ``p``. ``record``: None, ``"ticks"`` (every tick of a team world) or ``"ticks+states"`` (also its global states). A
-    worker's block answers ``evaluate`` with the numpy weights of its individuals."""
+    env ``p * n_episodes + j`` plays episode ``j`` of individual ``p``. ``record``: None, ``"ticks"`` (every tick of
+    a team world) or ``"ticks+states"`` (also its global states). A worker's block answers ``evaluate`` with the
+    numpy weights of its individuals."""
 
     def __init__(
         self,
