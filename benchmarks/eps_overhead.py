@@ -10,7 +10,8 @@
    beside wall seconds: on a machine shared with other jobs the wall ratio moves with their load, the CPU ratio
    hardly; it is the wall ratio of a quiet machine evaluating in one process, and an upper bound when the
    workers run on free cores.
-2. Seconds per EPS round for population 10 with the envs in worker processes and in the main process, on the network the EPS-GDQ run ended with; configurations alternate.
+2. Seconds per EPS round for population 10 with the envs in worker processes and in the main process, on the
+   network the EPS-GDQ run ended with; configurations alternate.
 3. How large a mutation is, for the choice of ``sigma``: on visited observations of the EPS-GDQ run, the share
    of greedy actions a mutant changes and the mean |Q change|, for the safe and the Gaussian mutation.
 
