@@ -18,7 +18,6 @@ from sb3_eps.gdq.policies import DEFAULT_GLOBAL_HEAD, GDQPolicy, MlpPolicy
 
 #: Where ``v`` and ``v'`` (the inputs of ``V_G`` and ``V_G'``) come from (``GDQ(global_values=...)``).
 GlobalValues = Literal["recomputed", "target"]
-DEFAULT_GLOBAL_VALUES: GlobalValues = "target"
 
 
 def gdq_agent_targets(
@@ -53,15 +52,6 @@ def gdq_agent_targets(
     return td_target(rewards, discounts, dones, value + next_advantage_term)
 
 
-#: GDQ's default ``global_bootstrap`` (GDQ-lambda 0.1, not the paper's 1: docs/results/gdq_target.md).
-DEFAULT_GLOBAL_BOOTSTRAP = 0.1
-#: GDQ's default ``n_steps``; the paper's target (``global_bootstrap=1``) needs 30 (docs/results/gdq_target.md).
-DEFAULT_N_STEPS = 3
-
-#: GDQ's default ``prioritized_replay``: uniform replay (the base class's default is PER;
-#: docs/results/gdq_uniform_replay.md).
-DEFAULT_PRIORITIZED_REPLAY = False
-
 #: GDQ's default learning rate: 3e-4 decaying linearly to 0 over the budget (RL Zoo's ``lin_3e-4``).
 DEFAULT_LEARNING_RATE = LinearSchedule(3e-4, 0.0, 1.0)
 
@@ -80,7 +70,8 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     Where the package departs from the paper (each default links the page that chose it): ``global_bootstrap=0.1``
     (GDQ-lambda; ``GDQ("MlpPolicy", venv, global_bootstrap=1.0, n_steps=30)`` is the paper's target,
     ``docs/results/gdq_target.md``), ``team_reward_mode="mean"``, ``learning_rate`` 3e-4 decaying linearly to 0,
-    uniform replay (``docs/results/gdq_uniform_replay.md``), an agent target network (the paper had none) and a
+    uniform replay (``docs/results/gdq_uniform_replay.md``), an agent target network (the paper had none; with ``v'``
+    read from it GDQ learned faster and without collapses, ``docs/results/gdq_target.md``) and a
     weight average for the greedy actions (:class:`~sb3_eps.gdq.policies.GDQPolicy`). Diagnostics (``g_i``, the
     greedy action's margin) are logged under ``train/``. Other arguments are those of
     :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`.
@@ -96,9 +87,6 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
 
     policy: GDQPolicy
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": MlpPolicy}
-    # The paper's agents had no target network. With one, and v' read from it (global_values="target"), GDQ
-    # learned the robot worlds faster and without the collapses of the online v' (docs/results/gdq_target.md).
-    default_agent_target: ClassVar[bool] = True
     argument_ranges = {**MultiAgentOffPolicyAlgorithm.argument_ranges, "global_bootstrap": "[0, 1]"}
 
     def __init__(
@@ -116,8 +104,8 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         replay_buffer_class: type[JointReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         gradient_steps_per_target_update: int = 1,
-        n_steps: int = DEFAULT_N_STEPS,
-        prioritized_replay: bool = DEFAULT_PRIORITIZED_REPLAY,
+        n_steps: int = 3,
+        prioritized_replay: bool = False,
         prioritized_replay_alpha: float = 0.6,
         prioritized_replay_beta0: float = 0.4,
         double_q: bool = True,
@@ -134,8 +122,8 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         seed: int | None = None,
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
-        global_values: GlobalValues = DEFAULT_GLOBAL_VALUES,
-        global_bootstrap: float = DEFAULT_GLOBAL_BOOTSTRAP,
+        global_values: GlobalValues = "target",
+        global_bootstrap: float = 0.1,
     ) -> None:
         check_arguments(
             GDQ.__init__,
