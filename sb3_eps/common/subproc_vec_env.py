@@ -56,11 +56,6 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
-def default_n_workers(n_worlds: int) -> int:
-    """One worker per core this process may use, at most one per world."""
-    return max(1, min(n_worlds, available_cores()))
-
-
 def default_layout(n_worlds: int, cores: int | None = None) -> tuple[int, int]:
     """The default ``(main_worlds, n_workers)``: on ``C`` cores, the main process steps the first of ``min(C,
     n_worlds)`` blocks itself while ``C - 1`` workers step the others (``docs/benchmarks.md``, scale-out); on one
