@@ -35,6 +35,7 @@ _DOING = {
     "reset": "resetting its worlds",
     "get_state": "reading the global state",
     "snapshot": "taking a snapshot of its worlds (checkpoint)",
+    "call": "running a method of its worlds",
 }
 _RESUME_HINT = (
     "; its worlds are lost. A training run keeps its last checkpoint: continue it with python -m sb3_eps.train "
@@ -308,8 +309,8 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
     def _send_all(self, command: str, data: Sequence[Any] | None) -> None:
         if self._step_in_flight:
             raise RuntimeError(
-                f"cannot {_DOING.get(command, command).replace('its', 'the')} while a step is in flight: call "
-                "step_wait() after step_async() first"
+                "a step is in flight: call step_wait() after step_async() before "
+                f"{_DOING.get(command, command).replace('its', 'the')}"
             )
         for i in range(self.n_workers):
             message = _pack_step(*data[i]) if command == "step" and data is not None else None
@@ -418,26 +419,15 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         args: tuple[Any, ...] = (),
         kwargs: dict[str, Any] | None = None,
     ) -> dict[int, Any]:
-        if self._step_in_flight:
-            raise RuntimeError(f"cannot run {kind} {name or ''} while a step is in flight: call step_wait() first")
         wanted = set(worlds)
-        doing = f"running {kind} {name or ''}".strip()
-        asked = []
-        for i, block in enumerate(self._blocks):
-            local = [w - block.start for w in block if w in wanted]
-            if local:
-                self._pool.send(i, "call", (local, kind, name, args, kwargs), doing)
-                asked.append(i)
-        mine = [w for w in self._main_block if w in wanted]
-        results: dict[int, Any] = {}
-        if mine:  # the main block starts at world 0: its local indices are the global ones
-            results.update(
-                self._while_workers_run(lambda block: block.venv._world_call(mine, kind, name, args, kwargs), doing)
-            )
-        for i, replies in zip(asked, self._pool.gather(asked, doing)):
-            start = self._blocks[i].start
-            results.update((start + w, value) for w, value in replies.items())
-        return results
+
+        def request(block: range) -> tuple[Any, ...]:  # the block's wanted worlds by their index in the block
+            return [w - block.start for w in block if w in wanted], kind, name, args, kwargs
+
+        local = request(self._main_block) if self._local is not None else None
+        replies = self._ask_all("call", [request(block) for block in self._blocks], local)
+        blocks = self._blocks if self._local is None else [self._main_block, *self._blocks]
+        return {block.start + w: value for block, reply in zip(blocks, replies) for w, value in reply.items()}
 
     def _join(self, parts: list[np.ndarray]) -> np.ndarray:
         if len(parts) > 1:
