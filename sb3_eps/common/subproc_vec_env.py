@@ -35,7 +35,6 @@ _DOING = {
     "reset": "resetting its worlds",
     "get_state": "reading the global state",
     "snapshot": "taking a snapshot of its worlds (checkpoint)",
-    "call": "running a method of its worlds",
 }
 _RESUME_HINT = (
     "; its worlds are lost. A training run keeps its last checkpoint: continue it with python -m sb3_eps.train "
@@ -306,27 +305,30 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         worlds = f"world {block.start}" if len(block) == 1 else f"worlds {block.start}-{block.stop - 1}"
         return f"{worlds} of {self.env_id}" if self.env_id else worlds
 
-    def _send_all(self, command: str, data: Sequence[Any] | None) -> None:
+    def _send_all(self, command: str, data: Sequence[Any] | None, doing: str | None = None) -> None:
+        doing = doing or _DOING.get(command, command)
         if self._step_in_flight:
             raise RuntimeError(
-                "a step is in flight: call step_wait() after step_async() before "
-                f"{_DOING.get(command, command).replace('its', 'the')}"
+                f"a step is in flight: call step_wait() after step_async() before {doing.replace('its', 'the')}"
             )
         for i in range(self.n_workers):
             message = _pack_step(*data[i]) if command == "step" and data is not None else None
             if message is not None:
                 self._pool.send_bytes(i, message, _DOING["step"])
             else:
-                self._pool.send(i, command, None if data is None else data[i], _DOING.get(command, command))
+                self._pool.send(i, command, None if data is None else data[i], doing)
 
-    def _ask_all(self, command: str, data: Sequence[Any] | None = None, local: Any = None) -> list[Any]:
+    def _ask_all(
+        self, command: str, data: Sequence[Any] | None = None, local: Any = None, doing: str | None = None
+    ) -> list[Any]:
         """Send ``command`` to every worker (``data[i]`` to worker ``i``), run it on the main process's block
-        meanwhile (with ``local`` as its data), then gather the replies in order, the main block's first."""
-        self._send_all(command, data)
-        return self._finish_all(command, local)
+        meanwhile (with ``local`` as its data), then gather the replies in order, the main block's first; ``doing``
+        names the command in errors."""
+        self._send_all(command, data, doing)
+        return self._finish_all(command, local, doing)
 
-    def _finish_all(self, command: str, local: Any) -> list[Any]:
-        doing = _DOING.get(command, command)
+    def _finish_all(self, command: str, local: Any, doing: str | None = None) -> list[Any]:
+        doing = doing or _DOING.get(command, command)
         mine = self._while_workers_run(lambda block: block.handle(command, local), doing)
         replies = self._pool.gather(range(self.n_workers), doing)
         return replies if self._local is None else [mine, *replies]
@@ -425,7 +427,8 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
             return [w - block.start for w in block if w in wanted], kind, name, args, kwargs
 
         local = request(self._main_block) if self._local is not None else None
-        replies = self._ask_all("call", [request(block) for block in self._blocks], local)
+        doing = f"running {kind} {name or ''}".strip()
+        replies = self._ask_all("call", [request(block) for block in self._blocks], local, doing)
         blocks = self._blocks if self._local is None else [self._main_block, *self._blocks]
         return {block.start + w: value for block, reply in zip(blocks, replies) for w, value in reply.items()}
 
