@@ -223,6 +223,8 @@ def select_best(fitness: np.ndarray) -> int:
 def polyak_crossover_(network: nn.Module, best: Parameters, alpha: float, names: Collection[str] | None = None) -> float:
     """Mean crossover by Polyak averaging, EPS paper Eq. 5: ``theta = alpha * theta* + (1 - alpha) * theta``, in place
     on ``network``'s parameters ``names`` (None: all). :return: the mean ``|delta theta|``"""
+    if not 0.0 <= alpha <= 1.0:
+        raise ValueError(f"alpha must be in [0, 1], got {alpha}")
     total_change, n_weights = 0.0, 0
     with th.no_grad():
         for name, param in network.named_parameters():
