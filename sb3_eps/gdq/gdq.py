@@ -200,7 +200,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         agent_loss = masked_huber(q_taken, agent_targets, batch.alive, batch.weights)
         # V_G(v) with v detached: the global loss trains only the head.
         agent_values = values.detach()
-        global_values = self.policy.global_value_net(agent_values * batch.alive)  # type: ignore[operator]
+        global_values = self.policy.global_value_net(agent_values * batch.alive)
         global_loss = weighted_huber(global_values, global_targets, batch.weights)
         priorities = row_priority(q_taken - agent_targets, batch.alive)
         logs = {
