@@ -10,8 +10,8 @@
    beside wall seconds: on a machine shared with other jobs the wall ratio moves with their load, the CPU ratio
    hardly; it is the wall ratio of a quiet machine evaluating in one process, and an upper bound when the
    workers run on free cores.
-2. Seconds per EPS round for population 10 with and without the batched population forward (and with the
-   envs in the main process), on the network the EPS-GDQ run ended with; configurations alternate.
+2. Seconds per EPS round for population 10 with the envs in worker processes and in the main process, on the
+   network the EPS-GDQ run ended with; configurations alternate.
 3. How large a mutation is, for the choice of ``sigma``: on visited observations of the EPS-GDQ run, the share
    of greedy actions a mutant changes and the mean |Q change|, for the safe and the Gaussian mutation.
 
@@ -139,13 +139,12 @@ def overhead(args: argparse.Namespace) -> tuple[GDQ, EvolutionCallback]:
 
 
 def round_seconds(model: GDQ, args: argparse.Namespace) -> None:
-    """Part 2: time full EPS rounds (population 10) with and without the batched population forward."""
+    """Part 2: time full EPS rounds (population 10) with the envs in workers and in the main process."""
     snapshot = copy.deepcopy(model.policy.state_dict())
     n_agents = model.n_agents
     configs: list[tuple[str, dict[str, Any]]] = [
-        ("workers, batched forward", {"batched_forward": True}),
-        ("workers, one forward per individual", {"batched_forward": False}),
-        ("main process, batched forward", {"batched_forward": True, "n_workers": 0}),
+        ("workers, batched forward", {}),
+        ("main process, batched forward", {"n_workers": 0}),
     ]
     times: dict[str, list[float]] = {name: [] for name, _ in configs}
     ticks: dict[str, list[int]] = {name: [] for name, _ in configs}

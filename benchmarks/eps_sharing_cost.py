@@ -1,6 +1,6 @@
 """What EPS experience sharing costs in a round: the same population played with and without recording, side by side.
 
-A GDQ model (package defaults, ``global_values="stored"`` so the values pass runs too) trains briefly on
+A GDQ model (package defaults) trains briefly on
 ``MultiRobotNav-4-v0``; then, alternating, one round's population (copy 0 and ``--mutants`` mutants at a small
 Gaussian scale, ``--episodes`` common-random-number episodes each) is played by the same kind of pool without
 recording, and with recording plus :func:`sb3_eps.eps.sharing.share_episodes` into the model's buffer. Printed: the
@@ -36,7 +36,7 @@ def main() -> None:
     args = parser.parse_args()
     th.set_num_threads(1)
     venv = make_vec_env(ENV_ID, n_envs=4, seed=0)
-    model = GDQ("MlpPolicy", venv, seed=0, global_values="stored", learning_starts=1_000)
+    model = GDQ("MlpPolicy", venv, seed=0, learning_starts=1_000)
     model.learn(args.train_ticks * venv.n_agents)
     network = model.policy.q_net
     population = mutate_population(network_parameters(network), args.mutants, 1e-3, th.Generator().manual_seed(0), None)

@@ -40,7 +40,7 @@ def suggest(trial: optuna.Trial, space: str) -> tuple[dict, dict]:
             "team_reward_mode": trial.suggest_categorical("team", ["sum", "mean"]),
             "batch_size": trial.suggest_categorical("batch", [64, 128]),
             "tau": trial.suggest_categorical("tau", [0.005, 0.01, 0.05]),
-            "global_values": trial.suggest_categorical("global_values", ["recomputed", "stored"]),
+            "global_values": "recomputed",  # v' from the online network: works with and without an agent target
         }
         policy_kwargs = {
             "agent_target": trial.suggest_categorical("agent_target", [False, True]),

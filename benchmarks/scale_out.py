@@ -52,7 +52,7 @@ import numpy as np
 import torch as th
 
 from sb3_eps import make_vec_env
-from sb3_eps.common.subproc_vec_env import default_n_workers
+from sb3_eps.common.subproc_vec_env import available_cores
 from sb3_eps.grid import Grid, run_grid
 from sb3_eps.zoo.config import resolve_config
 from sb3_eps.zoo.schema import algorithm_kwargs
@@ -67,7 +67,8 @@ TRAIN_MODES = ("dummy", "subproc", "overlap")
 def make(mode: str, n_worlds: int, seed: int = 0) -> Any:
     if mode in ("workers", "overlap"):
         # overlap: the main process learns while the workers step, so it keeps no worlds and leaves them a core
-        workers = default_n_workers(n_worlds) if mode == "workers" else max(1, default_n_workers(n_worlds) - 1)
+        one_per_core = max(1, min(n_worlds, available_cores()))
+        workers = one_per_core if mode == "workers" else max(1, one_per_core - 1)
         kwargs = {"n_workers": workers, "main_worlds": 0}
         return make_vec_env(ENV_ID, n_envs=n_worlds, seed=seed, vec_env_cls="subproc", vec_env_kwargs=kwargs)
     return make_vec_env(ENV_ID, n_envs=n_worlds, seed=seed, vec_env_cls=mode)

@@ -219,28 +219,6 @@ def _gdq_with(tmp_path=None, **options):
     return GDQ("MlpPolicy", venv, policy_kwargs={**TINY, "global_net_arch": [16], **policy_kwargs}, **kwargs)
 
 
-def test_gdq_stored_values_are_the_networks_values_at_collection_time(tmp_path) -> None:
-    model = _gdq_with(global_values="stored")
-    model.learning_starts = 10_000  # no update: the network that collected is the network we query
-    model.learn(300)
-    buffer = model.replay_buffer
-    rows = buffer.size()
-    assert buffer.store_values and rows > 0
-    with th.no_grad():
-        values = model.policy.q_net.value(th.as_tensor(buffer.observations[:rows].reshape(-1, 18))).reshape(rows, 3)
-        next_values = model.policy.q_net.value(th.as_tensor(buffer.next_observations[:rows].reshape(-1, 18)))
-    np.testing.assert_allclose(buffer.values[:rows], values.numpy(), rtol=1e-5, atol=1e-6)
-    np.testing.assert_allclose(buffer.next_values[:rows], next_values.reshape(rows, 3).numpy(), rtol=1e-5, atol=1e-6)
-    # Training uses them, and they survive save/load with the option.
-    model.learning_starts = 60
-    model.learn(300, reset_num_timesteps=False)
-    batch = buffer.sample(8)
-    assert batch.values is not None and batch.values.shape == (8, 3)
-    model.save(tmp_path / "model")
-    loaded = GDQ.load(tmp_path / "model", env=make_vec_env("CooperativeNavigation-v0", n_envs=2, seed=1))
-    assert loaded.global_values == "stored" and loaded.replay_buffer.store_values
-
-
 @pytest.mark.parametrize("bootstrap", [None, 1.0], ids=["package-defaults", "paper-target"])
 def test_gdq_defaults_are_gdq_lambda_and_the_paper_target_is_one_argument(bootstrap, monkeypatch) -> None:
     """The package defaults train GDQ-lambda 0.1 with 3-step returns (docs/results/gdq_target.md);
@@ -269,12 +247,10 @@ def test_gdq_defaults_are_gdq_lambda_and_the_paper_target_is_one_argument(bootst
     assert th.equal(targets[0], targets[1]) is (bootstrap == 1.0)
 
 
-def test_gdq_target_values_are_the_default_and_not_stored() -> None:
+def test_gdq_target_values_are_the_default() -> None:
     model = _gdq_with()
     model.learn(200)
     assert model.global_values == "target" and model.policy.agent_target
-    assert not model.replay_buffer.store_values
-    assert model.replay_buffer.sample(4).values is None
 
 
 @pytest.mark.parametrize(
@@ -293,11 +269,11 @@ def test_gdq_rejects_bad_options(policy_kwargs, match) -> None:
 @pytest.mark.parametrize(
     "policy_kwargs",
     [
-        {"global_values": "stored"},
+        {"global_values": "recomputed"},
         {"global_bootstrap": 0.1, "agent_target": True},
         {"global_values": "target", "agent_target": True},
     ],
-    ids=["stored-values", "gdq-lambda", "target-values"],
+    ids=["recomputed-values", "gdq-lambda", "target-values"],
 )
 def test_gdq_variants_learn_the_corridor_optimum(policy_kwargs) -> None:
     options = {key: policy_kwargs.pop(key) for key in GDQ_OPTIONS if key in policy_kwargs}

@@ -186,14 +186,13 @@ def test_evaluation_uses_common_random_numbers_and_disqualifies_non_finite_indiv
     assert select_best(result.fitness) in (0, 3)
 
 
-def test_worker_and_in_process_evaluation_agree_batched_or_not() -> None:
+def test_worker_and_in_process_evaluation_agree() -> None:
     network = tiny_model(IQL).policy.q_net
     population = mutate_population(network_parameters(network), 4, 0.05, th.Generator().manual_seed(0), None)
     results = []
     for pool in (
-        InProcessEnvPool(MPE_SINGLE, None, 5, 2, network, batched=True),
-        InProcessEnvPool(MPE_SINGLE, None, 5, 2, network, batched=False),
-        SubprocessEnvPool(MPE_SINGLE, None, 5, 2, network, batched=True, n_workers=2),
+        InProcessEnvPool(MPE_SINGLE, None, 5, 2, network),
+        SubprocessEnvPool(MPE_SINGLE, None, 5, 2, network, n_workers=2),
     ):
         try:
             results.append(evaluate_population(pool, population, [3, 4], timeout=60))

@@ -199,8 +199,8 @@ def test_gain_accepted_and_scheduled_alpha_by_hand() -> None:
     assert scheduled_alpha(0.3, "linear", 1.0) == 0.3
     assert scheduled_alpha(0.3, "linear", 0.25) == pytest.approx(0.075)
     assert scheduled_alpha(0.3, "linear", -0.1) == 0.0
-    with pytest.raises(ValueError, match="alpha_schedule"):
-        scheduled_alpha(0.3, "cosine", 0.5)
+    with pytest.raises(ValueError, match="alpha_schedule must be one of"):
+        EPSSettings(alpha_schedule="cosine")
 
 
 def _scripted(monkeypatch, selection: list[float], fresh: list[float], calls: list) -> None:

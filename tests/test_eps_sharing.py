@@ -33,7 +33,7 @@ SCRIPTED = {"max_episode_steps": 150}
 SCRIPTED_SEEDS = (2, 3, 5)
 ROW_FIELDS = (
     "observations", "next_observations", "actions", "rewards", "dones", "discounts", "alive", "next_alive",
-    "team_rewards", "team_dones", "team_discounts", "states", "next_states", "values", "next_values",
+    "team_rewards", "team_dones", "team_discounts", "states", "next_states",
 )  # fmt: skip
 
 
@@ -83,7 +83,7 @@ def shared_rows(model, episodes: list[TeamEpisode | None]) -> tuple[int, dict[st
 
 
 def rows_of(buffer) -> dict[str, np.ndarray]:
-    return {name: getattr(buffer, name)[: buffer.size()].copy() for name in ROW_FIELDS if hasattr(buffer, name)}
+    return {name: getattr(buffer, name)[: buffer.size()].copy() for name in ROW_FIELDS}
 
 
 def assert_same_rows(shared: dict[str, np.ndarray], reference: dict[str, np.ndarray]) -> None:
@@ -132,20 +132,6 @@ def test_shared_rows_equal_the_training_rows_of_the_same_ticks() -> None:
         assert_same_rows(rows, training_rows(model, SHORT, seeds[index % 2], episode.actions))
 
 
-def test_stored_values_are_the_networks_at_the_round() -> None:
-    """(d) GDQ with global_values="stored": the shared rows carry v and v' of the network that played the round."""
-    model = team_model(GDQ, n_steps=2, global_values="stored")
-    episodes = [scripted_episode(seed, record_states=False) for seed in SCRIPTED_SEEDS[1:]]
-    n_rows, rows = shared_rows(model, episodes)
-    assert n_rows == sum(episode.n_ticks for episode in episodes)
-    with th.no_grad():
-        values = model.policy.q_net.value(th.as_tensor(rows["observations"].reshape(-1, 30))).reshape(n_rows, 2)
-        next_values = model.policy.q_net.value(th.as_tensor(rows["next_observations"].reshape(-1, 30)))
-    np.testing.assert_allclose(rows["values"], values.numpy(), rtol=1e-5, atol=1e-6)
-    np.testing.assert_allclose(rows["next_values"], next_values.reshape(n_rows, 2).numpy(), rtol=1e-5, atol=1e-6)
-    assert np.abs(rows["values"]).min() > 0  # written, not left at the buffer's zeros
-
-
 def sharing_callback(**kwargs) -> EvolutionCallback:
     defaults = {
         "eval_env_id": TEAM, "eval_env_kwargs": SHORT, "population_size": 2, "period": 40, "n_eval_episodes": 1,
@@ -158,8 +144,8 @@ def sharing_callback(**kwargs) -> EvolutionCallback:
 
 @pytest.mark.parametrize(
     ("algorithm", "kwargs"),
-    [(GDQ, {"global_values": "stored"}), (IQL, {}), (QMIX, {}), (VDN, {})],
-    ids=["gdq-stored", "iql", "qmix", "vdn"],
+    [(GDQ, {}), (IQL, {}), (QMIX, {}), (VDN, {})],
+    ids=["gdq", "iql", "qmix", "vdn"],
 )
 def test_a_round_adds_its_ticks_as_rows_and_survives_a_state_dict_round_trip(tmp_path, algorithm, kwargs) -> None:
     """(b) With one-step rows and no gradient step, the buffer holds one row per training tick plus one per EPS tick

@@ -18,7 +18,7 @@ TeamRewardMode = Literal["sum", "mean"]
 
 class JointReplayBufferSamples(NamedTuple):
     """A batch of ``B`` joint rows of ``n`` agents as torch tensors: per agent ``(B, n, ...)``, per team ``(B,)``,
-    states ``(B, state_dim)``, importance ``weights``, numpy row ``indices``, and the stored ``values`` (or None)."""
+    states ``(B, state_dim)``, importance ``weights`` and numpy row ``indices``."""
 
     observations: th.Tensor
     actions: th.Tensor
@@ -35,8 +35,6 @@ class JointReplayBufferSamples(NamedTuple):
     next_states: th.Tensor
     weights: th.Tensor
     indices: np.ndarray
-    values: th.Tensor | None = None
-    next_values: th.Tensor | None = None
 
 
 class JointReplayBuffer:
@@ -44,7 +42,6 @@ class JointReplayBuffer:
 
     :param observation_space: one agent's observation space (a flat Box)
     :param state_dim: length of the global state vector (0: none stored)
-    :param store_values: also keep the agents' state-values computed at collection time
     """
 
     def __init__(
@@ -54,7 +51,6 @@ class JointReplayBuffer:
         n_agents: int,
         state_dim: int = 0,
         device: th.device | str = "cpu",
-        store_values: bool = False,
     ) -> None:
         obs_shape = observation_space.shape
         if obs_shape is None or len(obs_shape) != 1:
@@ -80,10 +76,6 @@ class JointReplayBuffer:
         self.team_discounts = np.zeros(size, dtype=np.float32)
         self.states = np.zeros((size, self.state_dim), dtype=np.float32)
         self.next_states = np.zeros((size, self.state_dim), dtype=np.float32)
-        self.store_values = bool(store_values)
-        value_rows = size if self.store_values else 0
-        self.values = np.zeros((value_rows, n), dtype=np.float32)
-        self.next_values = np.zeros((value_rows, n), dtype=np.float32)
 
     def size(self) -> int:
         """:return: the number of rows stored."""
@@ -106,11 +98,6 @@ class JointReplayBuffer:
         if self.state_dim:
             self.states[index] = row.state
             self.next_states[index] = row.next_state
-        if self.store_values:
-            if row.values is None or row.next_values is None:
-                raise ValueError("this buffer stores the agents' values: the row must carry values and next_values")
-            self.values[index] = row.values
-            self.next_values[index] = row.next_values
         self.pos = (self.pos + 1) % self.buffer_size
         self.full = self.full or self.pos == 0
         return index
@@ -150,8 +137,6 @@ class JointReplayBuffer:
             next_states=next_states,
             weights=th.as_tensor(weights, device=self.device),
             indices=indices,
-            values=tensor(self.values) if self.store_values else None,
-            next_values=tensor(self.next_values) if self.store_values else None,
         )
 
 
@@ -259,15 +244,13 @@ class JointRow:
     team_discount: float
     state: np.ndarray
     next_state: np.ndarray
-    values: np.ndarray | None = None
-    next_values: np.ndarray | None = None
 
 
 @dataclass
 class JointTick:
     """One world's tick for the n-step collector, from what the bridge says of each agent (the rollout and EPS's
     experience sharing both store through it): ``alive`` the agents that acted, ``ended`` those whose life ended,
-    ``truncated`` those ended by the time limit; ``values`` / ``next_values`` the agents' state-values to store."""
+    ``truncated`` those ended by the time limit."""
 
     observations: np.ndarray  # (n, d)
     actions: np.ndarray  # (n,)
@@ -279,8 +262,6 @@ class JointTick:
     state: np.ndarray
     next_state: np.ndarray
     world_ended: bool
-    values: np.ndarray | None = None
-    next_values: np.ndarray | None = None
     # Derived once (every window containing this tick asks for them).
     terminated: np.ndarray = field(init=False)  # (n,) bool: the agent's episode ended by termination
     world_terminated: bool = field(init=False)  # every living agent reached a real end, not the time limit
@@ -342,8 +323,6 @@ def _n_step_row_general(ticks: list[JointTick], gamma: float, team_reward_mode: 
         team_discount=float(gamma**n_ticks),
         state=first.state,
         next_state=last.next_state,
-        values=first.values,
-        next_values=last.next_values,
     )
 
 
@@ -373,8 +352,6 @@ def _n_step_row_all_alive(ticks: list[JointTick], gamma: float, team_reward_mode
         team_discount=float(gamma ** len(ticks)),
         state=first.state,
         next_state=last.next_state,
-        values=first.values,
-        next_values=last.next_values,
     )
 
 

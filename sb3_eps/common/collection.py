@@ -107,7 +107,6 @@ def store_joint_transition(
     next_obs = step.next_observations.reshape((*shape, -1))
     rewards = np.asarray(rewards, dtype=np.float32).reshape(shape)
     actions = np.asarray(actions, dtype=np.int64).reshape(shape)
-    values = model.collection_values(last_obs, next_obs)
     refused = _non_finite_worlds(last_obs, next_obs, rewards)
     for world in range(model.n_worlds):
         if world in refused:  # never stored; windows across the bad tick are dropped too
@@ -130,8 +129,6 @@ def store_joint_transition(
                 state=last_state[world],
                 next_state=np.asarray(next_state, dtype=np.float32),
                 world_ended=bool(step.world_ended[world]),
-                values=None if values is None else values[0][world],
-                next_values=None if values is None else values[1][world],
             ),
         )
     model._last_obs = new_obs

@@ -294,7 +294,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             "n_agents": self.n_agents,
             "state_dim": self.state_dim if self.uses_global_state else 0,
             "device": self.device,
-            "store_values": self._stores_agent_values(),
         }
         clash = sorted(set(self.replay_buffer_kwargs) & {*owned, "buffer_size", "observation_space"})
         if clash:
@@ -362,10 +361,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self._collector = state["collector"]
         self._last_state = state["last_state"]
 
-    def _stores_agent_values(self) -> bool:
-        """Whether the replay rows carry the agents' state-values computed at collection time."""
-        return False
-
     def _global_state(self) -> np.ndarray:
         """:return: ``(n_worlds, state_dim)``, or ``(n_worlds, 0)`` for algorithms that do not use the state."""
         if self.uses_global_state:
@@ -404,13 +399,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     ) -> RolloutReturn:
         """Step every world ``train_freq`` times into the replay buffer (:mod:`sb3_eps.common.collection`)."""
         return collection.collect_rollouts(self, env, callback, train_freq, learning_starts, log_interval)
-
-    def collection_values(
-        self, observations: np.ndarray, next_observations: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray] | None:
-        """Hook: per-agent values ``(v, v')`` that replay rows store with the ticks' ``(n_worlds, n_agents, obs)``
-        observations, computed at collection time; None (the default) stores none."""
-        return None
 
     # ------------------------------------------------------------------ learning
     def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:

@@ -56,11 +56,6 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
-def default_n_workers(n_worlds: int) -> int:
-    """One worker per core this process may use, at most one per world."""
-    return max(1, min(n_worlds, available_cores()))
-
-
 def default_layout(n_worlds: int, cores: int | None = None) -> tuple[int, int]:
     """The default ``(main_worlds, n_workers)``: on ``C`` cores, the main process steps the first of ``min(C,
     n_worlds)`` blocks itself while ``C - 1`` workers step the others (``docs/benchmarks.md``, scale-out); on one
@@ -310,27 +305,30 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         worlds = f"world {block.start}" if len(block) == 1 else f"worlds {block.start}-{block.stop - 1}"
         return f"{worlds} of {self.env_id}" if self.env_id else worlds
 
-    def _send_all(self, command: str, data: Sequence[Any] | None) -> None:
+    def _send_all(self, command: str, data: Sequence[Any] | None, doing: str | None = None) -> None:
+        doing = doing or _DOING.get(command, command)
         if self._step_in_flight:
             raise RuntimeError(
-                f"cannot {_DOING.get(command, command).replace('its', 'the')} while a step is in flight: call "
-                "step_wait() after step_async() first"
+                f"a step is in flight: call step_wait() after step_async() before {doing.replace('its', 'the')}"
             )
         for i in range(self.n_workers):
             message = _pack_step(*data[i]) if command == "step" and data is not None else None
             if message is not None:
                 self._pool.send_bytes(i, message, _DOING["step"])
             else:
-                self._pool.send(i, command, None if data is None else data[i], _DOING.get(command, command))
+                self._pool.send(i, command, None if data is None else data[i], doing)
 
-    def _ask_all(self, command: str, data: Sequence[Any] | None = None, local: Any = None) -> list[Any]:
+    def _ask_all(
+        self, command: str, data: Sequence[Any] | None = None, local: Any = None, doing: str | None = None
+    ) -> list[Any]:
         """Send ``command`` to every worker (``data[i]`` to worker ``i``), run it on the main process's block
-        meanwhile (with ``local`` as its data), then gather the replies in order, the main block's first."""
-        self._send_all(command, data)
-        return self._finish_all(command, local)
+        meanwhile (with ``local`` as its data), then gather the replies in order, the main block's first; ``doing``
+        names the command in errors."""
+        self._send_all(command, data, doing)
+        return self._finish_all(command, local, doing)
 
-    def _finish_all(self, command: str, local: Any) -> list[Any]:
-        doing = _DOING.get(command, command)
+    def _finish_all(self, command: str, local: Any, doing: str | None = None) -> list[Any]:
+        doing = doing or _DOING.get(command, command)
         mine = self._while_workers_run(lambda block: block.handle(command, local), doing)
         replies = self._pool.gather(range(self.n_workers), doing)
         return replies if self._local is None else [mine, *replies]
@@ -423,26 +421,16 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         args: tuple[Any, ...] = (),
         kwargs: dict[str, Any] | None = None,
     ) -> dict[int, Any]:
-        if self._step_in_flight:
-            raise RuntimeError(f"cannot run {kind} {name or ''} while a step is in flight: call step_wait() first")
         wanted = set(worlds)
+
+        def request(block: range) -> tuple[Any, ...]:  # the block's wanted worlds by their index in the block
+            return [w - block.start for w in block if w in wanted], kind, name, args, kwargs
+
+        local = request(self._main_block) if self._local is not None else None
         doing = f"running {kind} {name or ''}".strip()
-        asked = []
-        for i, block in enumerate(self._blocks):
-            local = [w - block.start for w in block if w in wanted]
-            if local:
-                self._pool.send(i, "call", (local, kind, name, args, kwargs), doing)
-                asked.append(i)
-        mine = [w for w in self._main_block if w in wanted]
-        results: dict[int, Any] = {}
-        if mine:  # the main block starts at world 0: its local indices are the global ones
-            results.update(
-                self._while_workers_run(lambda block: block.venv._world_call(mine, kind, name, args, kwargs), doing)
-            )
-        for i, replies in zip(asked, self._pool.gather(asked, doing)):
-            start = self._blocks[i].start
-            results.update((start + w, value) for w, value in replies.items())
-        return results
+        replies = self._ask_all("call", [request(block) for block in self._blocks], local, doing)
+        blocks = self._blocks if self._local is None else [self._main_block, *self._blocks]
+        return {block.start + w: value for block, reply in zip(blocks, replies) for w, value in reply.items()}
 
     def _join(self, parts: list[np.ndarray]) -> np.ndarray:
         if len(parts) > 1:

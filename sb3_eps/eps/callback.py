@@ -273,10 +273,7 @@ class EvolutionCallback(BaseCallback):
             settings.n_individuals,
             settings.n_eval_episodes,
         )
-        kwargs: dict[str, Any] = {
-            "batched": settings.batched_forward,
-            "record": record_mode(self.model) if settings.share_experience else None,
-        }
+        kwargs: dict[str, Any] = {"record": record_mode(self.model) if settings.share_experience else None}
         # A worker evaluates whole individuals, so more workers than individuals would idle.
         n_workers = (os.cpu_count() or 1) if settings.n_workers is None else settings.n_workers
         n_workers = min(n_workers, settings.n_individuals)

@@ -11,7 +11,6 @@ team-world episodes (:class:`TeamEpisode`).
 
 from __future__ import annotations
 
-import copy
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -25,7 +24,7 @@ from torch.func import functional_call, vmap
 
 from sb3_eps.common.parallel_wrappers import TeamAsGymnasium, TeamTick
 from sb3_eps.common.workers import Served, WorkerError, WorkerPool
-from sb3_eps.eps.mutations import Parameters, finite_individuals, individual
+from sb3_eps.eps.mutations import Parameters, finite_individuals
 
 
 @dataclass
@@ -73,8 +72,6 @@ class _EpisodeRecorder:
         return TeamEpisode(np.stack(self.observations), np.stack(self.actions), *ticks, states=states)
 
 
-#: What an evaluation block records of its episodes: nothing, every tick of a team world, or also its global states.
-RECORD_MODES = (None, "ticks", "ticks+states")
 #: Returns, lengths, outcomes ``(P, E)``, valid ``(P,)`` and the recorded episodes (individual-major) or None.
 PoolAnswer = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[TeamEpisode | None] | None]
 
@@ -118,17 +115,15 @@ def agent_space(env: gymnasium.Env, kind: str) -> gymnasium.Space:
 
 class PopulationForward:
     """Outputs of a block of individuals, each on its own batch of observations: one ``vmap``-ed
-    ``functional_call`` over the stacked weights (``batched``), or one module copy per individual.
+    ``functional_call`` over the stacked weights.
 
     :param network: the agent network; only its architecture is used
     """
 
-    def __init__(self, network: nn.Module, batched: bool = True) -> None:
+    def __init__(self, network: nn.Module) -> None:
         self.network = network
-        self.batched = batched
         self._buffers = dict(network.named_buffers())
         self._population: Parameters = {}
-        self._copies: list[nn.Module] = []
         self._vmapped = vmap(self._forward_one, in_dims=(0, 0))
 
     def _forward_one(self, weights: Parameters, obs: th.Tensor) -> th.Tensor:
@@ -137,29 +132,18 @@ class PopulationForward:
     def load(self, population: Parameters) -> None:
         """Take the weights to evaluate (each tensor ``(P, *shape)``)."""
         self._population = population
-        if self.batched:
-            return
-        size = next(iter(population.values())).shape[0]
-        while len(self._copies) < size:
-            self._copies.append(copy.deepcopy(self.network))
-        with th.no_grad():
-            for index in range(size):
-                weights = individual(population, index)
-                for name, param in self._copies[index].named_parameters():
-                    param.copy_(weights[name])
 
     def __call__(self, obs: th.Tensor) -> th.Tensor:
         """:param obs: ``(P, E, obs_dim)``; :return: outputs ``(P, E, n_outputs)``."""
         with th.no_grad():
-            if self.batched:
-                return self._vmapped(self._population, obs)
-            return th.stack([self._copies[index](obs[index]) for index in range(obs.shape[0])])
+            return self._vmapped(self._population, obs)
 
 
 class _Block(Served):
     """The envs of a block of individuals and the forward pass that drives them (in a worker or in process);
-    env ``p * n_episodes + j`` plays episode ``j`` of individual ``p``. ``record``: see :data:`RECORD_MODES`. A
-    worker's block answers ``evaluate`` with the numpy weights of its individuals."""
+    env ``p * n_episodes + j`` plays episode ``j`` of individual ``p``. ``record``: None, ``"ticks"`` (every tick of
+    a team world) or ``"ticks+states"`` (also its global states). A worker's block answers ``evaluate`` with the
+    numpy weights of its individuals."""
 
     def __init__(
         self,
@@ -168,18 +152,13 @@ class _Block(Served):
         n_individuals: int,
         n_episodes: int,
         network: nn.Module,
-        batched: bool,
         record: str | None = None,
     ) -> None:
         self.n_individuals, self.n_episodes = n_individuals, n_episodes
         self.envs = [make_eval_env(env_id, env_kwargs) for _ in range(n_individuals * n_episodes)]
         self.team_size = int(getattr(self.envs[0], "team_size", 0))  # 0: a single-agent env
-        if record not in RECORD_MODES:
-            raise ValueError(f"record must be one of {RECORD_MODES}, got {record!r}")
-        if record is not None and not self.team_size:
-            raise ValueError(f"only team worlds record their ticks; {env_id!r} is a single-agent env")
         self.record = record
-        self.forward = PopulationForward(network, batched)
+        self.forward = PopulationForward(network)
 
     def evaluate(self, population: Parameters, seeds: Sequence[int], valid: np.ndarray) -> PoolAnswer:
         """Play every episode of every ``valid`` individual greedily, all envs in lockstep; an individual whose
@@ -261,11 +240,10 @@ class InProcessEnvPool:
         n_individuals: int,
         n_episodes: int,
         network: nn.Module,
-        batched: bool = True,
         record: str | None = None,
     ) -> None:
         self.n_individuals, self.n_episodes = n_individuals, n_episodes
-        self._block = _Block(env_id, env_kwargs, n_individuals, n_episodes, network, batched, record)
+        self._block = _Block(env_id, env_kwargs, n_individuals, n_episodes, network, record)
         self.pids: list[int] = []  # no worker process
 
     def evaluate(self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float) -> PoolAnswer:
@@ -287,9 +265,8 @@ class SubprocessEnvPool:
     :param env_id: an id :func:`check_eval_env_id` accepts, built with ``env_kwargs``
     :param n_individuals: individuals per round, each playing ``n_episodes`` episodes
     :param network: architecture template (CPU; copied into the workers)
-    :param batched: batched forward pass (:class:`PopulationForward`)
     :param n_workers: number of worker processes (at most ``n_individuals``)
-    :param record: what to record of every episode (:data:`RECORD_MODES`), sent back with the answer
+    :param record: what to record of every episode (see :class:`_Block`), sent back with the answer
     """
 
     def __init__(
@@ -299,7 +276,6 @@ class SubprocessEnvPool:
         n_individuals: int,
         n_episodes: int,
         network: nn.Module,
-        batched: bool = True,
         n_workers: int = 2,
         record: str | None = None,
     ) -> None:
@@ -307,7 +283,7 @@ class SubprocessEnvPool:
         n_blocks = max(1, min(n_workers, n_individuals))
         self.blocks = [block for block in np.array_split(np.arange(n_individuals), n_blocks) if len(block)]
         common = {"env_id": env_id, "env_kwargs": env_kwargs, "n_episodes": n_episodes, "network": network}
-        payloads = [{**common, "n_individuals": len(block), "batched": batched, "record": record} for block in self.blocks]
+        payloads = [{**common, "n_individuals": len(block), "record": record} for block in self.blocks]
         # The workers build their envs while the main process goes on training; the first evaluation waits for
         # their hellos within its own deadline.
         self._workers = WorkerPool(

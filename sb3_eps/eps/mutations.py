@@ -106,10 +106,6 @@ def mutation_directions(
     :return: ``{name: (n_mutants, *shape)}`` for the mutated parameters only (arguments as
         :func:`mutate_population`)
     """
-    if n_mutants < 1:
-        raise ValueError(f"n_mutants must be >= 1, got {n_mutants}")
-    if sensitivities is not None and len(sensitivities) not in (1, n_mutants):
-        raise ValueError(f"give 1 or {n_mutants} sensitivities, got {len(sensitivities)}")
     directions: Parameters = {}
     for name, theta in parameters.items():
         if names is not None and name not in names:
@@ -127,11 +123,7 @@ def population_from_directions(
 ) -> Parameters:
     """``theta_p = theta + clip(scale * direction_p, -max_step, max_step)`` for every mutant ``p``; copy 0 and the
     parameters without a direction stay ``theta``. :return: each tensor ``(n_mutants + 1, *shape)``"""
-    if not scale > 0 or not max_step > 0:
-        raise ValueError(f"scale and max_step must be > 0, got {scale} and {max_step}")
-    n_mutants = next(iter(directions.values())).shape[0] if directions else 0
-    if n_mutants == 0:
-        raise ValueError("no parameter to mutate: directions is empty")
+    n_mutants = next(iter(directions.values())).shape[0]
     population: Parameters = {}
     for name, theta in parameters.items():
         copies = theta.unsqueeze(0).expand(n_mutants + 1, *theta.shape).clone()

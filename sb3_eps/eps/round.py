@@ -32,7 +32,7 @@ from sb3_eps.eps.mutations import (
     population_outputs,
     select_best,
 )
-from sb3_eps.eps.settings import ALPHA_SCHEDULES, EPSSettings
+from sb3_eps.eps.settings import EPSSettings
 from sb3_eps.eps.sharing import share_episodes
 
 
@@ -301,8 +301,6 @@ def gain_accepted(gain: float, min_gain: float) -> bool:
 def scheduled_alpha(alpha: float, schedule: str, progress_remaining: float) -> float:
     """Eq. 5's alpha at a point of training (``progress_remaining``: 1 at the start, 0 at the end):
     ``"constant"``, or ``"linear"`` down to 0 at the end."""
-    if schedule not in ALPHA_SCHEDULES:
-        raise ValueError(f"alpha_schedule must be one of {ALPHA_SCHEDULES}, got {schedule!r}")
     if schedule == "constant":
         return alpha
     return alpha * float(np.clip(progress_remaining, 0.0, 1.0))

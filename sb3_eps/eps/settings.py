@@ -17,7 +17,6 @@ Mutation = Literal["safe", "gaussian"]
 PeriodUnit = Literal["episodes", "ticks"]
 AlphaSchedule = Literal["constant", "linear"]
 Fitness = Literal["return", "outcome"]
-ALPHA_SCHEDULES: tuple[str, ...] = typing.get_args(AlphaSchedule)
 assert typing.get_args(Fitness) == FITNESS_KINDS
 #: The intervals of :class:`EPSSettings`'s numbers (its type hints give the rest of its schema).
 RANGES = {
@@ -130,7 +129,6 @@ class EPSSettings:
         individual)
     :param eval_timeout: seconds an evaluation round may take before its workers count as hung (the round is
         skipped, the workers restarted)
-    :param batched_forward: one ``vmap``-ed ``functional_call`` per tick for a block of individuals
     :param per_robot: normalise mutant ``i`` by robot ``i % n_agents``'s own sensitivity (paper III-B); needs
         ``mutation="safe"``
     :param eval_env_kwargs: constructor arguments of the evaluation env; None: :data:`DEFAULT_EVAL_ENV_KWARGS`;
@@ -163,7 +161,6 @@ class EPSSettings:
     diagnostics_path: str | None = None
     n_workers: int | None = None
     eval_timeout: float = 120.0
-    batched_forward: bool = True
     per_robot: bool = False
     eval_env_kwargs: dict[str, Any] | None = None
     seed: int | None = None

@@ -54,14 +54,10 @@ def share_episodes(model: MultiAgentOffPolicyAlgorithm, episodes: Sequence[TeamE
     if not played:
         return 0
     assert model.replay_buffer is not None
-    observations = np.concatenate([episode.observations[:-1] for episode in played])
-    next_observations = np.concatenate([episode.observations[1:] for episode in played])
-    values = model.collection_values(observations, next_observations)  # one pass for the whole round
-    offset = n_rows = 0
+    n_rows = 0
     for episode in played:
         collector = NStepJointCollector(model.replay_buffer, 1, model.n_steps, model.gamma, model.team_reward_mode)
         for tick in range(episode.n_ticks):
-            row = offset + tick
             if not _finite_tick(episode, tick):
                 collector.pending[0].clear()
                 warnings.warn(
@@ -70,15 +66,13 @@ def share_episodes(model: MultiAgentOffPolicyAlgorithm, episodes: Sequence[TeamE
                     stacklevel=2,
                 )
                 continue
-            collector.add(0, _episode_tick(episode, tick, values, row))
-        offset += episode.n_ticks
+            collector.add(0, _episode_tick(episode, tick))
         n_rows += collector.n_rows
     return n_rows
 
 
-def _episode_tick(episode: TeamEpisode, tick: int, values: tuple[np.ndarray, np.ndarray] | None, row: int) -> JointTick:
-    """Tick ``tick`` of a team-world episode as the bridge would report it (``MultiAgentVecEnv.step_wait``), with
-    row ``row`` of the round's ``values``."""
+def _episode_tick(episode: TeamEpisode, tick: int) -> JointTick:
+    """Tick ``tick`` of a team-world episode as the bridge would report it (``MultiAgentVecEnv.step_wait``)."""
     terminations, truncations, alive = (
         episode.terminations[tick],
         episode.truncations[tick],
@@ -96,8 +90,6 @@ def _episode_tick(episode: TeamEpisode, tick: int, values: tuple[np.ndarray, np.
         state=episode.states[tick],
         next_state=episode.states[tick + 1],
         world_ended=bool(dones.all()),
-        values=None if values is None else values[0][row],
-        next_values=None if values is None else values[1][row],
     )
 
 

@@ -13,12 +13,11 @@ from sb3_eps.common.buffers import JointReplayBuffer, JointReplayBufferSamples, 
 from sb3_eps.common.losses import masked_huber, row_priority, weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm, TDTerms
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import check_arguments, input_gain, td_target
+from sb3_eps.common.utils import base_arguments, check_arguments, input_gain, td_target
 from sb3_eps.gdq.policies import DEFAULT_GLOBAL_HEAD, GDQPolicy, MlpPolicy
 
 #: Where ``v`` and ``v'`` (the inputs of ``V_G`` and ``V_G'``) come from (``GDQ(global_values=...)``).
-GlobalValues = Literal["recomputed", "stored", "target"]
-DEFAULT_GLOBAL_VALUES: GlobalValues = "target"
+GlobalValues = Literal["recomputed", "target"]
 
 
 def gdq_agent_targets(
@@ -53,15 +52,6 @@ def gdq_agent_targets(
     return td_target(rewards, discounts, dones, value + next_advantage_term)
 
 
-#: GDQ's default ``global_bootstrap`` (GDQ-lambda 0.1, not the paper's 1: docs/results/gdq_target.md).
-DEFAULT_GLOBAL_BOOTSTRAP = 0.1
-#: GDQ's default ``n_steps``; the paper's target (``global_bootstrap=1``) needs 30 (docs/results/gdq_target.md).
-DEFAULT_N_STEPS = 3
-
-#: GDQ's default ``prioritized_replay``: uniform replay (the base class's default is PER;
-#: docs/results/gdq_uniform_replay.md).
-DEFAULT_PRIORITIZED_REPLAY = False
-
 #: GDQ's default learning rate: 3e-4 decaying linearly to 0 over the budget (RL Zoo's ``lin_3e-4``).
 DEFAULT_LEARNING_RATE = LinearSchedule(3e-4, 0.0, 1.0)
 
@@ -80,15 +70,16 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     Where the package departs from the paper (each default links the page that chose it): ``global_bootstrap=0.1``
     (GDQ-lambda; ``GDQ("MlpPolicy", venv, global_bootstrap=1.0, n_steps=30)`` is the paper's target,
     ``docs/results/gdq_target.md``), ``team_reward_mode="mean"``, ``learning_rate`` 3e-4 decaying linearly to 0,
-    uniform replay (``docs/results/gdq_uniform_replay.md``), an agent target network (the paper had none) and a
+    uniform replay (``docs/results/gdq_uniform_replay.md``), an agent target network (the paper had none; with ``v'``
+    read from it GDQ learned faster and without collapses, ``docs/results/gdq_target.md``) and a
     weight average for the greedy actions (:class:`~sb3_eps.gdq.policies.GDQPolicy`). Diagnostics (``g_i``, the
     greedy action's margin) are logged under ``train/``. Other arguments are those of
     :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`.
 
-    :param global_values: where ``v`` and ``v'`` come from: ``"target"``, ``v'`` from the agent target network
-        (needs ``policy_kwargs=dict(agent_target=True)``, the default), so that every bootstrap input moves slowly;
-        ``"recomputed"`` at update time by the current agent network from the stored observations; ``"stored"`` in
-        the replay rows at collection time, as the paper did
+    :param global_values: where ``v'`` comes from: ``"target"``, the agent target network (needs
+        ``policy_kwargs=dict(agent_target=True)``, the default), so that every bootstrap input moves slowly;
+        ``"recomputed"``, the current agent network at update time. ``v`` always comes from the current agent
+        network on the stored observations
     :param global_bootstrap: ``lambda`` of the agents' bootstrap value ``lambda V_G'(v') + (1 - lambda) V_i(s'_i)``:
         1 is the paper's GDQ, 0 independent learning with a global head trained beside it. Default 0.1
         (``docs/results/gdq_target.md``)
@@ -96,9 +87,6 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
 
     policy: GDQPolicy
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": MlpPolicy}
-    # The paper's agents had no target network. With one, and v' read from it (global_values="target"), GDQ
-    # learned the robot worlds faster and without the collapses of the online v' (docs/results/gdq_target.md).
-    default_agent_target: ClassVar[bool] = True
     argument_ranges = {**MultiAgentOffPolicyAlgorithm.argument_ranges, "global_bootstrap": "[0, 1]"}
 
     def __init__(
@@ -116,8 +104,8 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         replay_buffer_class: type[JointReplayBuffer] | None = None,
         replay_buffer_kwargs: dict[str, Any] | None = None,
         gradient_steps_per_target_update: int = 1,
-        n_steps: int = DEFAULT_N_STEPS,
-        prioritized_replay: bool = DEFAULT_PRIORITIZED_REPLAY,
+        n_steps: int = 3,
+        prioritized_replay: bool = False,
         prioritized_replay_alpha: float = 0.6,
         prioritized_replay_beta0: float = 0.4,
         double_q: bool = True,
@@ -134,8 +122,8 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         seed: int | None = None,
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
-        global_values: GlobalValues = DEFAULT_GLOBAL_VALUES,
-        global_bootstrap: float = DEFAULT_GLOBAL_BOOTSTRAP,
+        global_values: GlobalValues = "target",
+        global_bootstrap: float = 0.1,
     ) -> None:
         check_arguments(
             GDQ.__init__,
@@ -144,39 +132,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         )
         self.global_values: GlobalValues = global_values
         self.global_bootstrap = float(global_bootstrap)
-        super().__init__(
-            policy,
-            env,
-            learning_rate=learning_rate,
-            buffer_size=buffer_size,
-            learning_starts=learning_starts,
-            batch_size=batch_size,
-            tau=tau,
-            gamma=gamma,
-            train_freq=train_freq,
-            gradient_steps=gradient_steps,
-            replay_buffer_class=replay_buffer_class,
-            replay_buffer_kwargs=replay_buffer_kwargs,
-            gradient_steps_per_target_update=gradient_steps_per_target_update,
-            n_steps=n_steps,
-            prioritized_replay=prioritized_replay,
-            prioritized_replay_alpha=prioritized_replay_alpha,
-            prioritized_replay_beta0=prioritized_replay_beta0,
-            double_q=double_q,
-            exploration_fraction=exploration_fraction,
-            exploration_initial_eps=exploration_initial_eps,
-            exploration_final_eps=exploration_final_eps,
-            max_grad_norm=max_grad_norm,
-            team_reward_mode=team_reward_mode,
-            overlap_training=overlap_training,
-            stats_window_size=stats_window_size,
-            tensorboard_log=tensorboard_log,
-            policy_kwargs=policy_kwargs,
-            verbose=verbose,
-            seed=seed,
-            device=device,
-            _init_setup_model=_init_setup_model,
-        )
+        super().__init__(**base_arguments(MultiAgentOffPolicyAlgorithm.__init__, locals()))
 
     def _diagnostics(self, inputs: th.Tensor, terms: TDTerms, batch: JointReplayBufferSamples) -> dict[str, float]:
         """What explains GDQ's learning (docs/results/gdq_target.md): the gain ``g_i = dV_G/dv_i`` of the
@@ -212,34 +168,12 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         if self.global_values == "target" and self.policy.q_net_target is None:
             raise ValueError(
                 "global_values='target' (the default) reads v' from the agent target network: with "
-                "agent_target=False set global_values='recomputed' or 'stored'"
+                "agent_target=False set global_values='recomputed'"
             )
-
-    def _stores_agent_values(self) -> bool:
-        return self.global_values == "stored"
-
-    def collection_values(
-        self, observations: np.ndarray, next_observations: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray] | None:
-        """``global_values="stored"``: v and v' as the agent network sees them at collection time (the paper's
-        way), one forward pass over both."""
-        if self.replay_buffer is None or not self.replay_buffer.store_values:
-            return None
-        n_obs = observations.shape[-1]
-        with th.no_grad():
-            both = self.policy.q_net.value(
-                th.as_tensor(
-                    np.concatenate([observations.reshape(-1, n_obs), next_observations.reshape(-1, n_obs)]),
-                    device=self.device,
-                )
-            )
-        values, next_values = both.cpu().numpy().reshape(2, *observations.shape[:2])
-        return values, next_values
 
     def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
-        stored = batch.values is not None and batch.next_values is not None
         from_target = self.global_values == "target"
-        terms = self._td_terms(batch, need_online_next_values=not (stored or from_target))
+        terms = self._td_terms(batch, need_online_next_values=not from_target)
         values, q_taken, own_next, next_advantages = (
             terms.values,
             terms.q_taken,
@@ -247,14 +181,9 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             terms.next_advantage_term,
         )
         with th.no_grad():
-            # v': the agents' state-values of the next joint observation, from the current agent network
-            # (computed in the same forward pass as the bootstrap's online advantages).
-            # With global_values="stored", v and v' are those computed at collection time (the paper's way).
-            # With global_values="target", v' comes from the agent target network, like the rest of the bootstrap.
-            if stored:
-                next_values = batch.next_values
-            else:
-                next_values = terms.next_values if from_target else terms.online_next_values
+            # v': the agents' state-values of the next joint observation, from the agent target network like the rest
+            # of the bootstrap ("target"), or from the current one in the bootstrap's forward pass ("recomputed").
+            next_values = terms.next_values if from_target else terms.online_next_values
             assert next_values is not None
             # V_G' reads the agents still driving after the window; those that ended in it enter as 0.
             global_next = self.policy.global_value_net_target(next_values * batch.next_alive)
@@ -270,8 +199,8 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             global_targets = td_target(batch.team_rewards, batch.team_discounts, batch.team_dones, global_next)
         agent_loss = masked_huber(q_taken, agent_targets, batch.alive, batch.weights)
         # V_G(v) with v detached: the global loss trains only the head.
-        agent_values = batch.values if stored else values.detach()
-        global_values = self.policy.global_value_net(agent_values * batch.alive)  # type: ignore[operator]
+        agent_values = values.detach()
+        global_values = self.policy.global_value_net(agent_values * batch.alive)
         global_loss = weighted_huber(global_values, global_targets, batch.weights)
         priorities = row_priority(q_taken - agent_targets, batch.alive)
         logs = {

@@ -13,7 +13,7 @@ from sb3_eps.common.buffers import JointReplayBuffer, JointReplayBufferSamples, 
 from sb3_eps.common.losses import weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import check_arguments, input_gain, td_target
+from sb3_eps.common.utils import base_arguments, check_arguments, input_gain, td_target
 from sb3_eps.qmix.policies import QMIXPolicy, VDNPolicy, apply_lr_scales
 
 #: QMIX's and VDN's default learning rate: 3e-4 decaying linearly to 0 over the budget (docs/results/qmix_vdn.md).
@@ -83,39 +83,7 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     ) -> None:
         check_arguments(QMIX.__init__, {"advantage_learning": advantage_learning}, self.argument_ranges)
         self.advantage_learning = float(advantage_learning)
-        super().__init__(
-            policy,
-            env,
-            learning_rate=learning_rate,
-            buffer_size=buffer_size,
-            learning_starts=learning_starts,
-            batch_size=batch_size,
-            tau=tau,
-            gamma=gamma,
-            train_freq=train_freq,
-            gradient_steps=gradient_steps,
-            replay_buffer_class=replay_buffer_class,
-            replay_buffer_kwargs=replay_buffer_kwargs,
-            gradient_steps_per_target_update=gradient_steps_per_target_update,
-            n_steps=n_steps,
-            prioritized_replay=prioritized_replay,
-            prioritized_replay_alpha=prioritized_replay_alpha,
-            prioritized_replay_beta0=prioritized_replay_beta0,
-            double_q=double_q,
-            exploration_fraction=exploration_fraction,
-            exploration_initial_eps=exploration_initial_eps,
-            exploration_final_eps=exploration_final_eps,
-            max_grad_norm=max_grad_norm,
-            team_reward_mode=team_reward_mode,
-            overlap_training=overlap_training,
-            stats_window_size=stats_window_size,
-            tensorboard_log=tensorboard_log,
-            policy_kwargs=policy_kwargs,
-            verbose=verbose,
-            seed=seed,
-            device=device,
-            _init_setup_model=_init_setup_model,
-        )
+        super().__init__(**base_arguments(MultiAgentOffPolicyAlgorithm.__init__, locals()))
 
     def _update_learning_rate(self, optimizers: list[th.optim.Optimizer] | th.optim.Optimizer) -> None:
         super()._update_learning_rate(optimizers)
@@ -226,37 +194,4 @@ class VDN(QMIX):
         _init_setup_model: bool = True,
         advantage_learning: float = DEFAULT_VDN_ADVANTAGE_LEARNING,
     ) -> None:
-        super().__init__(
-            policy,
-            env,
-            learning_rate=learning_rate,
-            buffer_size=buffer_size,
-            learning_starts=learning_starts,
-            batch_size=batch_size,
-            tau=tau,
-            gamma=gamma,
-            train_freq=train_freq,
-            gradient_steps=gradient_steps,
-            replay_buffer_class=replay_buffer_class,
-            replay_buffer_kwargs=replay_buffer_kwargs,
-            gradient_steps_per_target_update=gradient_steps_per_target_update,
-            n_steps=n_steps,
-            prioritized_replay=prioritized_replay,
-            prioritized_replay_alpha=prioritized_replay_alpha,
-            prioritized_replay_beta0=prioritized_replay_beta0,
-            double_q=double_q,
-            exploration_fraction=exploration_fraction,
-            exploration_initial_eps=exploration_initial_eps,
-            exploration_final_eps=exploration_final_eps,
-            max_grad_norm=max_grad_norm,
-            team_reward_mode=team_reward_mode,
-            overlap_training=overlap_training,
-            stats_window_size=stats_window_size,
-            tensorboard_log=tensorboard_log,
-            policy_kwargs=policy_kwargs,
-            verbose=verbose,
-            seed=seed,
-            device=device,
-            _init_setup_model=_init_setup_model,
-            advantage_learning=advantage_learning,
-        )
+        super().__init__(**base_arguments(QMIX.__init__, locals()))
