@@ -41,7 +41,6 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument("-n", "--n-episodes", type=int, default=100, help="world (team) episodes")
     parser.add_argument("--n-envs", type=int, default=4, help="worlds run side by side")
     parser.add_argument("--seed", type=int, default=0, help="seed of the evaluation worlds")
-    parser.add_argument("--stochastic", action="store_true", help="keep the model's exploration (default greedy)")
     parser.add_argument("--env-kwargs", nargs="+", default=[], metavar="KEY:VALUE", help="env constructor arguments")
     parser.add_argument("--gif", default=None, metavar="PATH", help="also write a GIF of greedy episodes")
     parser.add_argument("--gif-episodes", type=int, default=1, help="episodes in the GIF")
@@ -78,9 +77,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     elif args.load_last_checkpoint:
         which = "last"
     run = load_run(args.run, which, args.device)
-    summary = evaluate_run(
-        run, args.eval_env, args.n_episodes, args.n_envs, args.seed, not args.stochastic, env_kwargs or None
-    )
+    summary = evaluate_run(run, args.eval_env, args.n_episodes, args.n_envs, args.seed, env_kwargs or None)
     print(format_summary(summary))
     suffix = {"final": "", "best": "_best", "last": "_last"}.get(str(which), f"_{which}_steps")
     output = Path(args.output) if args.output else run.run_dir / f"eval_{summary['env_id']}{suffix}.json"

@@ -613,13 +613,8 @@ def test_the_base_install_has_progress_bars_and_tensorboard() -> None:
 
 @pytest.mark.parametrize(
     ("missing", "flags", "words"),
-    [
-        (("tqdm",), ["--progress"], ["--progress needs tqdm"]),
-        (("rich", "tqdm"), ["--progress"], ["--progress needs tqdm and rich"]),
-        (("tensorboard",), ["-tb", "TB"], ["--tensorboard-log needs tensorboard"]),
-        (("optuna",), ["-optimize", "--n-trials", "1"], ["-optimize needs Optuna", "sb3-eps[tune]"]),
-    ],
-    ids=["tqdm", "rich", "tensorboard", "optuna"],
+    [(("optuna",), ["-optimize", "--n-trials", "1"], ["-optimize needs Optuna", "sb3-eps[tune]"])],
+    ids=["optuna"],
 )
 def test_a_feature_whose_package_is_missing_fails_before_anything_is_written(
     missing, flags, words, tmp_path, monkeypatch, capsys

@@ -17,7 +17,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, Literal
 
 import yaml
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
@@ -54,8 +54,8 @@ class TuningOptions(NamespaceOptions):
 
     n_trials: int = 20
     n_jobs: int = 1
-    sampler: str = "tpe"
-    pruner: str = "median"
+    sampler: Literal["tpe", "random"] = "tpe"
+    pruner: Literal["median", "halving", "none"] = "median"
     n_startup_trials: int = 5
     n_evaluations: int = 4
     storage: str | None = None
@@ -63,9 +63,6 @@ class TuningOptions(NamespaceOptions):
     sampler_seed: int | None = None
     n_seeds_per_trial: int = 1
     eps_only: bool = False
-    minimums: ClassVar[dict[str, int]] = {
-        "n_trials": 1, "n_jobs": 1, "n_evaluations": 1, "n_seeds_per_trial": 1, "n_startup_trials": 0,
-    }  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------- search spaces
@@ -219,24 +216,20 @@ def _import_optuna() -> Any:
 
 def make_sampler(name: str, n_startup_trials: int, seed: int | None) -> Any:
     """:return: the Optuna sampler ``tpe`` or ``random``."""
-    optuna = _import_optuna()
-    if name == "tpe":
-        return optuna.samplers.TPESampler(n_startup_trials=n_startup_trials, seed=seed, multivariate=True)
+    samplers = _import_optuna().samplers
     if name == "random":
-        return optuna.samplers.RandomSampler(seed=seed)
-    raise ConfigError(f"--sampler: unknown sampler {name!r}; allowed: tpe, random")
+        return samplers.RandomSampler(seed=seed)
+    return samplers.TPESampler(n_startup_trials=n_startup_trials, seed=seed, multivariate=True)
 
 
 def make_pruner(name: str, n_startup_trials: int, n_evaluations: int) -> Any:
     """:return: the Optuna pruner ``median``, ``halving`` or ``none``."""
-    optuna = _import_optuna()
-    if name == "median":
-        return optuna.pruners.MedianPruner(n_startup_trials=n_startup_trials, n_warmup_steps=n_evaluations // 3)
-    if name == "halving":
-        return optuna.pruners.SuccessiveHalvingPruner(min_resource=1, reduction_factor=4)
-    if name == "none":
-        return optuna.pruners.NopPruner()
-    raise ConfigError(f"--pruner: unknown pruner {name!r}; allowed: median, halving, none")
+    pruners = _import_optuna().pruners
+    return {
+        "median": lambda: pruners.MedianPruner(n_startup_trials=n_startup_trials, n_warmup_steps=n_evaluations // 3),
+        "halving": lambda: pruners.SuccessiveHalvingPruner(min_resource=1, reduction_factor=4),
+        "none": pruners.NopPruner,
+    }[name]()
 
 
 def make_storage(url: str | None, folder: Path) -> Any:
@@ -355,7 +348,7 @@ def tune(options: TrainOptions, tuning: TuningOptions) -> Path:
     :raises ConfigError: for any mistake, before anything is written
     """
     optuna = _import_optuna()
-    tuning.check_minimums()
+    tuning.check_fields()
     options.check()
     check_env_id(options.env)
     hyperparams = [*options.hyperparams, *(f"env_kwargs.{item}" for item in options.env_kwargs)]
