@@ -165,12 +165,11 @@ def describe(hint: Any, name: str = "") -> str | None:
 
 
 def _bounds(interval: str | None) -> str:
+    """:return: an interval of :data:`RANGES` in words: ``" >= 1"``, ``" > 0"``, ``" in [0, 1]"``."""
     if interval is None:
         return ""
     low, high = (bound.strip() for bound in interval[1:-1].split(","))
-    parts = [f"{'>' if interval[0] == '(' else '>='} {low}"] if low != "-inf" else []
-    parts += [f"{'<' if interval[-1] == ')' else '<='} {high}"] if high != "inf" else []
-    return (" " + " and ".join(parts)) if parts else ""
+    return f" in {interval}" if high != "inf" else f" {'>=' if interval[0] == '[' else '>'} {low}"
 
 
 def _in_range(number: float, interval: str) -> bool:
