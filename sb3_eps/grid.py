@@ -98,7 +98,7 @@ def make_grid(values: dict[str, Any]) -> Grid:
 
     :raises ConfigError: naming the key and what is allowed
     """
-    from sb3_eps.zoo.schema import ALGORITHMS, normalize_value
+    from sb3_eps.zoo.schema import algorithm_spec, normalize_value
 
     if not values.get("algos"):
         raise _error("grid: no algorithms; give --algos (e.g. --algos gdq qmix) or algos: in the grid file")
@@ -112,8 +112,7 @@ def make_grid(values: dict[str, Any]) -> Grid:
         raise _error(f"grid: unknown key(s) {unknown}; allowed: {', '.join(hints)}")
     grid = Grid(**{key: normalize_value(value, hints[key], f"grid: {key}", key) for key, value in values.items()})
     for algo in grid.algos:
-        if algo not in ALGORITHMS:
-            raise _error(f"grid: unknown algorithm {algo!r}; allowed: {', '.join(ALGORITHMS)}")
+        algorithm_spec(algo)  # an unknown name is refused with the allowed ones
     if not grid.seeds:
         raise _error("grid: seeds is empty; give at least one seed (or a count)")
     for arg in grid.train_args:

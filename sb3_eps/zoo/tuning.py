@@ -110,7 +110,8 @@ def sample_eps(trial: Any, env_id: str | None = None) -> dict[str, Any]:
 
 
 def sample_common(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str, Any]:
-    """The search space of algorithms without their own, wide as RL Zoo's DQN space (QMIX's mixer sizes too)."""
+    """The search space of algorithms without their own, wide as RL Zoo's DQN space (QMIX's mixer sizes too; a head
+    of a plug-in's own keeps its defaults)."""
     params: dict[str, Any] = {
         "learning_rate": trial.suggest_float("learning_rate", 1e-5, 3e-3, log=True),
         "batch_size": trial.suggest_categorical("batch_size", [32, 64, 128, 256]),
@@ -130,10 +131,6 @@ def sample_common(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str
         "net_arch": _NET_ARCHS[trial.suggest_categorical("net_arch", list(_NET_ARCHS))],
         "activation_fn": trial.suggest_categorical("activation_fn", ["nn.ReLU", "nn.Tanh", "nn.ELU"]),
     }
-    if "global_net_arch" in spec.policy_params:  # a plug-in with a global head but no space of its own
-        policy_kwargs["global_net_arch"] = _GLOBAL_NET_ARCHS[
-            trial.suggest_categorical("global_net_arch", list(_GLOBAL_NET_ARCHS))
-        ]
     if "mixing_embed_dim" in spec.policy_params:
         policy_kwargs["mixing_embed_dim"] = trial.suggest_categorical("mixing_embed_dim", [16, 32, 64])
         policy_kwargs["hypernet_hidden_dim"] = trial.suggest_categorical("hypernet_hidden_dim", [32, 64, 128])
@@ -280,7 +277,7 @@ class _Objective:
         ]
         scores = [objective_score(summary, self.options.eval_episodes) for summary in summaries]
         # What each seed spent and, with EPS, how often it acted.
-        for key in ("ticks", "eps_ticks", "eps_rounds", "eps_crossovers"):
+        for key in PER_SEED_COLUMNS:
             if all(key in summary for summary in summaries):
                 trial.set_user_attr(key, [int(summary[key]) for summary in summaries])
         for key in ("success_rate", "collision_rate", "team_return_mean", "length_mean"):
