@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from typing import Any, NoReturn, TypeVar
 
 from sb3_eps.zoo.errors import ConfigError
+from sb3_eps.zoo.schema import normalize_value
 
 
 class OneLineArgumentParser(argparse.ArgumentParser):
@@ -34,8 +35,6 @@ class NamespaceOptions:
     def check_fields(self, where: str = "") -> None:
         """:raises ConfigError: for a field that does not fit its annotation or range, naming the flag (or ``where``
         and the field)."""
-        from sb3_eps.zoo.schema import normalize_value
-
         hints = typing.get_type_hints(type(self))
         for name in (field.name for field in dataclasses.fields(self)):  # type: ignore[arg-type]
             label = f"{where}: {name}" if where else f"--{name.replace('_', '-')}"
