@@ -31,17 +31,17 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument("--env", default=None, help="the env id the run trained on")
     parser.add_argument("-f", "--log-folder", dest="folder", default="logs")
     parser.add_argument("--exp-id", type=int, default=0, help="run number (0: the latest)")
-    parser.add_argument("--load-best", action="store_true", help="the best model of the run's evaluations")
-    parser.add_argument(
-        "--load-checkpoint", type=int, default=None, metavar="N",
+    which = parser.add_mutually_exclusive_group()  # none of them: the final model
+    which.add_argument("--load-best", dest="which", action="store_const", const="best", help="the best evaluated model")
+    which.add_argument(
+        "--load-checkpoint", dest="which", type=int, metavar="N",
         help="the model snapshot at N timesteps (rl_model_N_steps.zip, written every --save-freq)",
     )  # fmt: skip
-    parser.add_argument("--load-last-checkpoint", action="store_true", help="the latest model snapshot")
+    which.add_argument("--load-last-checkpoint", dest="which", action="store_const", const="last", help="the latest snapshot")
     parser.add_argument("--eval-env", default=None, help="env id to evaluate on (default: the training env id)")
     parser.add_argument("-n", "--n-episodes", type=int, default=100, help="world (team) episodes")
     parser.add_argument("--n-envs", type=int, default=4, help="worlds run side by side")
     parser.add_argument("--seed", type=int, default=0, help="seed of the evaluation worlds")
-    parser.add_argument("--stochastic", action="store_true", help="keep the model's exploration (default greedy)")
     parser.add_argument("--env-kwargs", nargs="+", default=[], metavar="KEY:VALUE", help="env constructor arguments")
     parser.add_argument("--gif", default=None, metavar="PATH", help="also write a GIF of greedy episodes")
     parser.add_argument("--gif-episodes", type=int, default=1, help="episodes in the GIF")
@@ -70,17 +70,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if path is not None and not _can_create(Path(path)):
             raise ConfigError(f"{flag}: cannot write {path}: its folder is not writable")
     env_kwargs = {path[0]: value for path, value in parse_hyperparams(args.env_kwargs)}
-    which: str | int = "final"
-    if args.load_best:
-        which = "best"
-    elif args.load_checkpoint is not None:
-        which = args.load_checkpoint
-    elif args.load_last_checkpoint:
-        which = "last"
+    which = "final" if args.which is None else args.which
     run = load_run(args.run, which, args.device)
-    summary = evaluate_run(
-        run, args.eval_env, args.n_episodes, args.n_envs, args.seed, not args.stochastic, env_kwargs or None
-    )
+    summary = evaluate_run(run, args.eval_env, args.n_episodes, args.n_envs, args.seed, env_kwargs or None)
     print(format_summary(summary))
     suffix = {"final": "", "best": "_best", "last": "_last"}.get(str(which), f"_{which}_steps")
     output = Path(args.output) if args.output else run.run_dir / f"eval_{summary['env_id']}{suffix}.json"

@@ -83,16 +83,13 @@ def _error(message: str) -> Exception:
 
 
 def load_grid_file(path: str | Path) -> dict[str, Any]:
-    """:return: the keys of a grid YAML file. :raises ConfigError: for an unreadable file or an unknown key."""
+    """:return: the keys of a grid YAML file (checked by :func:`make_grid`). :raises ConfigError: for an unreadable
+    file or one that is not a mapping."""
     from sb3_eps.zoo.config import load_yaml
 
     data = load_yaml(path)
-    keys = [field.name for field in fields(Grid)]
     if not isinstance(data, dict):
-        raise _error(f"{path}: a grid file maps keys ({', '.join(keys)}) to values")
-    unknown = sorted(set(data) - set(keys))
-    if unknown:
-        raise _error(f"{path}: unknown key(s) {unknown}; allowed: {', '.join(keys)}")
+        raise _error(f"{path}: a grid file maps keys ({', '.join(field.name for field in fields(Grid))}) to values")
     return data
 
 
@@ -101,7 +98,7 @@ def make_grid(values: dict[str, Any]) -> Grid:
 
     :raises ConfigError: naming the key and what is allowed
     """
-    from sb3_eps.zoo.schema import ALGORITHMS, normalize_value
+    from sb3_eps.zoo.schema import algorithm_spec, normalize_value
 
     if not values.get("algos"):
         raise _error("grid: no algorithms; give --algos (e.g. --algos gdq qmix) or algos: in the grid file")
@@ -110,10 +107,12 @@ def make_grid(values: dict[str, Any]) -> Grid:
     if isinstance(values.get("seeds"), int) and not isinstance(values["seeds"], bool):
         values["seeds"] = list(range(values["seeds"]))  # a count
     hints = typing.get_type_hints(Grid)
+    unknown = sorted(set(values) - set(hints))
+    if unknown:
+        raise _error(f"grid: unknown key(s) {unknown}; allowed: {', '.join(hints)}")
     grid = Grid(**{key: normalize_value(value, hints[key], f"grid: {key}", key) for key, value in values.items()})
     for algo in grid.algos:
-        if algo not in ALGORITHMS:
-            raise _error(f"grid: unknown algorithm {algo!r}; allowed: {', '.join(ALGORITHMS)}")
+        algorithm_spec(algo)  # an unknown name is refused with the allowed ones
     if not grid.seeds:
         raise _error("grid: seeds is empty; give at least one seed (or a count)")
     for arg in grid.train_args:
@@ -218,19 +217,8 @@ def execute_run(
         while (aside := run_dir.with_name(f"{spec.name}.incomplete-{number}")).exists():
             number += 1
         run_dir.rename(aside)
-    if before == "interrupted":
-        command = [sys.executable, "-m", "sb3_eps.train", "--resume", str(run_dir)]
-    else:
-        command = [
-            sys.executable,
-            "-m",
-            "sb3_eps.train",
-            *spec.flags,
-            "-f",
-            str(folder),
-            "--run-name",
-            spec.name,
-        ]
+    new = [*spec.flags, "-f", str(folder), "--run-name", spec.name]
+    command = [sys.executable, "-m", "sb3_eps.train", *(["--resume", str(run_dir)] if before == "interrupted" else new)]
     log_path.parent.mkdir(parents=True, exist_ok=True)
     start = time.time()
     with open(log_path, "a") as log:

@@ -8,6 +8,7 @@ checkpoint; ``python -m sb3_eps.train --resume <run folder>`` continues it.
 from __future__ import annotations
 
 import math
+import statistics
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -88,10 +89,8 @@ def reference_difference(root: Path | None = None) -> dict[str, float] | None:
         differences += [100 * (eps_scores[seed] - base_scores[seed]) for seed in sorted(set(base_scores) & set(eps_scores))]
     if len(differences) < 2:
         return None
-    mean = sum(differences) / len(differences)
-    sd = math.sqrt(sum((d - mean) ** 2 for d in differences) / (len(differences) - 1))
-    ahead = sum(d > 0 for d in differences)
-    return {"mean": mean, "sem": sd / math.sqrt(len(differences)), "n": len(differences), "ahead": ahead}
+    sem = statistics.stdev(differences) / math.sqrt(len(differences))
+    return {"mean": statistics.fmean(differences), "sem": sem, "n": len(differences), "ahead": sum(d > 0 for d in differences)}
 
 
 def reference_summary(difference: dict[str, float]) -> str:

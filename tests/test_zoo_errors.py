@@ -79,7 +79,7 @@ CASES = [
     ("eps-without-callback", GOOD, ["--algo", "eps_gdq"], ["eps_gdq", "sb3_eps.EvolutionCallback"]),
     ("hyperparams-no-colon", None, ["--hyperparams", "gamma"], ["--hyperparams", "key:value"]),
     ("hyperparams-unknown-key", None, ["--hyperparams", "gama:0.9"], ["--hyperparams", "gama", "gamma"]),
-    ("gamma-out-of-range", GOOD + "  gamma: 1.5\n", [], ["gamma", "<= 1"]),
+    ("gamma-out-of-range", GOOD + "  gamma: 1.5\n", [], ["gamma", "in [0, 1]"]),
     ("unknown-policy", GOOD + "  policy: CnnPolicy\n", [], ["policy", "MlpPolicy"]),
     ("env-kwargs-refused", GOOD + "  env_kwargs: {n_agents: 1}\n", [], ["env_kwargs", "n_agents"]),
     ("misspelt-default", "default_typo:\n  n_timesteps: 1\n", [], ["default_typo", "allowed keys"]),

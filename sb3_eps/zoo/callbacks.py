@@ -62,20 +62,17 @@ def final_against_best(records: dict[str, list[Any]], run_dir: str | Path, drop:
     a warning that names ``best_model.zip`` when the last success rate is ``drop`` or more below the best."""
     if not records.get("timesteps"):
         return None
-    summaries = [
-        {
-            "success_rate": float(np.nanmean(successes)) if len(successes) else 0.0,
-            "team_return_mean": float(np.mean(results)),
-        }
+    scores = [  # team_score of each evaluation
+        (float(np.nanmean(successes)) if len(successes) else 0.0, float(np.mean(results)))
         for successes, results in zip(records["successes"], records["results"], strict=True)
     ]
-    best = max(range(len(summaries)), key=lambda index: team_score(summaries[index]))
-    last, top = summaries[-1], summaries[best]
+    best = max(range(len(scores)), key=scores.__getitem__)
+    (last, last_return), top = scores[-1], scores[best][0]
     line = (
-        f"last evaluation: success {last['success_rate']:.0%}, team return {last['team_return_mean']:.2f} at tick "
-        f"{records['ticks'][-1]}; best: success {top['success_rate']:.0%} at tick {records['ticks'][best]}"
+        f"last evaluation: success {last:.0%}, team return {last_return:.2f} at tick "
+        f"{records['ticks'][-1]}; best: success {top:.0%} at tick {records['ticks'][best]}"
     )
-    if top["success_rate"] - last["success_rate"] >= drop - 1e-9:
+    if top - last >= drop - 1e-9:
         line += (
             f". WARNING: learning fell after its best evaluation; the best model is {Path(run_dir) / run_folder.BEST_MODEL_NAME}: "
             f"python -m sb3_eps.evaluate --run {run_dir} --load-best"
@@ -324,9 +321,9 @@ _RECORD_KEYS = ("timesteps", "ticks", "eps_ticks", "results", "ep_lengths", "suc
 
 # ---------------------------------------------------------------------------------------------- checkpoints
 class TrainingStateCallback(BaseCallback):
-    """Writes the full training state every ``save_freq`` timesteps, at rollout starts (where every piece of state
-    can be restored exactly), and after SIGINT / SIGTERM (:func:`stop_on_signals`), then raises
-    :class:`TrainingInterrupted`.
+    """Writes the full training state every ``save_freq`` timesteps, and the model alone beside it (RL Zoo's
+    ``rl_model_<timesteps>_steps.zip``), at rollout starts (where every piece of state can be restored exactly), and
+    after SIGINT / SIGTERM (:func:`stop_on_signals`), then raises :class:`TrainingInterrupted`.
 
     :param path: the checkpoint file
     :param save_freq: timesteps between checkpoints; 0 saves only on a signal
@@ -335,8 +332,6 @@ class TrainingStateCallback(BaseCallback):
     :param restore: when resuming, the checkpoint: its callback states, random states and ``next_save`` are
         applied at the start of training, after every callback's initialisation
     :param verbose: 1 prints a line per checkpoint
-    :param snapshot_dir: where each periodic checkpoint also writes the model alone (RL Zoo's
-        ``rl_model_<timesteps>_steps.zip``); None: nowhere
     :param extra_meta: returns more facts for ``meta.json`` at each checkpoint (a ladder's rung and its progress)
     """
 
@@ -348,13 +343,11 @@ class TrainingStateCallback(BaseCallback):
         stateful_callbacks: dict[str, BaseCallback],
         restore: Checkpoint | None = None,
         verbose: int = 0,
-        snapshot_dir: str | Path | None = None,
         extra_meta: Callable[[], dict[str, Any]] | None = None,
     ) -> None:
         super().__init__(verbose=verbose)
         self.extra_meta = extra_meta
         self.path = Path(path)
-        self.snapshot_dir = None if snapshot_dir is None else Path(snapshot_dir)
         self.save_freq = int(save_freq)
         self.total_timesteps = int(total_timesteps)
         self.stateful_callbacks = stateful_callbacks
@@ -381,8 +374,8 @@ class TrainingStateCallback(BaseCallback):
             return
         if self.save_freq > 0:
             self.next_save = (self.num_timesteps // self.save_freq + 1) * self.save_freq
-        if self.save() and due and self.snapshot_dir is not None:
-            save_model_atomic(self.model, self.snapshot_dir / run_folder.snapshot_name(self.model.num_timesteps))
+        if self.save() and due:
+            save_model_atomic(self.model, self.path.parent / run_folder.snapshot_name(self.model.num_timesteps))
         if self.stop_requested:
             raise TrainingInterrupted(self.stop_requested)
 

@@ -153,19 +153,13 @@ def save_checkpoint(
                 archive.writestr(name, data)
         verify_checkpoint(temporary)
         if path.is_file():  # the new one is good: the current one becomes the previous one
-            os.replace(path, previous_checkpoint_path(path))
-
-
-def previous_checkpoint_path(path: str | Path) -> Path:
-    """:return: where the checkpoint before ``path`` is kept (``checkpoint.prev.zip`` beside it)."""
-    path = Path(path)
-    return path.with_name(f"{path.stem}.prev{path.suffix}")
+            os.replace(path, path.with_name(PREVIOUS_CHECKPOINT_NAME))
 
 
 def remove_checkpoints(path: str | Path) -> None:
     """Delete a checkpoint, its previous one and temporary files a killed writer left beside it."""
     path = Path(path)
-    for candidate in (path, previous_checkpoint_path(path), *path.parent.glob(f".{path.name}.*.tmp")):
+    for candidate in (path, path.with_name(PREVIOUS_CHECKPOINT_NAME), *path.parent.glob(f".{path.name}.*.tmp")):
         candidate.unlink(missing_ok=True)
 
 
@@ -205,7 +199,7 @@ def latest_good_checkpoint(path: str | Path) -> tuple[Path, dict[str, Any], list
     :raises CorruptCheckpoint: when every existing one is damaged (the message lists why)
     """
     problems: list[str] = []
-    for candidate in (Path(path), previous_checkpoint_path(path)):
+    for candidate in (Path(path), Path(path).with_name(PREVIOUS_CHECKPOINT_NAME)):
         if not candidate.is_file():
             continue
         try:

@@ -7,10 +7,12 @@ import argparse
 import dataclasses
 import importlib
 import sys
+import typing
 from collections.abc import Sequence
-from typing import Any, ClassVar, NoReturn, TypeVar
+from typing import Any, NoReturn, TypeVar
 
 from sb3_eps.zoo.errors import ConfigError
+from sb3_eps.zoo.schema import normalize_value
 
 
 class OneLineArgumentParser(argparse.ArgumentParser):
@@ -26,17 +28,17 @@ SelfOptions = TypeVar("SelfOptions", bound="NamespaceOptions")
 
 
 class NamespaceOptions:
-    """Base of the option dataclasses of the command lines (training, tuning)."""
+    """Base of the option dataclasses of the command lines (training, tuning): a field is named as its flag
+    (``eval_freq`` for ``--eval-freq``), its annotation and its range in :data:`~sb3_eps.zoo.schema.RANGES` say what
+    it may hold."""
 
-    #: The smallest value of each count (a field named as its flag, ``eval_freq`` for ``--eval-freq``).
-    minimums: ClassVar[dict[str, int]] = {}
-
-    def check_minimums(self) -> None:
-        """:raises ConfigError: for a count below its :attr:`minimums`, naming the flag."""
-        for name, low in self.minimums.items():
-            value = getattr(self, name)
-            if value is not None and value < low:
-                raise ConfigError(f"--{name.replace('_', '-')} must be >= {low}, got {value}")
+    def check_fields(self, where: str = "") -> None:
+        """:raises ConfigError: for a field that does not fit its annotation or range, naming the flag (or ``where``
+        and the field)."""
+        hints = typing.get_type_hints(type(self))
+        for name in (field.name for field in dataclasses.fields(self)):  # type: ignore[arg-type]
+            label = f"{where}: {name}" if where else f"--{name.replace('_', '-')}"
+            normalize_value(getattr(self, name), hints[name], label, name)
 
     @classmethod
     def from_namespace(cls: type[SelfOptions], namespace: argparse.Namespace) -> SelfOptions:

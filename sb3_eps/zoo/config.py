@@ -27,6 +27,7 @@ from sb3_eps.zoo.schema import (
     algorithm_spec,
     check_complete,
     normalize_entry,
+    normalize_value,
     with_package_defaults,
 )
 
@@ -108,14 +109,13 @@ def load_yaml(path: str | Path) -> Any:
         return yaml.load(text, Loader=_SafeUniqueKeyLoader)  # a SafeLoader subclass
     except ConfigError as error:
         raise ConfigError(f"{path}: {error}") from None
-    except yaml.constructor.ConstructorError as error:
-        line = error.problem_mark.line + 1 if error.problem_mark else "?"
-        raise ConfigError(f"{path}: line {line}: {error.problem}; configs are read as plain data (no Python tags)") from None
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
         where = f"line {mark.line + 1}: " if mark is not None else ""
         problem = getattr(error, "problem", None) or str(error)
-        raise ConfigError(f"{path}: not valid YAML: {where}{problem}") from None
+        tagged = isinstance(error, yaml.constructor.ConstructorError)
+        tags = "; configs are read as plain data (no Python tags)" if tagged else ""
+        raise ConfigError(f"{path}: not valid YAML: {where}{problem}{tags}") from None
 
 
 def load_config_entries(path: str | Path, algo: str) -> dict[str, dict[str, Any]]:
@@ -177,9 +177,7 @@ def resolve_config(
         entry = apply_overrides(entry, parse_hyperparams(hyperparams), spec)
         source += " with --hyperparams " + " ".join(hyperparams)
     if n_timesteps is not None:
-        if isinstance(n_timesteps, bool) or not isinstance(n_timesteps, int) or n_timesteps < 1:
-            raise ConfigError(f"-n (total timesteps, agent-steps) must be an int >= 1, got {n_timesteps}")
-        entry["n_timesteps"] = n_timesteps
+        entry["n_timesteps"] = normalize_value(n_timesteps, int, "-n (total timesteps, agent-steps)", "n_timesteps")
     check_complete(entry, spec, source)
     return ResolvedConfig(algo, env_id, entry, source)
 

@@ -86,10 +86,9 @@ def evaluate_run(
     n_episodes: int = 100,
     n_envs: int = 4,
     seed: int = 0,
-    deterministic: bool = True,
     env_kwargs: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Evaluate a run's model on ``env_id`` (default: its training env id), world episodes counted per team.
+    """Evaluate a run's greedy model on ``env_id`` (default: its training env id), world episodes counted per team.
 
     :return: the summary of :func:`~sb3_eps.evaluate_team` plus ``path_length_per_robot`` and what was run
     :raises ConfigError: when the env id is unknown or its spaces differ from the model's
@@ -104,7 +103,7 @@ def evaluate_run(
         raise ConfigError(f"--env-kwargs {env_kwargs}: {error}") from None
     try:
         check_spaces(run.model, venv, env_id, f"the model of {run.run_dir}")
-        summary = evaluate_team(run.model, venv, n_episodes, seed=seed, deterministic=deterministic)
+        summary = evaluate_team(run.model, venv, n_episodes, seed=seed)
         n_agents = venv.n_agents
     finally:
         venv.close()
@@ -114,7 +113,7 @@ def evaluate_run(
         summary["path_length_per_robot_std"] = float(per_robot.std())
     summary.update(
         env_id=env_id, algo=run.algo, train_env_id=run.env_id, run_dir=str(run.run_dir), model=str(run.model_path),
-        seed=seed, deterministic=deterministic, n_agents=n_agents,
+        seed=seed, n_agents=n_agents,
     )  # fmt: skip
     return summary
 
@@ -134,7 +133,7 @@ def format_summary(summary: dict[str, Any]) -> str:
     """:return: the metrics as aligned lines, ``mean +/- std``."""
     lines = [
         f"{algorithm_spec(summary['algo']).label} trained on {summary['train_env_id']}, evaluated on "
-        f"{summary['env_id']} ({summary['n_episodes']} episodes, {'greedy' if summary['deterministic'] else 'stochastic'}):"
+        f"{summary['env_id']} ({summary['n_episodes']} episodes, greedy):"
     ]
     for stem, (label, unit, scale) in METRICS.items():
         mean_key = f"{stem}_rate" if stem in ("success", "collision") else f"{stem}_mean"

@@ -8,16 +8,14 @@ the result equals an uninterrupted run with the same seed (:mod:`sb3_eps.zoo.che
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import random
 import sys
 import time
-import typing
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any, ClassVar
+from typing import Any, Literal
 
 import torch as th
 import yaml
@@ -73,7 +71,6 @@ from sb3_eps.zoo.schema import (
     algorithm_spec,
     build_callbacks,
     check_complete,
-    normalize_value,
 )
 
 #: The evaluation worlds are seeded ``seed + EVAL_SEED_OFFSET``: other worlds than the training ones.
@@ -109,13 +106,10 @@ class TrainOptions(NamespaceOptions):
     log_interval: int = -1
     num_threads: int = 1
     init_from: str | None = None
-    vec_env: str | None = None
+    vec_env: Literal["dummy", "subproc"] | None = None
     run_name: str | None = None
     gym_packages: list[str] = field(default_factory=list)
     command: str | None = None  # the command line as typed (RL Zoo's command.txt)
-    minimums: ClassVar[dict[str, int]] = {
-        "eval_freq": 0, "eval_episodes": 1, "n_eval_envs": 1, "save_freq": 0, "seed": 0, "num_threads": 0,
-    }  # fmt: skip
 
     @classmethod
     def from_record(cls, record: Any, source: str | Path) -> TrainOptions:
@@ -127,27 +121,22 @@ class TrainOptions(NamespaceOptions):
             raise ConfigError(f"{source} is not a mapping of options: not a run folder of sb3_eps.train")
         names = [field.name for field in dataclasses.fields(cls)]
         options = cls(**{key: value for key, value in record.items() if key in names})
-        try:  # the fields' own annotations say what each holds
-            hints = typing.get_type_hints(cls)
-            for key in names:
-                normalize_value(getattr(options, key), hints[key], f"{source}: {key}")
+        try:
+            options.check_fields(str(source))
         except ConfigError as error:
             raise ConfigError(f"{error}: not a run of sb3_eps.train") from None
         return options
 
     def check(self) -> None:
-        """:raises ConfigError: for a count or flag out of range."""
-        self.check_minimums()
+        """:raises ConfigError: for a flag of the wrong type or out of range, a bad run name, device or warm start."""
+        self.check_fields()
         if self.run_name is not None and (
             not self.run_name or self.run_name in (".", "..") or "/" in self.run_name or "\\" in self.run_name
         ):
             raise ConfigError(f"--run-name must be a plain folder name (no slashes), got {self.run_name!r}")
-        if self.vec_env not in (None, "dummy", "subproc"):
-            raise ConfigError(f"--vec-env must be dummy or subproc, got {self.vec_env!r}")
         check_device(self.device)
         if self.init_from is not None and not Path(self.init_from).is_file():
             raise ConfigError(f"--init-from: {self.init_from} is not a file; pass a model .zip (e.g. a run's best_model.zip)")
-        check_optional_features(progress=self.progress, tensorboard=self.tensorboard_log is not None)
 
 
 def check_device(device: str) -> None:
@@ -156,24 +145,6 @@ def check_device(device: str) -> None:
         th.device("cpu" if device == "auto" else device)
     except (RuntimeError, TypeError) as error:
         raise ConfigError(f"--device {device!r} is not a torch device (auto, cpu, cuda, cuda:0...): {error}") from None
-
-
-def check_optional_features(progress: bool = False, tensorboard: bool = False) -> None:
-    """Check, before anything is written, that the packages behind the asked-for features import.
-
-    :raises ConfigError: naming the flag and what to install
-    """
-    wanted = {
-        "--progress": ("tqdm", "rich") if progress else (),
-        "--tensorboard-log": ("tensorboard",) if tensorboard else (),
-    }
-    for flag, modules in wanted.items():
-        missing = [name for name in modules if importlib.util.find_spec(name) is None]
-        if missing:
-            raise ConfigError(
-                f"{flag} needs {' and '.join(missing)}, which this environment lacks (they are part of the base "
-                f"install): pip install 'sb3-eps' or pip install {' '.join(missing)}; or drop {flag}"
-            )
 
 
 # ---------------------------------------------------------------------------------------------- building
@@ -397,7 +368,7 @@ def train(options: TrainOptions, extra_callbacks: Sequence[BaseCallback] = ()) -
         run_dir = run_folder.create_run_folder(options.folder, options.algo, env_id, options.run_name)
         options_record = {**vars(options), "version": __version__, "run_dir": str(run_dir)}
         options_record["n_timesteps"] = prepared.config.entry["n_timesteps"]
-        params = run_folder.params_dir(run_dir, env_id)  # RL Zoo's <run>/<env id>/
+        params = run_dir / env_id  # RL Zoo's parameter folder
         params.mkdir()
         write_text_atomic(params / run_folder.ARGS_NAME, yaml.safe_dump(options_record, sort_keys=False))
         header = f"resolved from {prepared.config.source}\nrerun: python -m sb3_eps.train --algo {options.algo} -conf <this file> ..."
@@ -540,7 +511,6 @@ def _run(
         stateful,
         restore,
         options.verbose,
-        snapshot_dir=run_dir,
         extra_meta=(lambda: ladder_progress(rungs, model.ticks)) if rungs else None,
     )
     if options.progress:

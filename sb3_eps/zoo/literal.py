@@ -1,11 +1,11 @@
 """A restricted parser for the Python literals of RL Zoo configs, e.g. ``"dict(net_arch=[64, 64], activation_fn=nn.Tanh)"``.
 
-RL Zoo ``eval()``s such strings. Here they are parsed with :mod:`ast` and only these forms are accepted: numbers
-(with a sign), strings, ``True`` / ``False`` / ``None``, lists, tuples (read as lists), ``{...}`` with string keys,
-``dict(key=value, ...)`` with keyword arguments only, and the dotted names of an allow-list (activation functions
-and optimizer classes), which come back as their canonical names (``"nn.Tanh"``). Nothing is evaluated: a call of
-anything but ``dict``, an operator, an attribute of anything but an allowed name, a comprehension... is refused
-with a :class:`~sb3_eps.zoo.errors.ConfigError` that shows the offending piece.
+RL Zoo ``eval()``s such strings. Here they are parsed with :mod:`ast`: ``dict(key=value, ...)`` becomes a ``{...}``,
+tuples become lists, and the dotted names of an allow-list (activation functions and optimizer classes) become
+their canonical names (``"nn.Tanh"``); what remains goes to :func:`ast.literal_eval` and may hold only numbers (with
+a sign), strings, ``True`` / ``False`` / ``None``, lists and ``{...}``. Nothing is evaluated: a call of anything but
+``dict``, an operator, an attribute of anything but an allowed name, a comprehension... is refused with a
+:class:`~sb3_eps.zoo.errors.ConfigError` that shows the offending piece.
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ from sb3_eps.zoo.errors import ConfigError, allowed
 
 #: The longest string the parser accepts (configs are short; this bounds the work on hostile input).
 MAX_LITERAL_LENGTH = 4_000
-#: The deepest nesting of containers the parser accepts.
-MAX_DEPTH = 16
+#: The nodes :func:`ast.literal_eval` receives (after the rewriting of :class:`_Rewriter`).
+_LITERAL_NODES = (ast.Constant, ast.List, ast.Dict, ast.UnaryOp, ast.USub, ast.UAdd, ast.Load)
 
 
 def parse_literal(text: str, names: Mapping[str, str], where: str) -> Any:
@@ -37,11 +37,16 @@ def parse_literal(text: str, names: Mapping[str, str], where: str) -> Any:
         tree = ast.parse(text.strip(), mode="eval")
     except SyntaxError as error:
         raise ConfigError(f"{where}: {text!r} is not a valid literal ({error.msg})") from None
-    return _Converter(text, names, where).convert(tree.body, 0)
+    rewriter = _Rewriter(text.strip(), names, where)
+    body = rewriter.visit(tree.body)
+    try:
+        return ast.literal_eval(body)
+    except ValueError:  # a sign on a string, a key spread with **...
+        raise rewriter.refuse(tree.body, "not a literal") from None
 
 
-class _Converter:
-    """Walks an expression tree, accepting only the literal forms of the module docstring."""
+class _Rewriter(ast.NodeTransformer):
+    """Rewrites ``dict(...)`` calls, tuples and allowed names into literal nodes; refuses every other node."""
 
     def __init__(self, text: str, names: Mapping[str, str], where: str) -> None:
         self.text = text
@@ -49,64 +54,32 @@ class _Converter:
         self.where = where
 
     def refuse(self, node: ast.AST, why: str) -> ConfigError:
-        piece = ast.get_source_segment(self.text.strip(), node) or type(node).__name__
+        piece = ast.get_source_segment(self.text, node) or type(node).__name__
         return ConfigError(
             f"{self.where}: {piece!r} is not allowed ({why}); only numbers, strings, True/False/None, lists, "
             f"{{...}}, dict(key=value, ...) and the names {allowed(sorted(set(self.names.values())))} may appear"
         )
 
-    def convert(self, node: ast.AST, depth: int) -> Any:
-        if depth > MAX_DEPTH:
-            raise self.refuse(node, f"nested deeper than {MAX_DEPTH} levels")
-        if isinstance(node, ast.Constant):
-            if isinstance(node.value, bool | int | float | str) or node.value is None:
-                return node.value
-            raise self.refuse(node, f"a {type(node.value).__name__} constant")
-        if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub | ast.UAdd):
-            operand = self.convert(node.operand, depth + 1)
-            if isinstance(operand, bool) or not isinstance(operand, int | float):
-                raise self.refuse(node, "a sign applies to numbers only")
-            return -operand if isinstance(node.op, ast.USub) else operand
-        if isinstance(node, ast.List | ast.Tuple):
-            return [self.convert(element, depth + 1) for element in node.elts]
-        if isinstance(node, ast.Dict):
-            return self.convert_dict(node, depth)
-        if isinstance(node, ast.Call):
-            return self.convert_call(node, depth)
-        if isinstance(node, ast.Name | ast.Attribute):
-            return self.convert_name(node)
-        raise self.refuse(node, f"a {type(node).__name__} expression")
+    def generic_visit(self, node: ast.AST) -> ast.AST:
+        constant = isinstance(node, ast.Constant) and not isinstance(node.value, bool | int | float | str | type(None))
+        if constant or not isinstance(node, _LITERAL_NODES):
+            raise self.refuse(node, f"a {type(node.value).__name__} constant" if constant else f"a {type(node).__name__}")  # type: ignore[attr-defined]
+        return super().generic_visit(node)
 
-    def convert_dict(self, node: ast.Dict, depth: int) -> dict[str, Any]:
-        result: dict[str, Any] = {}
-        for key, value in zip(node.keys, node.values, strict=True):
-            if not (isinstance(key, ast.Constant) and isinstance(key.value, str)):
-                raise self.refuse(key or node, "dictionary keys must be strings")
-            result[key.value] = self.convert(value, depth + 1)
-        return result
+    def visit_Call(self, node: ast.Call) -> ast.Dict:
+        is_dict = isinstance(node.func, ast.Name) and node.func.id == "dict"
+        if not is_dict or node.args or any(keyword.arg is None for keyword in node.keywords):
+            raise self.refuse(node, "the only call allowed is dict(key=value, ...)")
+        values = [self.visit(keyword.value) for keyword in node.keywords]
+        return ast.Dict([ast.Constant(keyword.arg) for keyword in node.keywords], values)
 
-    def convert_call(self, node: ast.Call, depth: int) -> dict[str, Any]:
-        if not (isinstance(node.func, ast.Name) and node.func.id == "dict"):
-            raise self.refuse(node, "the only call allowed is dict(...)")
-        if node.args:
-            raise self.refuse(node, "dict(...) takes keyword arguments only")
-        result: dict[str, Any] = {}
-        for keyword in node.keywords:
-            if keyword.arg is None:
-                raise self.refuse(node, "dict(...) takes no **arguments")
-            result[keyword.arg] = self.convert(keyword.value, depth + 1)
-        return result
+    def visit_Tuple(self, node: ast.Tuple) -> ast.List:
+        return ast.List([self.visit(element) for element in node.elts], ast.Load())
 
-    def convert_name(self, node: ast.Name | ast.Attribute) -> str:
-        parts: list[str] = []
-        current: ast.AST = node
-        while isinstance(current, ast.Attribute):
-            parts.append(current.attr)
-            current = current.value
-        if not isinstance(current, ast.Name):
-            raise self.refuse(node, "attributes are allowed on names only")
-        parts.append(current.id)
-        dotted = ".".join(reversed(parts))
+    def visit_Name(self, node: ast.Name | ast.Attribute) -> ast.Constant:
+        dotted = ast.unparse(node)
         if dotted not in self.names:
             raise self.refuse(node, "an unknown name")
-        return self.names[dotted]
+        return ast.Constant(self.names[dotted])
+
+    visit_Attribute = visit_Name

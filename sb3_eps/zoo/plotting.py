@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
-from matplotlib.ticker import FuncFormatter
+from matplotlib.ticker import EngFormatter
 
 from sb3_eps.zoo.errors import ConfigError
 from sb3_eps.zoo.run_folder import EVALUATIONS_NAME, MONITOR_NAME, is_run_folder, read_args, read_monitor
@@ -138,7 +138,7 @@ def draw_learning_curves(curves: list[RunCurve], window: int = 100, title: str |
                 axis.plot(stats["x"], stats["mean"], label=label)
                 axis.fill_between(stats["x"], stats["mean"] - stats["std"], stats["mean"] + stats["std"], alpha=0.2)
             axis.set_xlabel("ticks (training + EPS)")
-            axis.xaxis.set_major_formatter(FuncFormatter(_thousands))
+            axis.xaxis.set_major_formatter(EngFormatter(sep=""))  # 150k ticks
             axis.set_ylabel(PANELS[key] if window == 1 else f"{PANELS[key]} ({window}-episode mean)")
             if row == 0:
                 axis.set_title(env_id if title is None else f"{title}: {env_id}")
@@ -146,11 +146,6 @@ def draw_learning_curves(curves: list[RunCurve], window: int = 100, title: str |
             axis.legend(fontsize="small")
     figure.tight_layout()
     return figure
-
-
-def _thousands(value: float, _position: int) -> str:
-    """A tick label in thousands (``150k``), readable where ticks run to hundreds of thousands."""
-    return f"{value / 1000:g}k" if value else "0"
 
 
 def plot_learning_curves(curves: list[RunCurve], output: str | Path, window: int = 100, title: str | None = None) -> Path:
@@ -166,16 +161,6 @@ def plot_learning_curves(curves: list[RunCurve], output: str | Path, window: int
 
 
 # ---------------------------------------------------------------------------------------------- aggregates
-def final_scores(curves: list[RunCurve], key: str, window: int) -> dict[str, dict[str, list[float]]]:
-    """:return: ``{algo: {env_id: [final score of each run]}}``, a run's final score being the mean of its last
-    ``window`` episodes."""
-    scores: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
-    for curve in curves:
-        if key in curve.values and len(curve.values[key]):
-            scores[curve.algo][curve.env_id].append(float(np.mean(curve.values[key][-window:])))
-    return scores
-
-
 def interquartile_mean(values: np.ndarray) -> float:
     """The mean of the middle 50 % of the values (``scipy.stats.trim_mean(values, 0.25)``)."""
     ordered = np.sort(np.ravel(values))
@@ -222,8 +207,12 @@ def bootstrap_intervals(
 def aggregate_table(curves: list[RunCurve], key: str, window: int) -> list[dict[str, Any]]:
     """Per algorithm: number of runs and mean / median / IQM of the final scores with 95 % CIs
     (:func:`bootstrap_intervals`)."""
+    scores: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
+    for curve in curves:  # a run's final score: the mean of its last window episodes
+        if key in curve.values and len(curve.values[key]):
+            scores[curve.algo][curve.env_id].append(float(np.mean(curve.values[key][-window:])))
     rows = []
-    for algo, by_env in sorted(final_scores(curves, key, window).items()):
+    for algo, by_env in sorted(scores.items()):
         intervals = bootstrap_intervals(by_env)
         row: dict[str, Any] = {
             "algo": label_of(algo),

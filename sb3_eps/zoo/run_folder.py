@@ -56,11 +56,6 @@ def snapshots(run_dir: str | Path) -> dict[int, Path]:
     return dict(sorted(found.items()))
 
 
-def params_dir(run_dir: str | Path, env_id: str) -> Path:
-    """:return: RL Zoo's parameter folder of a run, ``<run>/<env id>/`` (``args.yml``, ``config.yml``, ``command.txt``)."""
-    return Path(run_dir) / env_id
-
-
 def run_file(run_dir: str | Path, name: str) -> Path:
     """:return: where a run's ``args.yml`` / ``config.yml`` / ``command.txt`` is: in its parameter folder, or at its
     root (older runs); the root path when neither exists."""

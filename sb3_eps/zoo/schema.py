@@ -66,17 +66,16 @@ _FLOAT_PATTERN = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 
 
 # ---------------------------------------------------------------------------------------------- parameters
-#: The ranges the constructors check (``MultiAgentOffPolicyAlgorithm``, the policies), in interval notation, for
-#: every number a key holds: a config out of range fails when it is loaded, before a run folder exists. Type hints
-#: hold no ranges.
+#: The ranges of every number a key holds, in interval notation: the algorithm constructor's own (``argument_ranges``),
+#: the policies', the run keys' and the command lines' (:class:`~sb3_eps.zoo.cli.NamespaceOptions`). A config out of
+#: range fails when it is loaded, before a run folder exists. Type hints hold no ranges.
 RANGES: dict[str, str] = {
-    "learning_rate": "(0, inf)", "buffer_size": "[1, inf)", "learning_starts": "[0, inf)",
-    "batch_size": "[1, inf)", "tau": "(0, 1]", "gamma": "[0, 1]", "gradient_steps": "[-1, inf)",
-    "gradient_steps_per_target_update": "[1, inf)", "n_steps": "[1, inf)", "prioritized_replay_alpha": "[0, inf)",
-    "prioritized_replay_beta0": "[0, 1]", "exploration_fraction": "[0, 1]", "exploration_initial_eps": "[0, 1]",
-    "exploration_final_eps": "[0, 1]", "max_grad_norm": "(0, inf)", "stats_window_size": "[1, inf)",
-    "net_arch": "[1, inf)", "stream_arch": "[1, inf)", "weight_average_tau": "(0, 1]", "n_timesteps": "[1, inf)",
-    "n_envs": "[1, inf)", "train_freq": "[1, inf)", "seeds": "[0, inf)", "cpus_per_run": "[1, inf)",
+    **MultiAgentOffPolicyAlgorithm.argument_ranges, "net_arch": "[1, inf)", "stream_arch": "[1, inf)",
+    "weight_average_tau": "(0, 1]", "n_timesteps": "[1, inf)", "n_envs": "[1, inf)", "train_freq": "[1, inf)",
+    "seeds": "[0, inf)", "cpus_per_run": "[1, inf)", "seed": "[0, inf)", "eval_freq": "[0, inf)",
+    "eval_episodes": "[1, inf)", "n_eval_envs": "[1, inf)", "save_freq": "[0, inf)", "num_threads": "[0, inf)",
+    "n_trials": "[1, inf)", "n_jobs": "[1, inf)", "n_evaluations": "[1, inf)", "n_seeds_per_trial": "[1, inf)",
+    "n_startup_trials": "[0, inf)",
 }  # fmt: skip
 #: The strings a plain ``str`` inside a key's hint may hold (SB3's ``train_freq`` unit).
 CHOICES: dict[str, tuple[str, ...]] = {"train_freq": tuple(unit.value for unit in TrainFrequencyUnit)}
@@ -168,12 +167,11 @@ def describe(hint: Any, name: str = "") -> str | None:
 
 
 def _bounds(interval: str | None) -> str:
+    """:return: an interval of :data:`RANGES` in words: ``" >= 1"``, ``" > 0"``, ``" in [0, 1]"``."""
     if interval is None:
         return ""
     low, high = (bound.strip() for bound in interval[1:-1].split(","))
-    parts = [f"{'>' if interval[0] == '(' else '>='} {low}"] if low != "-inf" else []
-    parts += [f"{'<' if interval[-1] == ')' else '<='} {high}"] if high != "inf" else []
-    return (" " + " and ".join(parts)) if parts else ""
+    return f" in {interval}" if high != "inf" else f" {'>=' if interval[0] == '[' else '>'} {low}"
 
 
 def _in_range(number: float, interval: str) -> bool:

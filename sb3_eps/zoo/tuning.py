@@ -17,7 +17,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, Literal
 
 import yaml
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
@@ -55,8 +55,8 @@ class TuningOptions(NamespaceOptions):
 
     n_trials: int = 20
     n_jobs: int = 1
-    sampler: str = "tpe"
-    pruner: str = "median"
+    sampler: Literal["tpe", "random"] = "tpe"
+    pruner: Literal["median", "halving", "none"] = "median"
     n_startup_trials: int = 5
     n_evaluations: int = 4
     storage: str | None = None
@@ -64,9 +64,6 @@ class TuningOptions(NamespaceOptions):
     sampler_seed: int | None = None
     n_seeds_per_trial: int = 1
     eps_only: bool = False
-    minimums: ClassVar[dict[str, int]] = {
-        "n_trials": 1, "n_jobs": 1, "n_evaluations": 1, "n_seeds_per_trial": 1, "n_startup_trials": 0,
-    }  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------- search spaces
@@ -114,7 +111,8 @@ def sample_eps(trial: Any, env_id: str | None = None) -> dict[str, Any]:
 
 
 def sample_common(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str, Any]:
-    """The search space of algorithms without their own, wide as RL Zoo's DQN space (QMIX's mixer sizes too)."""
+    """The search space of algorithms without their own, wide as RL Zoo's DQN space (QMIX's mixer sizes too; a head
+    of a plug-in's own keeps its defaults)."""
     params: dict[str, Any] = {
         "learning_rate": trial.suggest_float("learning_rate", 1e-5, 3e-3, log=True),
         "batch_size": trial.suggest_categorical("batch_size", [32, 64, 128, 256]),
@@ -134,10 +132,6 @@ def sample_common(trial: Any, spec: AlgorithmSpec, n_timesteps: int) -> dict[str
         "net_arch": _NET_ARCHS[trial.suggest_categorical("net_arch", list(_NET_ARCHS))],
         "activation_fn": trial.suggest_categorical("activation_fn", ["nn.ReLU", "nn.Tanh", "nn.ELU"]),
     }
-    if "global_net_arch" in spec.policy_params:  # a plug-in with a global head but no space of its own
-        policy_kwargs["global_net_arch"] = _GLOBAL_NET_ARCHS[
-            trial.suggest_categorical("global_net_arch", list(_GLOBAL_NET_ARCHS))
-        ]
     if "mixing_embed_dim" in spec.policy_params:
         policy_kwargs["mixing_embed_dim"] = trial.suggest_categorical("mixing_embed_dim", [16, 32, 64])
         policy_kwargs["hypernet_hidden_dim"] = trial.suggest_categorical("hypernet_hidden_dim", [32, 64, 128])
@@ -220,24 +214,20 @@ def _import_optuna() -> Any:
 
 def make_sampler(name: str, n_startup_trials: int, seed: int | None) -> Any:
     """:return: the Optuna sampler ``tpe`` or ``random``."""
-    optuna = _import_optuna()
-    if name == "tpe":
-        return optuna.samplers.TPESampler(n_startup_trials=n_startup_trials, seed=seed, multivariate=True)
+    samplers = _import_optuna().samplers
     if name == "random":
-        return optuna.samplers.RandomSampler(seed=seed)
-    raise ConfigError(f"--sampler: unknown sampler {name!r}; allowed: tpe, random")
+        return samplers.RandomSampler(seed=seed)
+    return samplers.TPESampler(n_startup_trials=n_startup_trials, seed=seed, multivariate=True)
 
 
 def make_pruner(name: str, n_startup_trials: int, n_evaluations: int) -> Any:
     """:return: the Optuna pruner ``median``, ``halving`` or ``none``."""
-    optuna = _import_optuna()
-    if name == "median":
-        return optuna.pruners.MedianPruner(n_startup_trials=n_startup_trials, n_warmup_steps=n_evaluations // 3)
-    if name == "halving":
-        return optuna.pruners.SuccessiveHalvingPruner(min_resource=1, reduction_factor=4)
-    if name == "none":
-        return optuna.pruners.NopPruner()
-    raise ConfigError(f"--pruner: unknown pruner {name!r}; allowed: median, halving, none")
+    pruners = _import_optuna().pruners
+    return {
+        "median": lambda: pruners.MedianPruner(n_startup_trials=n_startup_trials, n_warmup_steps=n_evaluations // 3),
+        "halving": lambda: pruners.SuccessiveHalvingPruner(min_resource=1, reduction_factor=4),
+        "none": pruners.NopPruner,
+    }[name]()
 
 
 def make_storage(url: str | None, folder: Path) -> Any:
@@ -288,7 +278,7 @@ class _Objective:
         ]
         scores = [objective_score(summary, self.options.eval_episodes) for summary in summaries]
         # What each seed spent and, with EPS, how often it acted.
-        for key in ("ticks", "eps_ticks", "eps_rounds", "eps_crossovers"):
+        for key in PER_SEED_COLUMNS:
             if all(key in summary for summary in summaries):
                 trial.set_user_attr(key, [int(summary[key]) for summary in summaries])
         for key in ("success_rate", "collision_rate", "team_return_mean", "length_mean"):
@@ -356,7 +346,7 @@ def tune(options: TrainOptions, tuning: TuningOptions) -> Path:
     :raises ConfigError: for any mistake, before anything is written
     """
     optuna = _import_optuna()
-    tuning.check_minimums()
+    tuning.check_fields()
     options.check()
     check_env_id(options.env)
     hyperparams = [*options.hyperparams, *(f"env_kwargs.{item}" for item in options.env_kwargs)]
