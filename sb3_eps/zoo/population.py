@@ -41,8 +41,8 @@ from sb3_eps.zoo import run_folder
 from sb3_eps.zoo.callbacks import TeamEvalCallback, TeamMonitor, stop_on_signals, write_final_report
 from sb3_eps.zoo.checkpoint import (
     CHECKPOINT_NAME,
+    PREVIOUS_CHECKPOINT_NAME,
     atomic_path,
-    previous_checkpoint_path,
     remove_checkpoints,
     save_model_atomic,
     verify_checkpoint,
@@ -210,7 +210,7 @@ def save_population_checkpoint(
             archive.writestr("meta.json", json.dumps(meta, indent=2))
         verify_checkpoint(temporary)
         if path.is_file():
-            os.replace(path, previous_checkpoint_path(path))
+            os.replace(path, path.with_name(PREVIOUS_CHECKPOINT_NAME))
 
 
 def run_population(
