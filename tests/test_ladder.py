@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import re
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +17,7 @@ from sb3_eps import GDQ, QMIX, evaluate_team, learn_ladder, make_vec_env, train
 from sb3_eps.zoo.checkpoint import load_checkpoint, verify_checkpoint
 from sb3_eps.zoo.config import config_file, resolve_config
 from sb3_eps.zoo.errors import run_command
-from tests.test_zoo_resume import assert_equal_runs
+from tests.test_zoo_resume import assert_equal_runs, stop_at_checkpoint
 
 SMALL = {"learning_starts": 50, "batch_size": 8, "buffer_size": 500}
 POOLED = {"net_arch": [16], "global_head": "pooled"}
@@ -178,16 +176,9 @@ def uninterrupted(tmp_path_factory) -> Path:
 def test_a_ladder_stopped_by_sigterm_in_rung_two_resumes_to_the_uninterrupted_run(uninterrupted, tmp_path) -> None:
     folder = tmp_path / "interrupted"
     process = subprocess.Popen([sys.executable, "-m", "sb3_eps.train", *ARGV, "-f", str(folder)])
-    deadline = time.time() + 180
-    while True:  # a periodic checkpoint inside rung 2 (not at its start): the 4-robot world trains
-        found = list(folder.glob("gdq/*/checkpoint.zip"))
-        meta = verify_checkpoint(found[0]) if found else {}
-        if meta.get("rung") == 1 and meta["rung_ticks"] > 0:
-            break
-        assert process.poll() is None and time.time() < deadline, "training ended before rung 2 could be stopped"
-        time.sleep(0.02)
-    process.send_signal(signal.SIGTERM)
-    assert process.wait(timeout=120) == 0
+    # a periodic checkpoint inside rung 2 (not at its start): the 4-robot world trains
+    inside_rung_two = lambda meta: meta.get("rung") == 1 and meta["rung_ticks"] > 0  # noqa: E731
+    stop_at_checkpoint(process, folder, inside_rung_two, 180, "rung 2 could be stopped")
     run = the_run(folder)
     meta = verify_checkpoint(run / "checkpoint.zip")
     assert meta["rung"] == 1 and 0 < meta["rung_ticks"] < 600 and meta["ticks"] == 300 + meta["rung_ticks"]

@@ -5,10 +5,8 @@ the uninterrupted run, and bad settings are one line that leaves no run folder."
 from __future__ import annotations
 
 import json
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -18,12 +16,12 @@ import torch as th
 import envs  # noqa: F401
 from sb3_eps import GDQ, evaluate, make_vec_env, train
 from sb3_eps.eps.population import PopulationTrainer
-from sb3_eps.zoo.checkpoint import CorruptCheckpoint, verify_checkpoint
+from sb3_eps.zoo.checkpoint import verify_checkpoint
 from sb3_eps.zoo.config import resolve_config
 from sb3_eps.zoo.errors import run_command
 from sb3_eps.zoo.exp_manager import TrainOptions
 from sb3_eps.zoo.population import check_population_run, population_kwargs
-from tests.test_zoo_resume import assert_equal_runs
+from tests.test_zoo_resume import assert_equal_runs, stop_at_checkpoint
 
 CONFIGS = Path(__file__).resolve().parents[1] / "zoo_configs"
 ENV_ID = "MultiRobotNav-2-v0"
@@ -135,19 +133,8 @@ def test_a_population_run_fills_the_run_folder_and_its_model_evaluates(uninterru
 def test_a_population_stopped_by_sigterm_resumes_to_the_uninterrupted_run(uninterrupted, tmp_path) -> None:
     folder = tmp_path / "logs"
     process = subprocess.Popen([sys.executable, "-m", "sb3_eps.train", *argv(tmp_path, folder, "--keep-checkpoint")])
-    deadline = time.time() + 300
-    while True:  # the second periodic checkpoint: after a copy and an evaluation, before the end
-        found = list(folder.glob("gdq/*/checkpoint.zip"))
-        try:
-            meta = verify_checkpoint(found[0]) if found else {}
-        except CorruptCheckpoint:  # replaced while being read
-            meta = {}
-        if meta.get("num_timesteps", 0) >= 800:
-            break
-        assert process.poll() is None and time.time() < deadline, "training ended before it could be stopped"
-        time.sleep(0.02)
-    process.send_signal(signal.SIGTERM)
-    assert process.wait(timeout=300) == 0
+    # the second periodic checkpoint: after a copy and an evaluation, before the end
+    stop_at_checkpoint(process, folder, lambda meta: meta.get("num_timesteps", 0) >= 800, 300, "it could be stopped")
     run = the_run(folder)
     meta = verify_checkpoint(run / "checkpoint.zip")
     assert 800 <= meta["num_timesteps"] < 1600 and meta["complete"] is False

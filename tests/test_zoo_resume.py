@@ -15,7 +15,7 @@ from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_eps import train
 from sb3_eps.eps.round_log import read_round_log
-from sb3_eps.zoo.checkpoint import verify_checkpoint
+from sb3_eps.zoo.checkpoint import CorruptCheckpoint, verify_checkpoint
 from sb3_eps.zoo.errors import ConfigError
 
 ENV_ID = "CooperativeNavigation-v0"
@@ -68,6 +68,25 @@ def worker_processes(parent_pid: int) -> list[int]:
         if fields.get("PPid", "").strip() == str(parent_pid) and not fields.get("State", "").startswith("Z"):
             found.append(int(status.parent.name))
     return found
+
+
+def stop_at_checkpoint(process: subprocess.Popen, folder: Path, ready, timeout: float, what: str) -> None:
+    """SIGTERM the training ``process`` once the periodic checkpoint under ``folder`` has a meta for which ``ready(meta)``
+    holds (a checkpoint replaced while being read counts as not ready); fails if training ends or ``timeout`` passes
+    first, and when the process does not exit cleanly."""
+    deadline = time.time() + timeout
+    while True:
+        found = list(folder.glob("gdq/*/checkpoint.zip"))
+        try:
+            meta = verify_checkpoint(found[0]) if found else {}
+        except CorruptCheckpoint:
+            meta = {}
+        if meta and ready(meta):
+            break
+        assert process.poll() is None and time.time() < deadline, f"training ended before {what}"
+        time.sleep(0.02)
+    process.send_signal(signal.SIGTERM)
+    assert process.wait(timeout=300) == 0
 
 
 def assert_equal_runs(run: Path, expected: Path, env_id: str = ENV_ID) -> None:
