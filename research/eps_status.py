@@ -264,7 +264,10 @@ SCREEN8 = Screen(
 SCREEN12 = Screen(
     "docs/results/many_robots/twelve_robot_screen",
     ("docs/results/many_robots/twelve_robot_screen",),
-    {"eps_early": "EPS-GDQ, early rounds (every 10k ticks up to 60k), 12 robots"},
+    {
+        "eps_default": "EPS-GDQ, package defaults, 12 robots",
+        "eps_early": "EPS-GDQ, early rounds (every 10k ticks up to 60k), 12 robots",
+    },
     (300_000, 350_000, 400_000),
     50_000,
     12,
