@@ -56,8 +56,8 @@ class EvolutionCallback(BaseCallback):
     on 2, 4 and 8 robots?"); 6 of 73 rounds crossed over, and thirteen crossovers measured directly moved the team
     by +0.8 points (SE 1.7; "Does EPS act at all?"). :meth:`paper` (Algorithm 1 as published) ended 43 points below
     GDQ on 4 robots (3 seeds; "The paper's Algorithm 1"); a 4-robot team world with ``share_experience`` -2.7 points
-    ("A team world for fitness and shared experience"); early rounds on 8 and 12 robots and arena-trained models in
-    the varied unseen room crossed over once in 45 rounds and stayed 0.7-4.5 points below GDQ (held-out seeds).
+    ("A team world for fitness and shared experience"); rounds on 8 and 12 robots and arena-trained models in
+    the varied unseen room crossed over once in 51 rounds and stayed 0.7-4.5 points below GDQ (held-out seeds).
 
     Rounds come only while the tick budget (``max_eps_share``, 10 % of the training ticks) allows them: the first
     comes near 80k training ticks, and a shorter run plays none and warns once, saying what to change. For rounds in
