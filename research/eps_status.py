@@ -232,6 +232,7 @@ class Screen:
     :param robots: the robots of the training worlds
     :param section: the page's section that reports it
     :param unseen_room: score the final model on this room instead (``unseen_room.jsonl`` in ``folder``)
+    :param base_arm: the arm every other arm is paired with (GDQ alone)
     """
 
     folder: str
@@ -242,6 +243,7 @@ class Screen:
     robots: int
     section: str
     unseen_room: str | None = None
+    base_arm: str = "scratch"
 
 
 #: The 8-robot screen (``docs/results/many_robots/eight_robot_screen/``), 300k total world ticks, 50 greedy episodes
@@ -287,6 +289,7 @@ SCREEN_UNSEEN = Screen(
     4,
     "unseen-room",
     unseen_room="MultiRobotNavUnseen-4-varied-v0",
+    base_arm="gdq",
 )
 SCREENS = (SCREEN8, SCREEN12, SCREEN_UNSEEN)
 
@@ -326,11 +329,11 @@ def screen_rows(screen: Screen, root: Path = ROOT) -> list[Row]:
     """:return: one row per EPS or population arm of ``screen`` over the seeds both it and scratch finished (none for
     an arm without such a seed). A population's rounds are its selections and its crossovers the copies made; it
     plays no EPS ticks."""
-    base_arm = "gdq" if screen.unseen_room else "scratch"
     if screen.unseen_room:
-        scratch = unseen_scores(screen, base_arm, root)
+        scratch = unseen_scores(screen, screen.base_arm, root)
     else:
-        scratch = {s: screen_score(c, screen.marks) for s, c in screen_curves(base_arm, screen.scratch_folders, root).items()}
+        curves = screen_curves(screen.base_arm, screen.scratch_folders, root)
+        scratch = {s: screen_score(c, screen.marks) for s, c in curves.items()}
     rows = []
     for arm, name in screen.arms.items():
         curves = screen_curves(arm, (screen.folder,), root)
