@@ -13,9 +13,14 @@ from sb3_eps.zoo.schema import EVOLUTION_CALLBACK, build_callbacks
 
 CONFIGS = Path(__file__).resolve().parents[1] / "zoo_configs"
 #: the early rounds' settings, as the configs' headers write them
-EARLY_ROUNDS = dict(
-    period=10_000, rounds_until=60_000, max_eps_share=None, population_size=4, n_eval_episodes=2, n_reevaluation_episodes=2
-)
+EARLY_ROUNDS = {
+    "period": 10_000,
+    "rounds_until": 60_000,
+    "max_eps_share": None,
+    "population_size": 4,
+    "n_eval_episodes": 2,
+    "n_reevaluation_episodes": 2,
+}
 #: (config file or None for zoo_configs/eps_gdq.yml, env id, the Python equivalent)
 VARIANTS = [
     (None, "MultiRobotNav-4-v0", lambda: EvolutionCallback()),
