@@ -12,9 +12,12 @@ the profiled wall time (cumulative time of the functions that make it up; the pa
   ``step``), ``weight average`` (``update_weight_average``), ``targets`` (``_update_targets``);
 - ``logging``: ``dump_logs`` and the logger's ``record``.
 
-The shares are ratios inside one process, so a busy machine scales them all alike. Example::
+``--config`` takes a configuration of ``benchmarks/time_to_solution.py`` (a preset name or a JSON dict); with
+``overlap_training`` the worlds step in a worker while the main process learns, so ``env step`` is the main process's
+wait for them. The shares are ratios inside one process, so a busy machine scales them all alike. Example::
 
     python benchmarks/profile_training.py --robots 4 8 12 --ticks 4000
+    python benchmarks/profile_training.py --robots 4 --config overlap8-b128
 """
 
 from __future__ import annotations
@@ -25,11 +28,8 @@ import pstats
 import time
 
 import torch as th
+from time_to_solution import ALGORITHMS, build_model, configuration
 
-import envs  # noqa: F401
-from sb3_eps import GDQ, IQL, QMIX, VDN, make_vec_env
-
-ALGORITHMS = {"iql": IQL, "gdq": GDQ, "qmix": QMIX, "vdn": VDN}
 #: part -> (function name, a piece of its file's path); the cumulative times of matching functions are summed.
 PARTS: dict[str, list[tuple[str, str]]] = {
     "env step": [("step_wait", "sb3_eps")],
@@ -47,10 +47,10 @@ PARTS: dict[str, list[tuple[str, str]]] = {
 }
 
 
-def profile(algo: str, n_robots: int, n_envs: int, ticks: int, warmup: int) -> tuple[dict[str, float], float]:
+def profile(algo: str, n_robots: int, config: str, ticks: int, warmup: int) -> tuple[dict[str, float], float]:
     """:return: each part's share of the profiled time, and the profiled ticks per second (under the profiler)"""
-    venv = make_vec_env(f"MultiRobotNav-{n_robots}-v0", n_envs=n_envs, seed=0)
-    model = ALGORITHMS[algo]("MlpPolicy", venv, seed=0)
+    model = build_model(algo, configuration(config)[1], f"MultiRobotNav-{n_robots}-v0", seed=0)
+    venv = model.get_env()
     model.learn(warmup * venv.n_agents, log_interval=1_000_000)
     profiler = cProfile.Profile()
     start = time.perf_counter()
@@ -74,13 +74,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algo", choices=sorted(ALGORITHMS), default="gdq")
     parser.add_argument("--robots", type=int, nargs="+", default=[4, 8, 12])
-    parser.add_argument("--n-envs", type=int, default=4)
+    parser.add_argument("--config", default="defaults-2026-12-03", help="a preset of time_to_solution.py or a JSON dict")
     parser.add_argument("--ticks", type=int, default=4_000)
     parser.add_argument("--warmup", type=int, default=2_500, help="ticks before the profile (past learning_starts)")
     args = parser.parse_args()
     th.set_num_threads(1)
-    results = {n: profile(args.algo, n, args.n_envs, args.ticks, args.warmup) for n in args.robots}
-    print(f"{args.algo}, {args.n_envs} worlds, {args.ticks} profiled ticks after {args.warmup}; share of wall time")
+    results = {n: profile(args.algo, n, args.config, args.ticks, args.warmup) for n in args.robots}
+    print(f"{args.algo}, {args.config}, {args.ticks} profiled ticks after {args.warmup}; share of wall time")
     print("| part | " + " | ".join(f"{n} robots" for n in args.robots) + " |")
     print("|---|" + "---|" * len(args.robots))
     for part in PARTS:

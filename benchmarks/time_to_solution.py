@@ -95,6 +95,16 @@ def configuration(spec: str) -> tuple[str, dict[str, Any]]:
     return name or "package-defaults", arguments
 
 
+def build_model(algo: str, arguments: dict[str, Any], env_id: str, seed: int) -> Any:
+    """The algorithm on its worlds: ``arguments["n_envs"]`` worlds (default 4), every one in a worker process with
+    ``overlap_training`` (the command line's ``overlap_layout``), the other arguments to the algorithm."""
+    arguments = dict(arguments)
+    n_envs = int(arguments.pop("n_envs", 4))
+    layout = {"vec_env_cls": "subproc", "vec_env_kwargs": overlap_layout(n_envs)} if arguments.get("overlap_training") else {}
+    venv = make_vec_env(env_id, n_envs=n_envs, seed=seed, **layout)
+    return ALGORITHMS[algo]("MlpPolicy", venv, seed=seed, **arguments)
+
+
 def run(args: argparse.Namespace, spec: str, seed: int) -> list[dict[str, Any]]:
     """One seed of one configuration; returns its records (resumed from its file when finished)."""
     name, arguments = configuration(spec)
@@ -104,13 +114,8 @@ def run(args: argparse.Namespace, spec: str, seed: int) -> list[dict[str, Any]]:
         if records and (records[-1]["success_rate"] >= args.levels[-1] or records[-1]["ticks"] >= args.ticks):
             return records
         path.unlink()  # an unfinished run restarts
-    n_envs = int(arguments.pop("n_envs", 4))
-    if arguments.get("overlap_training"):
-        layout = {"vec_env_cls": "subproc", "vec_env_kwargs": overlap_layout(n_envs)}
-    else:
-        layout = {}
-    venv = make_vec_env(args.env, n_envs=n_envs, seed=seed, **layout)
-    model = ALGORITHMS[args.algo]("MlpPolicy", venv, seed=seed, **arguments)
+    model = build_model(args.algo, arguments, args.env, seed)
+    venv = model.get_env()
     callback = StopAtLevel(args, path, seed)
     model.learn(args.ticks * venv.n_agents, callback=callback, log_interval=1_000_000)
     last = callback.last
