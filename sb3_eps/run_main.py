@@ -133,7 +133,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--algo", choices=["eps_gdq", "gdq"], default="eps_gdq", help="EPS-GDQ (default) or GDQ alone")
     args = parser.parse_args(argv)
 
-    from sb3_eps.zoo.exp_manager import TrainOptions, train
+    from sb3_eps.zoo.cli import TrainOptions
+    from sb3_eps.zoo.exp_manager import train
     from sb3_eps.zoo.plotting import load_curve, plot_learning_curves
 
     options = TrainOptions(

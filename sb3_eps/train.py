@@ -20,7 +20,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from sb3_eps.zoo.cli import OneLineArgumentParser, add_gym_packages_flag, import_gym_packages
+from sb3_eps.zoo.cli import OneLineArgumentParser, TrainOptions, add_gym_packages_flag, import_gym_packages
 from sb3_eps.zoo.errors import run_command
 from sb3_eps.zoo.run_folder import command_line
 from sb3_eps.zoo.schema import ALGORITHMS
@@ -119,7 +119,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line. :return: the exit status."""
     import_gym_packages(argv)  # first: the algorithms they register are choices of --algo
     args = make_parser().parse_args(argv)
-    from sb3_eps.zoo.exp_manager import TrainOptions, resume, train
+    from sb3_eps.zoo.exp_manager import resume, train
 
     if args.resume is not None:
         resume(args.resume, progress=args.progress or None, verbose=args.verbose)

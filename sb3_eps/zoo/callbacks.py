@@ -9,6 +9,7 @@ import csv
 import io
 import json
 import signal
+import sys
 import time
 import warnings
 from collections.abc import Callable, Iterator, Sequence
@@ -20,20 +21,18 @@ from typing import Any
 import numpy as np
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.logger import CSVOutputFormat
+from stable_baselines3.common.logger import CSVOutputFormat, HumanOutputFormat, KVWriter, Logger, TensorBoardOutputFormat
 
 from sb3_eps.common.evaluation import evaluate_team
 from sb3_eps.common.snapshots import set_rng_states
 from sb3_eps.common.vec_env import MultiAgentVecEnv
 from sb3_eps.eps import EvolutionCallback
 from sb3_eps.zoo import run_folder
-from sb3_eps.zoo.checkpoint import (
-    Checkpoint,
-    save_checkpoint,
-    save_model_atomic,
-    write_bytes_atomic,
-)
+from sb3_eps.zoo.checkpoint import Checkpoint, save_checkpoint, save_model_atomic, write_bytes_atomic
+from sb3_eps.zoo.cli import TrainOptions
 
+#: The evaluation worlds are seeded ``seed + EVAL_SEED_OFFSET``: other worlds than the training ones.
+EVAL_SEED_OFFSET = 10_000
 #: Columns every monitor row has; the env's team metrics (``success``, ``collision``...) follow.
 MONITOR_COLUMNS = ("r", "l", "t", "ticks", "eps_ticks", "world")
 
@@ -462,3 +461,14 @@ class ResumableCSVOutputFormat(CSVOutputFormat):
             kept = [line for line in lines[1:] if float(next(csv.reader([line]))[column] or -1) <= max_timesteps]  # type: ignore[operator]
             self.file.writelines([lines[0], *kept])
             self.file.flush()
+
+
+def make_logger(options: TrainOptions, run_dir: Path, resume_timesteps: int | None) -> Logger:
+    """SB3 logger writing ``progress.csv`` (continued when resuming), if verbose stdout, and with
+    ``--tensorboard-log`` TensorBoard in ``<tensorboard_log>/<algo>/<run folder name>``."""
+    formats: list[KVWriter] = [ResumableCSVOutputFormat(run_dir / run_folder.PROGRESS_NAME, resume_timesteps)]
+    if options.verbose >= 1:
+        formats.insert(0, HumanOutputFormat(sys.stdout))
+    if options.tensorboard_log is not None:
+        formats.append(TensorBoardOutputFormat(str(Path(options.tensorboard_log) / options.algo / run_dir.name)))
+    return Logger(folder=str(run_dir), output_formats=formats)

@@ -29,7 +29,7 @@ import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.logger import Logger
@@ -38,7 +38,14 @@ from sb3_eps.common.snapshots import snapshot_dumps
 from sb3_eps.common.vec_env import MultiAgentVecEnv
 from sb3_eps.eps.population import PopulationTrainer
 from sb3_eps.zoo import run_folder
-from sb3_eps.zoo.callbacks import TeamEvalCallback, TeamMonitor, stop_on_signals, write_final_report
+from sb3_eps.zoo.callbacks import (
+    EVAL_SEED_OFFSET,
+    TeamEvalCallback,
+    TeamMonitor,
+    make_logger,
+    stop_on_signals,
+    write_final_report,
+)
 from sb3_eps.zoo.checkpoint import (
     CHECKPOINT_NAME,
     PREVIOUS_CHECKPOINT_NAME,
@@ -48,13 +55,11 @@ from sb3_eps.zoo.checkpoint import (
     verify_checkpoint,
     write_text_atomic,
 )
-from sb3_eps.zoo.config import ResolvedConfig
+from sb3_eps.zoo.cli import TrainOptions, TrainResult
+from sb3_eps.zoo.config import PreparedRun, ResolvedConfig, build_env, close_envs
 from sb3_eps.zoo.errors import ConfigError
 from sb3_eps.zoo.ladder import LADDER_KEY
 from sb3_eps.zoo.schema import CALLBACK_KEY, POPULATION_KEY, algorithm_kwargs
-
-if TYPE_CHECKING:
-    from sb3_eps.zoo.exp_manager import PreparedRun, TrainOptions, TrainResult
 
 #: The selection records of a population run (one JSON line per selection, ``PopulationTrainer.history``).
 SELECTIONS_NAME = "population_selections.jsonl"
@@ -227,9 +232,6 @@ def run_population(
     :param checkpoint_path: a population checkpoint of this run to continue, or None
     :param extra_callbacks: more SB3 callbacks, run in every learner's turns
     """
-    # The run's building blocks live in exp_manager, which calls this module.
-    from sb3_eps.zoo.exp_manager import build_env, close_envs
-
     options, config = prepared.options, prepared.config
     total = int(config.entry["n_timesteps"])
     log_path = run_dir / SELECTIONS_NAME
@@ -267,8 +269,6 @@ def _train(
 ) -> TrainResult:
     """The training of :func:`run_population`, from a new or a restored trainer (``meta`` and ``callback_states``
     of its checkpoint, empty for a new run)."""
-    from sb3_eps.zoo.exp_manager import EVAL_SEED_OFFSET, TrainResult, make_logger
-
     options, config = prepared.options, prepared.config
     resume_timesteps = int(meta["num_timesteps"]) if meta else None
     model = PopulationModel(trainer, make_logger(options, run_dir, resume_timesteps))

@@ -24,12 +24,12 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.logger import Logger
 
 from sb3_eps.gdq import GDQ
-from sb3_eps.zoo.callbacks import TeamEvalCallback, TickBudgetCallback
+from sb3_eps.zoo.callbacks import EVAL_SEED_OFFSET, TeamEvalCallback, TickBudgetCallback
 from sb3_eps.zoo.checkpoint import write_text_atomic
-from sb3_eps.zoo.cli import NamespaceOptions
-from sb3_eps.zoo.config import ResolvedConfig, apply_overrides, check_env_id, entry_yaml, resolve_config
+from sb3_eps.zoo.cli import NamespaceOptions, TrainOptions
+from sb3_eps.zoo.config import ResolvedConfig, apply_overrides, build_env, check_env_id, entry_yaml, resolve_config
 from sb3_eps.zoo.errors import ConfigError
-from sb3_eps.zoo.exp_manager import EVAL_SEED_OFFSET, TrainOptions, build_env, build_model, prepare_run
+from sb3_eps.zoo.exp_manager import build_model, prepare_run
 from sb3_eps.zoo.run_folder import ARGS_NAME, CONFIG_NAME, create_run_folder
 from sb3_eps.zoo.schema import (
     CALLBACK_KEY,
