@@ -123,12 +123,7 @@ def check_device(device: str) -> None:
 
 @dataclass
 class TrainResult:
-    """What a training command did.
-
-    :param run_dir: the run folder
-    :param status: ``"complete"``, ``"interrupted"`` or ``"already complete"``
-    :param num_timesteps: timesteps trained so far
-    """
+    """What a training command did: ``status`` is ``"complete"``, ``"interrupted"`` or ``"already complete"``."""
 
     run_dir: Path
     status: str

@@ -45,13 +45,8 @@ _MAPPING_KEYS = ("policy_kwargs", "env_kwargs", "population")
 
 @dataclass
 class ResolvedConfig:
-    """The configuration of one run.
-
-    :param algo: the algorithm name (``gdq``, ``eps_gdq``...)
-    :param env_id: the env id
-    :param entry: the canonical entry (defaults merged, overrides applied)
-    :param source: where it came from, for messages and ``config.yml``
-    """
+    """The configuration of one run: ``entry`` is canonical (defaults merged, overrides applied), ``source`` says
+    where it came from, for messages and ``config.yml``."""
 
     algo: str
     env_id: str

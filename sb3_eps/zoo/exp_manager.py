@@ -1,9 +1,6 @@
 """The experiment manager behind ``python -m sb3_eps.train``: config -> envs, model, callbacks -> run folder -> learn.
-
-Everything a run needs is built and checked before anything is written, so a mistake leaves no run folder (its
-layout: :mod:`sb3_eps.zoo.run_folder`). ``--resume <run folder>`` continues from the checkpoint to the same total;
-the result equals an uninterrupted run with the same seed (:mod:`sb3_eps.zoo.checkpoint`).
-"""
+Everything is built and checked before anything is written; ``--resume`` continues a run from its checkpoint to the
+result of the uninterrupted run."""
 
 from __future__ import annotations
 
