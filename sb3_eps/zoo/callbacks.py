@@ -384,15 +384,11 @@ class TrainingStateCallback(BaseCallback):
 
         :return: whether a checkpoint was written
         """
+        refused = f"checkpoint at {self.model.num_timesteps} timesteps %s; the previous checkpoint is kept"
         tensors = [*self.model.policy.named_parameters(), *self.model.policy.named_buffers()]
         broken = [name for name, tensor in tensors if tensor.is_floating_point() and not th.isfinite(tensor).all()]
         if broken:
-            warnings.warn(
-                f"checkpoint at {self.model.num_timesteps} timesteps refused: non-finite values in {', '.join(broken)}; "
-                f"the previous checkpoint is kept",
-                RuntimeWarning,
-                stacklevel=2,
-            )
+            warnings.warn(refused % f"refused: non-finite values in {', '.join(broken)}", RuntimeWarning, stacklevel=2)
             return False
         states = {name: callback.state_dict() for name, callback in self.stateful_callbacks.items()}  # type: ignore[attr-defined]
         meta = {
@@ -408,11 +404,7 @@ class TrainingStateCallback(BaseCallback):
         try:
             save_checkpoint(self.path, self.model, states, meta)  # type: ignore[arg-type]
         except OSError as error:
-            warnings.warn(
-                f"checkpoint at {self.model.num_timesteps} timesteps not written ({error}); the previous checkpoint is kept",
-                RuntimeWarning,
-                stacklevel=2,
-            )
+            warnings.warn(refused % f"not written ({error})", RuntimeWarning, stacklevel=2)
             return False
         self.saved_at = int(self.model.num_timesteps)
         if self.verbose >= 1:

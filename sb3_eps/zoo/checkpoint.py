@@ -11,7 +11,7 @@ import pickle
 import tempfile
 import zipfile
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -120,9 +120,21 @@ def save_checkpoint(
         "callbacks.pkl": snapshot_dumps(callback_states),
         "meta.json": json.dumps(meta, indent=2).encode(),
     }
+    write_checkpoint(path, members)
+
+
+def write_checkpoint(path: str | Path, members: dict[str, bytes], start: Callable[[Path], None] | None = None) -> None:
+    """Write a checkpoint file through a temporary one, verified before it replaces ``path`` (whose previous version is
+    kept as ``checkpoint.prev.zip``).
+
+    :param members: member name -> content
+    :param start: writes an archive of its own to the temporary file first (a population's), ``members`` are added
+    """
     path = Path(path)
     with atomic_path(path) as temporary:
-        with zipfile.ZipFile(temporary, "w", zipfile.ZIP_STORED) as archive:
+        if start is not None:
+            start(temporary)
+        with zipfile.ZipFile(temporary, "w" if start is None else "a", zipfile.ZIP_STORED) as archive:
             for name, data in members.items():
                 archive.writestr(name, data)
         verify_checkpoint(temporary)

@@ -262,9 +262,7 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
         raise ConfigError(f"--resume: no usable checkpoint in {run_dir}: {error}; start a new run") from None
     for problem in skipped:
         print(
-            f"warning: {problem}; resuming from {checkpoint_path.name} at {meta['num_timesteps']} timesteps",
-            file=sys.stderr,
-            flush=True,
+            f"warning: {problem}; resuming from {checkpoint_path.name} at {meta['num_timesteps']} timesteps", file=sys.stderr
         )
     if meta.get("complete"):
         print(f"{run_dir} has finished already: its final model is {final_model}")

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import io
 import json
-import os
 import pickle
 import time
 import zipfile
@@ -48,11 +47,9 @@ from sb3_eps.zoo.callbacks import (
 )
 from sb3_eps.zoo.checkpoint import (
     CHECKPOINT_NAME,
-    PREVIOUS_CHECKPOINT_NAME,
-    atomic_path,
     remove_checkpoints,
     save_model_atomic,
-    verify_checkpoint,
+    write_checkpoint,
     write_text_atomic,
 )
 from sb3_eps.zoo.cli import TrainOptions, TrainResult
@@ -207,15 +204,9 @@ def save_population_checkpoint(
     ``meta.json``."""
     fittest = io.BytesIO()
     trainer.best.save(fittest)
-    with atomic_path(path) as temporary:
-        trainer.save(temporary, include_training_state=True)
-        with zipfile.ZipFile(temporary, "a") as archive:
-            archive.writestr("model.zip", fittest.getvalue())
-            archive.writestr("callbacks.pkl", snapshot_dumps(callback_states))
-            archive.writestr("meta.json", json.dumps(meta, indent=2))
-        verify_checkpoint(temporary)
-        if path.is_file():
-            os.replace(path, path.with_name(PREVIOUS_CHECKPOINT_NAME))
+    members = {"model.zip": fittest.getvalue(), "callbacks.pkl": snapshot_dumps(callback_states)}
+    members["meta.json"] = json.dumps(meta, indent=2).encode()
+    write_checkpoint(path, members, lambda temporary: trainer.save(temporary, include_training_state=True))
 
 
 def run_population(
