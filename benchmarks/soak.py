@@ -36,7 +36,8 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from envs.turtlebot3.world import p  # pybullet, imported without its banner
 from sb3_eps.version import __version__
-from sb3_eps.zoo.exp_manager import TrainOptions, train
+from sb3_eps.zoo.cli import TrainOptions
+from sb3_eps.zoo.exp_manager import train
 
 ENV_ID = "MultiRobotNav-8-v0"
 N_AGENTS = 8

@@ -16,8 +16,11 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-from sb3_eps.zoo.cli import OneLineArgumentParser, add_gym_packages_flag, import_gym_packages
-from sb3_eps.zoo.errors import run_command
+from sb3_eps.zoo.cli import OneLineArgumentParser, add_gym_packages_flag, check_device, import_gym_packages
+from sb3_eps.zoo.config import parse_hyperparams
+from sb3_eps.zoo.errors import ConfigError, run_command
+from sb3_eps.zoo.evaluation import evaluate_run, format_summary, load_run, record_gif, save_summary
+from sb3_eps.zoo.run_folder import find_run
 from sb3_eps.zoo.schema import ALGORITHMS
 
 PROG = "python -m sb3_eps.evaluate"
@@ -55,12 +58,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line. :return: the exit status."""
     import_gym_packages(argv)  # a run's own --gym-packages are imported again by load_run
     args = make_parser().parse_args(argv)
-    from sb3_eps.zoo.config import parse_hyperparams
-    from sb3_eps.zoo.errors import ConfigError
-    from sb3_eps.zoo.evaluation import evaluate_run, format_summary, load_run, record_gif, save_summary
-    from sb3_eps.zoo.exp_manager import check_device
-    from sb3_eps.zoo.run_folder import find_run
-
     if args.run is None:
         if args.algo is None or args.env is None:
             raise ConfigError("name the run: --run RUN_DIR, or --algo, --env (and -f, --exp-id)")

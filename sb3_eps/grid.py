@@ -37,6 +37,14 @@ from typing import Any
 
 import yaml
 
+from sb3_eps import train
+from sb3_eps.zoo.checkpoint import CHECKPOINT_NAME, CorruptCheckpoint, verify_checkpoint, write_text_atomic
+from sb3_eps.zoo.cli import OneLineArgumentParser
+from sb3_eps.zoo.config import DEFAULT_KEY, config_file, load_config_entries, load_yaml, resolve_config
+from sb3_eps.zoo.errors import ConfigError, run_command
+from sb3_eps.zoo.run_folder import final_model_name
+from sb3_eps.zoo.schema import algorithm_spec, normalize_value
+
 PROG = "python -m sb3_eps.grid"
 SUMMARY_NAME = "grid.yml"
 #: Flags of ``sb3_eps.train`` that the grid sets itself for every run.
@@ -76,20 +84,12 @@ class RunSpec:
         return f"{self.env}_seed{self.seed}"
 
 
-def _error(message: str) -> Exception:
-    from sb3_eps.zoo.errors import ConfigError
-
-    return ConfigError(message)
-
-
 def load_grid_file(path: str | Path) -> dict[str, Any]:
     """:return: the keys of a grid YAML file (checked by :func:`make_grid`). :raises ConfigError: for an unreadable
     file or one that is not a mapping."""
-    from sb3_eps.zoo.config import load_yaml
-
     data = load_yaml(path)
     if not isinstance(data, dict):
-        raise _error(f"{path}: a grid file maps keys ({', '.join(field.name for field in fields(Grid))}) to values")
+        raise ConfigError(f"{path}: a grid file maps keys ({', '.join(field.name for field in fields(Grid))}) to values")
     return data
 
 
@@ -98,10 +98,8 @@ def make_grid(values: dict[str, Any]) -> Grid:
 
     :raises ConfigError: naming the key and what is allowed
     """
-    from sb3_eps.zoo.schema import algorithm_spec, normalize_value
-
     if not values.get("algos"):
-        raise _error("grid: no algorithms; give --algos (e.g. --algos gdq qmix) or algos: in the grid file")
+        raise ConfigError("grid: no algorithms; give --algos (e.g. --algos gdq qmix) or algos: in the grid file")
     values = {key: [value] if isinstance(value, str) and key != "conf_file" else value
               for key, value in values.items() if value is not None}  # fmt: skip
     if isinstance(values.get("seeds"), int) and not isinstance(values["seeds"], bool):
@@ -109,15 +107,15 @@ def make_grid(values: dict[str, Any]) -> Grid:
     hints = typing.get_type_hints(Grid)
     unknown = sorted(set(values) - set(hints))
     if unknown:
-        raise _error(f"grid: unknown key(s) {unknown}; allowed: {', '.join(hints)}")
+        raise ConfigError(f"grid: unknown key(s) {unknown}; allowed: {', '.join(hints)}")
     grid = Grid(**{key: normalize_value(value, hints[key], f"grid: {key}", key) for key, value in values.items()})
     for algo in grid.algos:
         algorithm_spec(algo)  # an unknown name is refused with the allowed ones
     if not grid.seeds:
-        raise _error("grid: seeds is empty; give at least one seed (or a count)")
+        raise ConfigError("grid: seeds is empty; give at least one seed (or a count)")
     for arg in grid.train_args:
         if arg.split("=")[0] in RESERVED_TRAIN_FLAGS:
-            raise _error(
+            raise ConfigError(
                 f"grid: train_args may not hold {arg.split('=')[0]}: the grid sets it (use the grid's algos, envs, "
                 "seeds, n_timesteps, conf_file, hyperparams keys)"
             )
@@ -132,9 +130,6 @@ def grid_runs(grid: Grid) -> list[RunSpec]:
 
     :raises ConfigError: for an env id, config or override that a run would refuse
     """
-    from sb3_eps.train import make_parser
-    from sb3_eps.zoo.config import DEFAULT_KEY, config_file, load_config_entries, resolve_config
-
     runs = []
     for algo in grid.algos:
         env_ids = grid.envs
@@ -142,7 +137,7 @@ def grid_runs(grid: Grid) -> list[RunSpec]:
             path = config_file(algo, grid.conf_file)
             env_ids = [key for key in load_config_entries(path, algo) if key != DEFAULT_KEY]
             if not env_ids:
-                raise _error(f"grid: {path} has no env entries; give the env ids with --envs")
+                raise ConfigError(f"grid: {path} has no env entries; give the env ids with --envs")
         for env_id in env_ids:
             resolve_config(algo, env_id, grid.conf_file, grid.hyperparams, grid.n_timesteps)
             for seed in grid.seeds:
@@ -154,12 +149,10 @@ def grid_runs(grid: Grid) -> list[RunSpec]:
                 if grid.hyperparams:
                     flags += ["--hyperparams", *grid.hyperparams]
                 runs.append(RunSpec(algo, env_id, seed, (*flags, *grid.train_args)))
-    from sb3_eps.zoo.errors import ConfigError
-
     try:  # the extra flags must parse as sb3_eps.train's
-        make_parser().parse_args([*runs[0].flags, "--run-name", runs[0].name])
+        train.make_parser().parse_args([*runs[0].flags, "--run-name", runs[0].name])
     except (SystemExit, ConfigError) as error:
-        raise _error(f"grid: train_args {grid.train_args} are not flags of python -m sb3_eps.train: {error}") from None
+        raise ConfigError(f"grid: train_args {grid.train_args} are not flags of python -m sb3_eps.train: {error}") from None
     return runs
 
 
@@ -167,9 +160,6 @@ def grid_runs(grid: Grid) -> list[RunSpec]:
 def run_state(run_dir: Path, env_id: str) -> str:
     """:return: ``"new"`` (no folder), ``"complete"``, ``"interrupted"`` (a checkpoint to resume from) or
     ``"incomplete"`` (stopped before its first checkpoint: nothing to resume)."""
-    from sb3_eps.zoo.checkpoint import CHECKPOINT_NAME, CorruptCheckpoint, verify_checkpoint
-    from sb3_eps.zoo.run_folder import final_model_name
-
     if not run_dir.is_dir():
         return "new"
     checkpoint, final = run_dir / CHECKPOINT_NAME, run_dir / final_model_name(env_id)
@@ -311,7 +301,7 @@ class RayBackend:
         try:
             import ray
         except ImportError:
-            raise _error("--backend ray needs Ray: pip install 'sb3-eps[ray]' (or pip install ray)") from None
+            raise ConfigError("--backend ray needs Ray: pip install 'sb3-eps[ray]' (or pip install ray)") from None
         self.ray = ray
         self.address = address
         self.cpus_per_run = cpus_per_run
@@ -405,10 +395,10 @@ def run_grid(
         if n_jobs is None:
             n_jobs = max(1, (os.cpu_count() or 1) // grid.cpus_per_run)
         if n_jobs < 1:
-            raise _error(f"--n-jobs must be >= 1, got {n_jobs}")
+            raise ConfigError(f"--n-jobs must be >= 1, got {n_jobs}")
         runner = LocalBackend(n_jobs)
     else:
-        raise _error(f"--backend must be local or ray, got {backend!r}")
+        raise ConfigError(f"--backend must be local or ray, got {backend!r}")
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     reports: dict[RunSpec, dict[str, Any]] = {}
@@ -443,8 +433,6 @@ def run_grid(
         "grid": asdict(grid),
         "runs": ordered,
     }
-    from sb3_eps.zoo.checkpoint import write_text_atomic
-
     write_text_atomic(folder / SUMMARY_NAME, yaml.safe_dump(summary, sort_keys=False))
     if verbose >= 1:
         counts = Counter(entry["status"] for entry in ordered)
@@ -455,8 +443,6 @@ def run_grid(
 
 def make_parser() -> argparse.ArgumentParser:
     """:return: the parser of ``python -m sb3_eps.grid``."""
-    from sb3_eps.zoo.cli import OneLineArgumentParser
-
     parser = OneLineArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--grid", default=None, metavar="GRID.yml", help="the grid in a YAML file")
     parser.add_argument("--algos", nargs="+", default=None, help="algorithms (e.g. gdq qmix)")
@@ -489,7 +475,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     flags = {field.name: getattr(args, field.name) for field in fields(Grid)}  # the flags override the file
     values.update((key, value) for key, value in flags.items() if value is not None)
     if args.max_retries < 0:
-        raise _error(f"--max-retries must be >= 0, got {args.max_retries}")
+        raise ConfigError(f"--max-retries must be >= 0, got {args.max_retries}")
     results = run_grid(
         make_grid(values), args.folder, args.backend, args.n_jobs, args.address, args.shared_folder,
         args.max_retries, verbose=args.verbose,
@@ -499,8 +485,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def cli() -> None:
     """Console-script entry point: mistakes in the grid are one line on stderr and exit status 2."""
-    from sb3_eps.zoo.errors import run_command
-
     run_command(PROG, main)
 
 

@@ -21,7 +21,16 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from sb3_eps.zoo.cli import OneLineArgumentParser, positive_int
-from sb3_eps.zoo.errors import run_command
+from sb3_eps.zoo.errors import ConfigError, run_command
+from sb3_eps.zoo.plotting import (
+    aggregate_table,
+    evaluation_curves,
+    find_run_dirs,
+    format_aggregates,
+    load_curve,
+    plot_learning_curves,
+    record_curves,
+)
 from sb3_eps.zoo.schema import ALGORITHMS
 
 PROG = "python -m sb3_eps.plot"
@@ -52,17 +61,6 @@ def make_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line. :return: the exit status."""
     args = make_parser().parse_args(argv)
-    from sb3_eps.zoo.errors import ConfigError
-    from sb3_eps.zoo.plotting import (
-        aggregate_table,
-        evaluation_curves,
-        find_run_dirs,
-        format_aggregates,
-        load_curve,
-        plot_learning_curves,
-        record_curves,
-    )
-
     if args.records:
         args.eval = True
     run_dirs = find_run_dirs(args.paths or [args.folder]) if args.paths or not args.records else []

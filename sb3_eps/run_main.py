@@ -11,13 +11,19 @@ import math
 import statistics
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
 
-from sb3_eps.zoo.cli import OneLineArgumentParser, positive_int
+from sb3_eps.zoo.cli import OneLineArgumentParser, TrainOptions, positive_int
 from sb3_eps.zoo.errors import run_command
-
-if TYPE_CHECKING:
-    from sb3_eps.zoo.plotting import RunCurve
+from sb3_eps.zoo.exp_manager import train
+from sb3_eps.zoo.plotting import (
+    RECORD_FILE,
+    RunCurve,
+    evaluation_curves,
+    label_of,
+    load_curve,
+    plot_learning_curves,
+    record_curves,
+)
 
 PROG = "python -m sb3_eps.run_main"
 ENV_ID = "MultiRobotNav-4-v0"
@@ -49,8 +55,6 @@ REFERENCE_LAST = 3
 def reference_curves(root: Path | None = None) -> list[RunCurve]:
     """:return: the curves of :data:`REFERENCES` under ``root`` (default: the repository), one per seed; none
     where the records are not there (an installed package)."""
-    from sb3_eps.zoo.plotting import record_curves
-
     root = Path(__file__).resolve().parents[1] if root is None else root
     curves: list[RunCurve] = []
     for label, folder in REFERENCES.items():
@@ -63,8 +67,6 @@ def reference_scores(folder: Path) -> dict[int, float]:
     """:return: seed -> mean greedy team success of the last :data:`REFERENCE_LAST` evaluations scheduled at or
     before :data:`REFERENCE_BUDGET` total ticks (an evaluation a round carried past its point counts for that
     point), from the records in ``folder``."""
-    from sb3_eps.zoo.plotting import RECORD_FILE, record_curves
-
     scores = {}
     for curve in record_curves([folder]):
         within = curve.x // REFERENCE_EVAL_EVERY * REFERENCE_EVAL_EVERY <= REFERENCE_BUDGET
@@ -112,8 +114,6 @@ def draw_evaluations(run_dir: Path, output: Path, references: list[RunCurve] | N
 
     :return: the picture's path, None when the run has no evaluation
     """
-    from sb3_eps.zoo.plotting import evaluation_curves, label_of, plot_learning_curves
-
     evaluations = evaluation_curves([Path(run_dir)])
     if not evaluations:
         return None
@@ -132,9 +132,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("-tb", "--tensorboard-log", default="logs/tensorboard")
     parser.add_argument("--algo", choices=["eps_gdq", "gdq"], default="eps_gdq", help="EPS-GDQ (default) or GDQ alone")
     args = parser.parse_args(argv)
-
-    from sb3_eps.zoo.exp_manager import TrainOptions, train
-    from sb3_eps.zoo.plotting import load_curve, plot_learning_curves
 
     options = TrainOptions(
         algo=args.algo, env=ENV_ID, n_timesteps=args.n_timesteps, seed=args.seed, folder=args.folder,

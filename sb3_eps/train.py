@@ -20,10 +20,13 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from sb3_eps.zoo.cli import OneLineArgumentParser, add_gym_packages_flag, import_gym_packages
+from sb3_eps.zoo.cli import OneLineArgumentParser, TrainOptions, add_gym_packages_flag, import_gym_packages
 from sb3_eps.zoo.errors import run_command
+from sb3_eps.zoo.exp_manager import resume, train
+from sb3_eps.zoo.ladder import ladder_option
 from sb3_eps.zoo.run_folder import command_line
 from sb3_eps.zoo.schema import ALGORITHMS
+from sb3_eps.zoo.tuning import TuningOptions, tune
 
 PROG = "python -m sb3_eps.train"
 DEFAULT_ENV = "MultiRobotNav-4-v0"
@@ -119,24 +122,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line. :return: the exit status."""
     import_gym_packages(argv)  # first: the algorithms they register are choices of --algo
     args = make_parser().parse_args(argv)
-    from sb3_eps.zoo.exp_manager import TrainOptions, resume, train
-
     if args.resume is not None:
         resume(args.resume, progress=args.progress or None, verbose=args.verbose)
         return 0
     if args.verbose is None:
         args.verbose = 1
     if args.ladder:
-        from sb3_eps.zoo.ladder import ladder_option
-
         args.hyperparams = [*args.hyperparams, ladder_option(args.ladder)]
     if args.env is None:
         args.env = args.ladder[-1].rpartition(":")[0] if args.ladder else DEFAULT_ENV
     options = TrainOptions.from_namespace(args)
     options.command = command_line(PROG, sys.argv[1:] if argv is None else argv)
     if args.optimize_hyperparameters:
-        from sb3_eps.zoo.tuning import TuningOptions, tune
-
         tune(options, TuningOptions.from_namespace(args))
         return 0
     train(options)

@@ -14,6 +14,7 @@ from sb3_eps.eps import EPSSettings, EvolutionCallback, eps_env_id_for
 from sb3_eps.zoo.config import (
     DEFAULT_KEY,
     ResolvedConfig,
+    build_env,
     config_file,
     entry_yaml,
     load_config_entries,
@@ -21,7 +22,7 @@ from sb3_eps.zoo.config import (
     resolve_config,
 )
 from sb3_eps.zoo.errors import ConfigError
-from sb3_eps.zoo.exp_manager import build_env, build_model
+from sb3_eps.zoo.exp_manager import build_model
 from sb3_eps.zoo.literal import parse_literal
 from sb3_eps.zoo.schema import (
     ALGORITHM_PARAMS,

@@ -17,9 +17,9 @@ import envs  # noqa: F401
 from sb3_eps import GDQ, evaluate, make_vec_env, train
 from sb3_eps.eps.population import PopulationTrainer
 from sb3_eps.zoo.checkpoint import verify_checkpoint
+from sb3_eps.zoo.cli import TrainOptions
 from sb3_eps.zoo.config import resolve_config
 from sb3_eps.zoo.errors import run_command
-from sb3_eps.zoo.exp_manager import TrainOptions
 from sb3_eps.zoo.population import check_population_run, population_kwargs
 from tests.test_zoo_resume import assert_equal_runs, stop_at_checkpoint
 

@@ -203,8 +203,7 @@ def test_overlap_training_with_workers_resumes_to_the_in_process_run(tmp_path) -
 
 
 def test_the_training_worlds_of_an_overlapping_config_all_go_to_workers() -> None:
-    from sb3_eps.zoo.config import resolve_config
-    from sb3_eps.zoo.exp_manager import build_env
+    from sb3_eps.zoo.config import build_env, resolve_config
 
     config = resolve_config("gdq", ENV_ID, hyperparams=["n_envs:3", "overlap_training:True"])
     venv = build_env(config, seed=0, vec_env="subproc")

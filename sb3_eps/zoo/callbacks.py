@@ -9,6 +9,7 @@ import csv
 import io
 import json
 import signal
+import sys
 import time
 import warnings
 from collections.abc import Callable, Iterator, Sequence
@@ -20,20 +21,18 @@ from typing import Any
 import numpy as np
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.logger import CSVOutputFormat
+from stable_baselines3.common.logger import CSVOutputFormat, HumanOutputFormat, KVWriter, Logger, TensorBoardOutputFormat
 
 from sb3_eps.common.evaluation import evaluate_team
 from sb3_eps.common.snapshots import set_rng_states
 from sb3_eps.common.vec_env import MultiAgentVecEnv
 from sb3_eps.eps import EvolutionCallback
 from sb3_eps.zoo import run_folder
-from sb3_eps.zoo.checkpoint import (
-    Checkpoint,
-    save_checkpoint,
-    save_model_atomic,
-    write_bytes_atomic,
-)
+from sb3_eps.zoo.checkpoint import Checkpoint, save_checkpoint, save_model_atomic, write_bytes_atomic
+from sb3_eps.zoo.cli import TrainOptions
 
+#: The evaluation worlds are seeded ``seed + EVAL_SEED_OFFSET``: other worlds than the training ones.
+EVAL_SEED_OFFSET = 10_000
 #: Columns every monitor row has; the env's team metrics (``success``, ``collision``...) follow.
 MONITOR_COLUMNS = ("r", "l", "t", "ticks", "eps_ticks", "world")
 
@@ -385,15 +384,11 @@ class TrainingStateCallback(BaseCallback):
 
         :return: whether a checkpoint was written
         """
+        refused = f"checkpoint at {self.model.num_timesteps} timesteps %s; the previous checkpoint is kept"
         tensors = [*self.model.policy.named_parameters(), *self.model.policy.named_buffers()]
         broken = [name for name, tensor in tensors if tensor.is_floating_point() and not th.isfinite(tensor).all()]
         if broken:
-            warnings.warn(
-                f"checkpoint at {self.model.num_timesteps} timesteps refused: non-finite values in {', '.join(broken)}; "
-                f"the previous checkpoint is kept",
-                RuntimeWarning,
-                stacklevel=2,
-            )
+            warnings.warn(refused % f"refused: non-finite values in {', '.join(broken)}", RuntimeWarning, stacklevel=2)
             return False
         states = {name: callback.state_dict() for name, callback in self.stateful_callbacks.items()}  # type: ignore[attr-defined]
         meta = {
@@ -409,11 +404,7 @@ class TrainingStateCallback(BaseCallback):
         try:
             save_checkpoint(self.path, self.model, states, meta)  # type: ignore[arg-type]
         except OSError as error:
-            warnings.warn(
-                f"checkpoint at {self.model.num_timesteps} timesteps not written ({error}); the previous checkpoint is kept",
-                RuntimeWarning,
-                stacklevel=2,
-            )
+            warnings.warn(refused % f"not written ({error})", RuntimeWarning, stacklevel=2)
             return False
         self.saved_at = int(self.model.num_timesteps)
         if self.verbose >= 1:
@@ -462,3 +453,14 @@ class ResumableCSVOutputFormat(CSVOutputFormat):
             kept = [line for line in lines[1:] if float(next(csv.reader([line]))[column] or -1) <= max_timesteps]  # type: ignore[operator]
             self.file.writelines([lines[0], *kept])
             self.file.flush()
+
+
+def make_logger(options: TrainOptions, run_dir: Path, resume_timesteps: int | None) -> Logger:
+    """SB3 logger writing ``progress.csv`` (continued when resuming), if verbose stdout, and with
+    ``--tensorboard-log`` TensorBoard in ``<tensorboard_log>/<algo>/<run folder name>``."""
+    formats: list[KVWriter] = [ResumableCSVOutputFormat(run_dir / run_folder.PROGRESS_NAME, resume_timesteps)]
+    if options.verbose >= 1:
+        formats.insert(0, HumanOutputFormat(sys.stdout))
+    if options.tensorboard_log is not None:
+        formats.append(TensorBoardOutputFormat(str(Path(options.tensorboard_log) / options.algo / run_dir.name)))
+    return Logger(folder=str(run_dir), output_formats=formats)

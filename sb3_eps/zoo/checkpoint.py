@@ -1,26 +1,6 @@
-"""Checkpoints that lose nothing, written atomically, and the helpers that write files atomically.
-
-A checkpoint (``<run>/checkpoint.zip``) is taken only at the start of a rollout, i.e. between two iterations of
-SB3's ``learn`` loop (after the gradient steps of one, before the env steps of the next): there the whole state
-of training is in objects that can be saved and restored exactly, and resuming re-enters the loop at the same
-point. It holds:
-
-- ``model.zip``: the model as ``model.save`` writes it (networks, optimizer state, counters, ``_last_obs``,
-  episode statistics, exploration rate);
-- ``training.pkl``: the replay buffer (with its PER sum tree), the n-step collector with its unfinished
-  windows, the last global states, and the training vector env itself, worlds mid-episode included (see
-  :class:`~sb3_eps.common.snapshots.SnapshotPickler`);
-- ``rng.pkl``: the states of Python's, NumPy's and torch's global generators;
-- ``callbacks.pkl``: the state of the callbacks (team evaluation, EPS: counters, generators, history);
-- ``meta.json``: timesteps, ticks, total, whether training had finished, algorithm and env id.
-
-A new checkpoint is written to a temporary file, flushed to disk and verified (every member's CRC, its
-``meta.json``) before it replaces ``checkpoint.zip``; the checkpoint it replaces is kept as
-``checkpoint.prev.zip``. A truncated or corrupt file (a full disk, a copy cut short) is therefore never the only
-one: :func:`latest_good_checkpoint` names what is wrong with it and returns the previous one.
-
-Checkpoints are pickles: load only the ones you wrote.
-"""
+"""Checkpoints that lose nothing (``<run>/checkpoint.zip``: what they hold and why resuming is exact,
+``docs/usage.md``, "Checkpoints and --resume"), and the helpers that write files atomically. Checkpoints are
+pickles: load only the ones you wrote."""
 
 from __future__ import annotations
 
@@ -31,7 +11,7 @@ import pickle
 import tempfile
 import zipfile
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -107,14 +87,8 @@ def save_model_atomic(model: Any, path: str | Path) -> None:
 # ---------------------------------------------------------------------------------------------- checkpoints
 @dataclass
 class Checkpoint:
-    """A loaded checkpoint (see the module docstring).
-
-    :param model_bytes: the ``model.save`` archive
-    :param training: ``replay_buffer``, ``collector``, ``last_state``, ``env``
-    :param rng: global random states
-    :param callbacks: callback name -> state
-    :param meta: ``num_timesteps``, ``ticks``, ``total_timesteps``, ``complete``
-    """
+    """A loaded checkpoint: the ``model.save`` archive, the model's ``rollout_state()`` with its ``env``, the global
+    random states, callback name -> state, and ``meta.json`` (``num_timesteps``, ``ticks``, ``complete``...)."""
 
     model_bytes: bytes
     training: dict[str, Any]
@@ -146,9 +120,21 @@ def save_checkpoint(
         "callbacks.pkl": snapshot_dumps(callback_states),
         "meta.json": json.dumps(meta, indent=2).encode(),
     }
+    write_checkpoint(path, members)
+
+
+def write_checkpoint(path: str | Path, members: dict[str, bytes], start: Callable[[Path], None] | None = None) -> None:
+    """Write a checkpoint file through a temporary one, verified before it replaces ``path`` (whose previous version is
+    kept as ``checkpoint.prev.zip``).
+
+    :param members: member name -> content
+    :param start: writes an archive of its own to the temporary file first (a population's), ``members`` are added
+    """
     path = Path(path)
     with atomic_path(path) as temporary:
-        with zipfile.ZipFile(temporary, "w", zipfile.ZIP_STORED) as archive:
+        if start is not None:
+            start(temporary)
+        with zipfile.ZipFile(temporary, "w" if start is None else "a", zipfile.ZIP_STORED) as archive:
             for name, data in members.items():
                 archive.writestr(name, data)
         verify_checkpoint(temporary)

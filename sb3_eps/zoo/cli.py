@@ -1,5 +1,5 @@
-"""Shared pieces of the command lines: an argparse parser whose errors are one-line :class:`ConfigError` s, and the
-``--gym-packages`` plug-in hook."""
+"""Shared pieces of the command lines: an argparse parser whose errors are one-line :class:`ConfigError` s, the
+options of a training run, and the ``--gym-packages`` plug-in hook."""
 
 from __future__ import annotations
 
@@ -9,7 +9,11 @@ import importlib
 import sys
 import typing
 from collections.abc import Sequence
-from typing import Any, NoReturn, TypeVar
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal, NoReturn, TypeVar
+
+import torch as th
 
 from sb3_eps.zoo.errors import ConfigError
 from sb3_eps.zoo.schema import normalize_value
@@ -46,6 +50,84 @@ class NamespaceOptions:
         names = {field.name for field in dataclasses.fields(cls)}  # type: ignore[arg-type]
         options: Any = cls(**{key: value for key, value in vars(namespace).items() if key in names})
         return options
+
+
+@dataclass
+class TrainOptions(NamespaceOptions):
+    """The options of a training run (``python -m sb3_eps.train``; ``args.yml`` holds them resolved).
+
+    Counts (``n_timesteps``, ``eval_freq``, ``save_freq``) are SB3 timesteps = agent-steps, as in RL Zoo.
+    """
+
+    algo: str = "gdq"
+    env: str = "MultiRobotNav-4-v0"
+    conf_file: str | None = None
+    n_timesteps: int | None = None
+    seed: int | None = None
+    folder: str = "logs"
+    eval_freq: int = 25_000
+    eval_episodes: int = 10
+    n_eval_envs: int = 2
+    eval_env: str | None = None
+    save_freq: int = 100_000
+    keep_checkpoint: bool = False
+    progress: bool = False
+    tensorboard_log: str | None = None
+    device: str = "cpu"
+    hyperparams: list[str] = dataclasses.field(default_factory=list)
+    env_kwargs: list[str] = dataclasses.field(default_factory=list)
+    verbose: int = 1
+    log_interval: int = -1
+    num_threads: int = 1
+    init_from: str | None = None
+    vec_env: Literal["dummy", "subproc"] | None = None
+    run_name: str | None = None
+    gym_packages: list[str] = dataclasses.field(default_factory=list)
+    command: str | None = None  # the command line as typed (RL Zoo's command.txt)
+
+    @classmethod
+    def from_record(cls, record: Any, source: str | Path) -> TrainOptions:
+        """:return: the options recorded in a run's ``args.yml`` (unknown keys ignored).
+
+        :raises ConfigError: when the record is not a mapping of options of the right types
+        """
+        if not isinstance(record, dict):
+            raise ConfigError(f"{source} is not a mapping of options: not a run folder of sb3_eps.train")
+        names = [field.name for field in dataclasses.fields(cls)]
+        options = cls(**{key: value for key, value in record.items() if key in names})
+        try:
+            options.check_fields(str(source))
+        except ConfigError as error:
+            raise ConfigError(f"{error}: not a run of sb3_eps.train") from None
+        return options
+
+    def check(self) -> None:
+        """:raises ConfigError: for a flag of the wrong type or out of range, a bad run name, device or warm start."""
+        self.check_fields()
+        if self.run_name is not None and (
+            not self.run_name or self.run_name in (".", "..") or "/" in self.run_name or "\\" in self.run_name
+        ):
+            raise ConfigError(f"--run-name must be a plain folder name (no slashes), got {self.run_name!r}")
+        check_device(self.device)
+        if self.init_from is not None and not Path(self.init_from).is_file():
+            raise ConfigError(f"--init-from: {self.init_from} is not a file; pass a model .zip (e.g. a run's best_model.zip)")
+
+
+def check_device(device: str) -> None:
+    """:raises ConfigError: when ``device`` is neither ``auto`` nor a torch device string."""
+    try:
+        th.device("cpu" if device == "auto" else device)
+    except (RuntimeError, TypeError) as error:
+        raise ConfigError(f"--device {device!r} is not a torch device (auto, cpu, cuda, cuda:0...): {error}") from None
+
+
+@dataclass
+class TrainResult:
+    """What a training command did: ``status`` is ``"complete"``, ``"interrupted"`` or ``"already complete"``."""
+
+    run_dir: Path
+    status: str
+    num_timesteps: int
 
 
 def positive_int(text: str) -> int:

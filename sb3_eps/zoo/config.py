@@ -13,13 +13,19 @@ from __future__ import annotations
 import os
 import sys
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import yaml
+from stable_baselines3.common.callbacks import BaseCallback
 
 import envs
+from sb3_eps.common.ladder import Rung
+from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
+from sb3_eps.common.subproc_vec_env import overlap_layout
+from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env, vec_env_mode
+from sb3_eps.zoo.cli import TrainOptions
 from sb3_eps.zoo.errors import ConfigError, allowed
 from sb3_eps.zoo.schema import (
     CALLBACK_KEY,
@@ -39,13 +45,8 @@ _MAPPING_KEYS = ("policy_kwargs", "env_kwargs", "population")
 
 @dataclass
 class ResolvedConfig:
-    """The configuration of one run.
-
-    :param algo: the algorithm name (``gdq``, ``eps_gdq``...)
-    :param env_id: the env id
-    :param entry: the canonical entry (defaults merged, overrides applied)
-    :param source: where it came from, for messages and ``config.yml``
-    """
+    """The configuration of one run: ``entry`` is canonical (defaults merged, overrides applied), ``source`` says
+    where it came from, for messages and ``config.yml``."""
 
     algo: str
     env_id: str
@@ -260,3 +261,57 @@ def entry_yaml(env_id: str, entry: Mapping[str, Any], header: str = "") -> str:
     body = yaml.dump({env_id: dict(entry)}, Dumper=_EntryDumper, sort_keys=False, width=110)
     comments = "".join(f"# {line}\n" if line else "#\n" for line in header.splitlines())
     return comments + body
+
+
+@dataclass
+class PreparedRun:
+    """Everything of a run built and checked, before any file is written."""
+
+    options: TrainOptions
+    config: ResolvedConfig
+    env: MultiAgentVecEnv
+    eval_env: MultiAgentVecEnv | None
+    model: MultiAgentOffPolicyAlgorithm
+    user_callbacks: list[tuple[str, BaseCallback]]
+    # a ladder run's worlds (sb3_eps.zoo.ladder), the first is env
+    rungs: list[Rung] = field(default_factory=list)
+
+    def close(self) -> None:
+        """Close the envs."""
+        close_envs([self.env, self.eval_env, *(rung.env for rung in self.rungs)])
+
+
+def close_envs(vec_envs: Sequence[Any]) -> None:
+    """Close each of ``vec_envs`` once (None and repeats skipped)."""
+    for vec_env in {id(vec_env): vec_env for vec_env in vec_envs if vec_env is not None}.values():
+        vec_env.close()
+
+
+def build_env(
+    config: ResolvedConfig,
+    seed: int | None,
+    env_id: str | None = None,
+    n_envs: int | None = None,
+    vec_env: str | None = None,
+) -> MultiAgentVecEnv:
+    """Make the vector env of a config (``env_id`` / ``n_envs`` override the config's, for evaluation worlds;
+    ``vec_env``, ``"dummy"`` or ``"subproc"``, the config's ``vec_env``). The training worlds of a config with
+    ``overlap_training`` in workers all go to workers (:func:`~sb3_eps.common.subproc_vec_env.overlap_layout`).
+
+    :raises ConfigError: when the env refuses the config's ``env_kwargs``
+    """
+    env_id = env_id or config.env_id
+    n_worlds = n_envs or config.entry.get("n_envs", 1)
+    env_kwargs = dict(config.entry.get("env_kwargs", {}))
+    try:
+        mode = vec_env_mode(vec_env or config.entry.get("vec_env"))
+        vec_env_kwargs = None
+        if mode == "subproc" and n_envs is None and config.entry.get("overlap_training"):
+            # the training worlds: the main process learns beside them
+            vec_env_kwargs = overlap_layout(n_worlds)
+        return make_vec_env(
+            env_id, n_envs=n_worlds, seed=seed, env_kwargs=env_kwargs, vec_env_cls=mode,
+            vec_env_kwargs=vec_env_kwargs,
+        )  # fmt: skip
+    except (TypeError, ValueError) as error:
+        raise ConfigError(f"{config.source}: env_kwargs {env_kwargs} for {env_id}: {error}") from None

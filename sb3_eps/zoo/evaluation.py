@@ -33,14 +33,8 @@ METRICS = {
 
 @dataclass
 class LoadedRun:
-    """A run folder and the model chosen from it.
-
-    :param run_dir: the folder
-    :param algo: the run's algorithm name
-    :param env_id: the env id the run trained on
-    :param model: the loaded model (no env: it predicts on any world with the same spaces)
-    :param model_path: the file it came from
-    """
+    """A run folder (its algorithm, the env id it trained on) and the model loaded from ``model_path``, without an
+    env: it predicts on any world with the same spaces."""
 
     run_dir: Path
     algo: str

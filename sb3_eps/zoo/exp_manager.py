@@ -1,42 +1,37 @@
 """The experiment manager behind ``python -m sb3_eps.train``: config -> envs, model, callbacks -> run folder -> learn.
-
-Everything a run needs is built and checked before anything is written, so a mistake leaves no run folder (its
-layout: :mod:`sb3_eps.zoo.run_folder`). ``--resume <run folder>`` continues from the checkpoint to the same total;
-the result equals an uninterrupted run with the same seed (:mod:`sb3_eps.zoo.checkpoint`).
-"""
+Everything is built and checked before anything is written; ``--resume`` continues a run from its checkpoint to the
+result of the uninterrupted run."""
 
 from __future__ import annotations
 
-import dataclasses
 import random
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any, Literal
+from typing import Any
 
 import torch as th
 import yaml
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, ProgressBarCallback
-from stable_baselines3.common.logger import HumanOutputFormat, KVWriter, Logger, TensorBoardOutputFormat
 from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_eps.common.ladder import Rung, learn_ladder, rung_at
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
-from sb3_eps.common.subproc_vec_env import VecEnvWorkerError, overlap_layout
-from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env, vec_env_mode
+from sb3_eps.common.subproc_vec_env import VecEnvWorkerError
+from sb3_eps.common.vec_env import MultiAgentVecEnv
 from sb3_eps.eps import EvolutionCallback, eps_env_id_for
 from sb3_eps.eps.evaluation import agent_space, make_eval_env
 from sb3_eps.version import __version__
 from sb3_eps.zoo import run_folder
 from sb3_eps.zoo.callbacks import (
-    ResumableCSVOutputFormat,
+    EVAL_SEED_OFFSET,
     TeamEvalCallback,
     TeamMonitor,
     TrainingInterrupted,
     TrainingStateCallback,
+    make_logger,
     stop_on_signals,
     write_final_report,
 )
@@ -51,10 +46,13 @@ from sb3_eps.zoo.checkpoint import (
     save_model_atomic,
     write_text_atomic,
 )
-from sb3_eps.zoo.cli import NamespaceOptions, import_gym_packages
+from sb3_eps.zoo.cli import TrainOptions, TrainResult, import_gym_packages
 from sb3_eps.zoo.config import (
+    PreparedRun,
     ResolvedConfig,
+    build_env,
     check_env_id,
+    close_envs,
     entry_yaml,
     load_config_entries,
     load_yaml,
@@ -73,135 +71,8 @@ from sb3_eps.zoo.schema import (
     check_complete,
 )
 
-#: The evaluation worlds are seeded ``seed + EVAL_SEED_OFFSET``: other worlds than the training ones.
-EVAL_SEED_OFFSET = 10_000
-
-
-# ---------------------------------------------------------------------------------------------- options
-@dataclass
-class TrainOptions(NamespaceOptions):
-    """The options of a training run (``python -m sb3_eps.train``; ``args.yml`` holds them resolved).
-
-    Counts (``n_timesteps``, ``eval_freq``, ``save_freq``) are SB3 timesteps = agent-steps, as in RL Zoo.
-    """
-
-    algo: str = "gdq"
-    env: str = "MultiRobotNav-4-v0"
-    conf_file: str | None = None
-    n_timesteps: int | None = None
-    seed: int | None = None
-    folder: str = "logs"
-    eval_freq: int = 25_000
-    eval_episodes: int = 10
-    n_eval_envs: int = 2
-    eval_env: str | None = None
-    save_freq: int = 100_000
-    keep_checkpoint: bool = False
-    progress: bool = False
-    tensorboard_log: str | None = None
-    device: str = "cpu"
-    hyperparams: list[str] = field(default_factory=list)
-    env_kwargs: list[str] = field(default_factory=list)
-    verbose: int = 1
-    log_interval: int = -1
-    num_threads: int = 1
-    init_from: str | None = None
-    vec_env: Literal["dummy", "subproc"] | None = None
-    run_name: str | None = None
-    gym_packages: list[str] = field(default_factory=list)
-    command: str | None = None  # the command line as typed (RL Zoo's command.txt)
-
-    @classmethod
-    def from_record(cls, record: Any, source: str | Path) -> TrainOptions:
-        """:return: the options recorded in a run's ``args.yml`` (unknown keys ignored).
-
-        :raises ConfigError: when the record is not a mapping of options of the right types
-        """
-        if not isinstance(record, dict):
-            raise ConfigError(f"{source} is not a mapping of options: not a run folder of sb3_eps.train")
-        names = [field.name for field in dataclasses.fields(cls)]
-        options = cls(**{key: value for key, value in record.items() if key in names})
-        try:
-            options.check_fields(str(source))
-        except ConfigError as error:
-            raise ConfigError(f"{error}: not a run of sb3_eps.train") from None
-        return options
-
-    def check(self) -> None:
-        """:raises ConfigError: for a flag of the wrong type or out of range, a bad run name, device or warm start."""
-        self.check_fields()
-        if self.run_name is not None and (
-            not self.run_name or self.run_name in (".", "..") or "/" in self.run_name or "\\" in self.run_name
-        ):
-            raise ConfigError(f"--run-name must be a plain folder name (no slashes), got {self.run_name!r}")
-        check_device(self.device)
-        if self.init_from is not None and not Path(self.init_from).is_file():
-            raise ConfigError(f"--init-from: {self.init_from} is not a file; pass a model .zip (e.g. a run's best_model.zip)")
-
-
-def check_device(device: str) -> None:
-    """:raises ConfigError: when ``device`` is neither ``auto`` nor a torch device string."""
-    try:
-        th.device("cpu" if device == "auto" else device)
-    except (RuntimeError, TypeError) as error:
-        raise ConfigError(f"--device {device!r} is not a torch device (auto, cpu, cuda, cuda:0...): {error}") from None
-
 
 # ---------------------------------------------------------------------------------------------- building
-@dataclass
-class PreparedRun:
-    """Everything of a run built and checked, before any file is written."""
-
-    options: TrainOptions
-    config: ResolvedConfig
-    env: MultiAgentVecEnv
-    eval_env: MultiAgentVecEnv | None
-    model: MultiAgentOffPolicyAlgorithm
-    user_callbacks: list[tuple[str, BaseCallback]]
-    # a ladder run's worlds (sb3_eps.zoo.ladder), the first is env
-    rungs: list[Rung] = field(default_factory=list)
-
-    def close(self) -> None:
-        """Close the envs."""
-        close_envs([self.env, self.eval_env, *(rung.env for rung in self.rungs)])
-
-
-def close_envs(vec_envs: Sequence[Any]) -> None:
-    """Close each of ``vec_envs`` once (None and repeats skipped)."""
-    for vec_env in {id(vec_env): vec_env for vec_env in vec_envs if vec_env is not None}.values():
-        vec_env.close()
-
-
-def build_env(
-    config: ResolvedConfig,
-    seed: int | None,
-    env_id: str | None = None,
-    n_envs: int | None = None,
-    vec_env: str | None = None,
-) -> MultiAgentVecEnv:
-    """Make the vector env of a config (``env_id`` / ``n_envs`` override the config's, for evaluation worlds;
-    ``vec_env``, ``"dummy"`` or ``"subproc"``, the config's ``vec_env``). The training worlds of a config with
-    ``overlap_training`` in workers all go to workers (:func:`~sb3_eps.common.subproc_vec_env.overlap_layout`).
-
-    :raises ConfigError: when the env refuses the config's ``env_kwargs``
-    """
-    env_id = env_id or config.env_id
-    n_worlds = n_envs or config.entry.get("n_envs", 1)
-    env_kwargs = dict(config.entry.get("env_kwargs", {}))
-    try:
-        mode = vec_env_mode(vec_env or config.entry.get("vec_env"))
-        vec_env_kwargs = None
-        if mode == "subproc" and n_envs is None and config.entry.get("overlap_training"):
-            # the training worlds: the main process learns beside them
-            vec_env_kwargs = overlap_layout(n_worlds)
-        return make_vec_env(
-            env_id, n_envs=n_worlds, seed=seed, env_kwargs=env_kwargs, vec_env_cls=mode,
-            vec_env_kwargs=vec_env_kwargs,
-        )  # fmt: skip
-    except (TypeError, ValueError) as error:
-        raise ConfigError(f"{config.source}: env_kwargs {env_kwargs} for {env_id}: {error}") from None
-
-
 def build_model(
     config: ResolvedConfig, env: MultiAgentVecEnv, seed: int | None, device: str, verbose: int
 ) -> MultiAgentOffPolicyAlgorithm:
@@ -328,33 +199,7 @@ def prepare_run(options: TrainOptions, config: ResolvedConfig | None = None, bui
     return PreparedRun(options, config, env, eval_env, model, user_callbacks, rungs)
 
 
-# ---------------------------------------------------------------------------------------------- run folders
-def make_logger(options: TrainOptions, run_dir: Path, resume_timesteps: int | None) -> Logger:
-    """SB3 logger writing ``progress.csv`` (continued when resuming), if verbose stdout, and with
-    ``--tensorboard-log`` TensorBoard in ``<tensorboard_log>/<algo>/<run folder name>``."""
-    formats: list[KVWriter] = [ResumableCSVOutputFormat(run_dir / run_folder.PROGRESS_NAME, resume_timesteps)]
-    if options.verbose >= 1:
-        formats.insert(0, HumanOutputFormat(sys.stdout))
-    if options.tensorboard_log is not None:
-        formats.append(TensorBoardOutputFormat(str(Path(options.tensorboard_log) / options.algo / run_dir.name)))
-    return Logger(folder=str(run_dir), output_formats=formats)
-
-
 # ---------------------------------------------------------------------------------------------- training
-@dataclass
-class TrainResult:
-    """What a training command did.
-
-    :param run_dir: the run folder
-    :param status: ``"complete"``, ``"interrupted"`` or ``"already complete"``
-    :param num_timesteps: timesteps trained so far
-    """
-
-    run_dir: Path
-    status: str
-    num_timesteps: int
-
-
 def train(options: TrainOptions, extra_callbacks: Sequence[BaseCallback] = ()) -> TrainResult:
     """Build, create the run folder, train (``python -m sb3_eps.train``).
 
@@ -417,9 +262,7 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
         raise ConfigError(f"--resume: no usable checkpoint in {run_dir}: {error}; start a new run") from None
     for problem in skipped:
         print(
-            f"warning: {problem}; resuming from {checkpoint_path.name} at {meta['num_timesteps']} timesteps",
-            file=sys.stderr,
-            flush=True,
+            f"warning: {problem}; resuming from {checkpoint_path.name} at {meta['num_timesteps']} timesteps", file=sys.stderr
         )
     if meta.get("complete"):
         print(f"{run_dir} has finished already: its final model is {final_model}")

@@ -28,14 +28,8 @@ PANELS = {"r": "team return", "success": "success rate"}
 
 @dataclass
 class RunCurve:
-    """The training episodes of one run.
-
-    :param run_dir: the folder
-    :param algo: algorithm name
-    :param env_id: env id
-    :param x: ticks at each episode's end, EPS ticks included
-    :param values: column -> per-episode values (``r``, ``success``...)
-    """
+    """The training episodes of one run: ``x`` the ticks at each episode's end, EPS ticks included; ``values`` column
+    -> per-episode values (``r``, ``success``...)."""
 
     run_dir: Path
     algo: str

@@ -22,14 +22,13 @@ from __future__ import annotations
 
 import io
 import json
-import os
 import pickle
 import time
 import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.logger import Logger
@@ -38,23 +37,26 @@ from sb3_eps.common.snapshots import snapshot_dumps
 from sb3_eps.common.vec_env import MultiAgentVecEnv
 from sb3_eps.eps.population import PopulationTrainer
 from sb3_eps.zoo import run_folder
-from sb3_eps.zoo.callbacks import TeamEvalCallback, TeamMonitor, stop_on_signals, write_final_report
+from sb3_eps.zoo.callbacks import (
+    EVAL_SEED_OFFSET,
+    TeamEvalCallback,
+    TeamMonitor,
+    make_logger,
+    stop_on_signals,
+    write_final_report,
+)
 from sb3_eps.zoo.checkpoint import (
     CHECKPOINT_NAME,
-    PREVIOUS_CHECKPOINT_NAME,
-    atomic_path,
     remove_checkpoints,
     save_model_atomic,
-    verify_checkpoint,
+    write_checkpoint,
     write_text_atomic,
 )
-from sb3_eps.zoo.config import ResolvedConfig
+from sb3_eps.zoo.cli import TrainOptions, TrainResult
+from sb3_eps.zoo.config import PreparedRun, ResolvedConfig, build_env, close_envs
 from sb3_eps.zoo.errors import ConfigError
 from sb3_eps.zoo.ladder import LADDER_KEY
 from sb3_eps.zoo.schema import CALLBACK_KEY, POPULATION_KEY, algorithm_kwargs
-
-if TYPE_CHECKING:
-    from sb3_eps.zoo.exp_manager import PreparedRun, TrainOptions, TrainResult
 
 #: The selection records of a population run (one JSON line per selection, ``PopulationTrainer.history``).
 SELECTIONS_NAME = "population_selections.jsonl"
@@ -202,15 +204,9 @@ def save_population_checkpoint(
     ``meta.json``."""
     fittest = io.BytesIO()
     trainer.best.save(fittest)
-    with atomic_path(path) as temporary:
-        trainer.save(temporary, include_training_state=True)
-        with zipfile.ZipFile(temporary, "a") as archive:
-            archive.writestr("model.zip", fittest.getvalue())
-            archive.writestr("callbacks.pkl", snapshot_dumps(callback_states))
-            archive.writestr("meta.json", json.dumps(meta, indent=2))
-        verify_checkpoint(temporary)
-        if path.is_file():
-            os.replace(path, path.with_name(PREVIOUS_CHECKPOINT_NAME))
+    members = {"model.zip": fittest.getvalue(), "callbacks.pkl": snapshot_dumps(callback_states)}
+    members["meta.json"] = json.dumps(meta, indent=2).encode()
+    write_checkpoint(path, members, lambda temporary: trainer.save(temporary, include_training_state=True))
 
 
 def run_population(
@@ -227,9 +223,6 @@ def run_population(
     :param checkpoint_path: a population checkpoint of this run to continue, or None
     :param extra_callbacks: more SB3 callbacks, run in every learner's turns
     """
-    # The run's building blocks live in exp_manager, which calls this module.
-    from sb3_eps.zoo.exp_manager import build_env, close_envs
-
     options, config = prepared.options, prepared.config
     total = int(config.entry["n_timesteps"])
     log_path = run_dir / SELECTIONS_NAME
@@ -267,8 +260,6 @@ def _train(
 ) -> TrainResult:
     """The training of :func:`run_population`, from a new or a restored trainer (``meta`` and ``callback_states``
     of its checkpoint, empty for a new run)."""
-    from sb3_eps.zoo.exp_manager import EVAL_SEED_OFFSET, TrainResult, make_logger
-
     options, config = prepared.options, prepared.config
     resume_timesteps = int(meta["num_timesteps"]) if meta else None
     model = PopulationModel(trainer, make_logger(options, run_dir, resume_timesteps))

@@ -1,16 +1,6 @@
-"""The run folder of ``python -m sb3_eps.train`` in RL Zoo's layout: its file names, and how to create, find and
-read one (without the training stack, so that plotting and evaluation need none of it).
-
-``<folder>/<algo>/<env id>_<n>/`` (``n`` the next free number, or ``--run-name``):
-
-- ``<env id>/args.yml``, ``<env id>/config.yml``, ``<env id>/command.txt``: RL Zoo's parameter folder (the options
-  resolved, the canonical config entry that ``-conf`` reads back, the command line as typed);
-- ``progress.csv``, ``monitor.csv``, ``evaluations.npz``, ``best_model.zip``, ``<env id>.zip`` (the final model),
-  ``rl_model_<timesteps>_steps.zip`` (a model snapshot at every ``--save-freq``, as RL Zoo's), ``checkpoint.zip``
-  (the full training state while the run is unfinished), ``final_vs_best.txt``, ``eps_rounds.jsonl``.
-
-Every reader here also finds ``args.yml`` and ``config.yml`` at a run folder's root.
-"""
+"""The run folder of ``python -m sb3_eps.train`` in RL Zoo's layout (``docs/usage.md``, "The run folder"): its file
+names, and how to create, find and read one without the training stack. Every reader here also finds ``args.yml``
+and ``config.yml`` at a run folder's root."""
 
 from __future__ import annotations
 

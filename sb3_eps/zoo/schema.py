@@ -39,23 +39,21 @@ from sb3_eps.zoo.ladder import LADDER_KEY, normalize_ladder
 from sb3_eps.zoo.literal import parse_literal
 
 # ---------------------------------------------------------------------------------------------- allow-lists
-_ACTIVATION_CLASSES: dict[str, type[nn.Module]] = {
-    name: getattr(nn, name) for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid", "Softplus", "Identity")
-}
-_OPTIMIZER_CLASSES: dict[str, type[th.optim.Optimizer]] = {
-    name: getattr(th.optim, name) for name in ("Adam", "AdamW", "RMSprop", "SGD")
-}
 #: canonical name -> class, e.g. ``"nn.ReLU"``, ``"th.optim.Adam"``
-ACTIVATIONS: dict[str, type[nn.Module]] = {f"nn.{name}": cls for name, cls in _ACTIVATION_CLASSES.items()}
-OPTIMIZERS: dict[str, type[th.optim.Optimizer]] = {f"th.optim.{name}": cls for name, cls in _OPTIMIZER_CLASSES.items()}
+ACTIVATIONS: dict[str, type[nn.Module]] = {
+    f"nn.{name}": getattr(nn, name)
+    for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU", "Sigmoid", "Softplus", "Identity")
+}
+OPTIMIZERS: dict[str, type[th.optim.Optimizer]] = {
+    f"th.optim.{name}": getattr(th.optim, name) for name in ("Adam", "AdamW", "RMSprop", "SGD")
+}
 #: every accepted spelling -> canonical name (``torch.nn.ReLU``, ``th.nn.ReLU``, ``nn.ReLU``, ``ReLU``)
-NAME_SPELLINGS: dict[str, str] = {}
-for _name in _ACTIVATION_CLASSES:
-    for _prefix in ("", "nn.", "th.nn.", "torch.nn."):
-        NAME_SPELLINGS[f"{_prefix}{_name}"] = f"nn.{_name}"
-for _name in _OPTIMIZER_CLASSES:
-    for _prefix in ("", "optim.", "th.optim.", "torch.optim."):
-        NAME_SPELLINGS[f"{_prefix}{_name}"] = f"th.optim.{_name}"
+NAME_SPELLINGS: dict[str, str] = {
+    f"{prefix}{canonical.rpartition('.')[2]}": canonical
+    for canonical in [*ACTIVATIONS, *OPTIMIZERS]
+    for module in [canonical.removeprefix("th.").rpartition(".")[0]]  # nn or optim
+    for prefix in ("", f"{module}.", f"th.{module}.", f"torch.{module}.")
+}
 #: The joint replay buffers a config may name (``replay_buffer_class``): those of :mod:`sb3_eps.common.buffers`.
 REPLAY_BUFFER_CLASSES: dict[str, type[buffers.JointReplayBuffer]] = {
     name: cls for name, cls in vars(buffers).items() if isinstance(cls, type) and issubclass(cls, buffers.JointReplayBuffer)

@@ -1,12 +1,6 @@
-"""Hyper-parameter search with Optuna (``python -m sb3_eps.train -optimize``).
-
-Each trial trains the algorithm with sampled hyper-parameters (:func:`sample_hyperparams`) for the run's budget,
-evaluates the greedy team ``--n-evaluations`` times on separate evaluation worlds and reports every score, so a
-pruner can stop a poor trial early. The score is the team success rate, with the team return as tie-break
-(:func:`objective_score`). Trials share a study in a storage: by default a SQLite file in the tuning folder;
-several processes (or machines, with a PostgreSQL URL) given the same ``--storage`` and ``--study-name`` work on
-one study. At the end the best trial is written as a ready-to-use config entry, ``best_params.yml``.
-"""
+"""Hyper-parameter search with Optuna (``python -m sb3_eps.train -optimize``; ``docs/usage.md``, "Tuning"): each
+trial trains with sampled hyper-parameters (:func:`sample_hyperparams`), reports every evaluation's
+:func:`objective_score` to the pruner, and the best trial is written as a config entry, ``best_params.yml``."""
 
 from __future__ import annotations
 
@@ -24,12 +18,12 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.logger import Logger
 
 from sb3_eps.gdq import GDQ
-from sb3_eps.zoo.callbacks import TeamEvalCallback, TickBudgetCallback
+from sb3_eps.zoo.callbacks import EVAL_SEED_OFFSET, TeamEvalCallback, TickBudgetCallback
 from sb3_eps.zoo.checkpoint import write_text_atomic
-from sb3_eps.zoo.cli import NamespaceOptions
-from sb3_eps.zoo.config import ResolvedConfig, apply_overrides, check_env_id, entry_yaml, resolve_config
+from sb3_eps.zoo.cli import NamespaceOptions, TrainOptions
+from sb3_eps.zoo.config import ResolvedConfig, apply_overrides, build_env, check_env_id, entry_yaml, resolve_config
 from sb3_eps.zoo.errors import ConfigError
-from sb3_eps.zoo.exp_manager import EVAL_SEED_OFFSET, TrainOptions, build_env, build_model, prepare_run
+from sb3_eps.zoo.exp_manager import build_model, prepare_run
 from sb3_eps.zoo.run_folder import ARGS_NAME, CONFIG_NAME, create_run_folder
 from sb3_eps.zoo.schema import (
     CALLBACK_KEY,
