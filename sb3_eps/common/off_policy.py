@@ -568,11 +568,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             raise ValueError(reason) from error
         return model
 
-    def _get_policy_from_name(self, policy_name: str) -> type[MultiAgentQPolicy]:  # type: ignore[override]
-        if policy_name not in self.policy_aliases:
-            raise ValueError(f"unknown policy {policy_name!r}; use one of {sorted(self.policy_aliases)}")
-        return self.policy_aliases[policy_name]
-
 
 def _load_mismatch(cls: type[MultiAgentOffPolicyAlgorithm], path: Any, env: GymEnv | None) -> str | None:
     """:return: why the model file at ``path`` does not load into ``cls`` on ``env``, or None if not known."""

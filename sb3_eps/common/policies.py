@@ -72,10 +72,6 @@ class DuelingQNetwork(BasePolicy):
         hidden = self.trunk(self.extract_features(obs, self.features_extractor))
         return self.value_stream(hidden), self.advantage_stream(hidden)
 
-    def value(self, obs: PyTorchObs) -> th.Tensor:
-        """:return: ``V (batch,)`` alone (the advantage stream is not run)."""
-        return self.value_stream(self.trunk(self.extract_features(obs, self.features_extractor))).squeeze(-1)
-
     def advantage(self, obs: PyTorchObs) -> th.Tensor:
         """:return: ``A (batch, n_actions)`` alone (the value stream is not run)."""
         return self.advantage_stream(self.trunk(self.extract_features(obs, self.features_extractor)))

@@ -50,20 +50,12 @@ class EvolutionCallback(BaseCallback):
     single-agent worlds; pick the best (Eq. 4) and move the agent network (and its target network, if any) toward it
     by Polyak averaging (Eq. 5). When the unmutated copy 0 wins nothing changes. See ``docs/modules/eps.md``.
 
-    Where it was tested, and what it did (``docs/results/eps.md``, every variant in its status table): on 2, 4, 8 and
-    12 robots and in the unseen room, with GDQ and IQL, EPS has not been found to help. With these defaults EPS-GDQ ends 2.6 points of greedy
-    team success below GDQ on 4 robots at equal total world ticks (SE 1.3, ten paired seeds; section "Does EPS help
-    on 2, 4 and 8 robots?"); 6 of 73 rounds crossed over, and thirteen crossovers measured directly moved the team
-    by +0.8 points (SE 1.7; "Does EPS act at all?"). :meth:`paper` (Algorithm 1 as published) ended 43 points below
-    GDQ on 4 robots (3 seeds; "The paper's Algorithm 1"); a 4-robot team world with ``share_experience`` -2.7 points
-    ("A team world for fitness and shared experience"); rounds on 8 and 12 robots and arena-trained models in
-    the varied unseen room crossed over once in 51 rounds and stayed 0.7-4.5 points below GDQ (held-out seeds).
+    Where it was measured (2 to 12 robots and the unseen room, with GDQ and IQL), EPS has not been found to help:
+    ``docs/results/eps.md`` holds every variant in its status table.
 
-    Rounds come only while the tick budget (``max_eps_share``, 10 % of the training ticks) allows them: the first
-    comes near 80k training ticks, and a shorter run plays none and warns once, saying what to change. For rounds in
-    a short run lift the cap (``max_eps_share=None``) or make rounds cheaper (``population_size=4,
-    n_eval_episodes=2, n_reevaluation_episodes=2``); ``rounds_until`` keeps them early (``docs/modules/eps.md``,
-    "Getting rounds in a short run, and early rounds").
+    Rounds come only while the tick budget (``max_eps_share``) allows them, the first near 80k training ticks; a
+    shorter run plays none and warns once, saying what to change (``docs/modules/eps.md``, "Getting rounds in a short
+    run, and early rounds").
 
     :param settings: the method's settings (:class:`~sb3_eps.eps.settings.EPSSettings`, every argument documented
         there; :meth:`paper` for Algorithm 1 as published). Default: built from ``settings_kwargs``

@@ -164,8 +164,6 @@ class _Block(Served):
         """Play every episode of every ``valid`` individual greedily, all envs in lockstep; an individual whose
         output is not finite becomes invalid. :return: :data:`PoolAnswer`"""
         shape = (self.n_individuals, self.n_episodes)
-        if len(seeds) != self.n_episodes:
-            raise ValueError(f"expected {self.n_episodes} seeds, got {len(seeds)}")
         valid = np.array(valid, dtype=bool)
         self.forward.load(population)
         returns, lengths = np.zeros(shape), np.zeros(shape, dtype=np.int64)
@@ -229,34 +227,20 @@ def _build_served_block(block_kwargs: dict[str, Any]) -> _Block:
     return _Block(**block_kwargs)
 
 
-class InProcessEnvPool:
+class InProcessEnvPool(_Block):
     """All envs in the main process: no start-up cost, no protection against a hanging env (arguments as
     :class:`SubprocessEnvPool`)."""
 
-    def __init__(
-        self,
-        env_id: str,
-        env_kwargs: dict[str, Any] | None,
-        n_individuals: int,
-        n_episodes: int,
-        network: nn.Module,
-        record: str | None = None,
-    ) -> None:
-        self.n_individuals, self.n_episodes = n_individuals, n_episodes
-        self._block = _Block(env_id, env_kwargs, n_individuals, n_episodes, network, record)
-        self.pids: list[int] = []  # no worker process
+    pids: list[int] = []  # no worker process
 
-    def evaluate(self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float) -> PoolAnswer:
-        """Play every episode of every valid individual (:meth:`_Block.evaluate`) before ``deadline``
-        (``time.monotonic()``; a worker pool's), else raise :class:`EvaluationFailed`."""
+    def evaluate(self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float = 0.0) -> PoolAnswer:
+        """Play every episode of every valid individual (:meth:`_Block.evaluate`; ``deadline``, a worker pool's, is
+        not enforced), else raise :class:`EvaluationFailed`."""
         try:
-            return self._block.evaluate(population, seeds, valid)
+            return super().evaluate(population, seeds, valid)
         except Exception as error:  # an env that fails (e.g. its PyBullet client is gone): skip the round
             reason = " ".join(str(error).split()) or type(error).__name__
             raise EvaluationFailed(f"an evaluation env raised {type(error).__name__}: {reason}") from error
-
-    def close(self) -> None:
-        self._block.close()
 
 
 class SubprocessEnvPool:

@@ -157,12 +157,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         from_target = self.global_values == "target"
         terms = self._td_terms(batch, need_online_next_values=not from_target)
-        values, q_taken, own_next, next_advantages = (
-            terms.values,
-            terms.q_taken,
-            terms.next_values,
-            terms.next_advantage_term,
-        )
+        q_taken = terms.q_taken
         with th.no_grad():
             # v': the agents' state-values of the next joint observation, from the agent target network like the rest
             # of the bootstrap ("target"), or from the current one in the bootstrap's forward pass ("recomputed").
@@ -175,14 +170,14 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
                 batch.discounts,
                 batch.dones,
                 global_next,
-                next_advantages,
-                own_next,
+                terms.next_advantage_term,
+                terms.next_values,
                 self.global_bootstrap,
             )
             global_targets = td_target(batch.team_rewards, batch.team_discounts, batch.team_dones, global_next)
         agent_loss = masked_huber(q_taken, agent_targets, batch.alive, batch.weights)
         # V_G(v) with v detached: the global loss trains only the head.
-        agent_values = values.detach()
+        agent_values = terms.values.detach()
         global_values = self.policy.global_value_net(agent_values * batch.alive)
         global_loss = weighted_huber(global_values, global_targets, batch.weights)
         priorities = row_priority(q_taken - agent_targets, batch.alive)
