@@ -104,8 +104,6 @@ class JointReplayBuffer:
 
     def sample(self, batch_size: int, beta: float = 1.0) -> JointReplayBufferSamples:
         """Sample ``batch_size`` rows uniformly with replacement (``beta``: the prioritised variant's)."""
-        if self.size() == 0:
-            raise RuntimeError("cannot sample from an empty replay buffer")
         indices = np.random.randint(0, self.size(), size=batch_size)
         return self._to_samples(indices, np.ones(batch_size, dtype=np.float32))
 
@@ -192,8 +190,6 @@ class PrioritizedJointReplayBuffer(JointReplayBuffer):
     def sample(self, batch_size: int, beta: float = 0.4) -> JointReplayBufferSamples:
         """Stratified proportional sampling: one draw in each of ``batch_size`` equal slices of the mass."""
         size = self.size()
-        if size == 0:
-            raise RuntimeError("cannot sample from an empty replay buffer")
         total = self.tree.total
         bounds = np.linspace(0.0, total, batch_size + 1)
         draws = np.random.uniform(bounds[:-1], bounds[1:])
@@ -373,8 +369,3 @@ class NStepJointCollector:
         if window[0].alive.any():
             self.buffer.add_row(n_step_row(window, self.gamma, self.team_reward_mode))
             self.n_rows += 1
-
-    def reset(self) -> None:
-        """Forget the unfinished windows (when the env is reset outside of an episode end)."""
-        for window in self.pending:
-            window.clear()

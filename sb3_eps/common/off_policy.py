@@ -1,8 +1,7 @@
 """Multi-agent off-policy base: set-up, the optimisation step on joint rows, target updates, logging, saving.
 
 An algorithm adds only its loss (:meth:`_compute_loss`) and its joint modules (in its policy); collection lives in
-:mod:`sb3_eps.common.collection`. ``num_timesteps`` counts agent-steps (every agent is a sub-env), ``ticks``
-simulator steps of one world.
+:mod:`sb3_eps.common.collection`. ``num_timesteps`` counts agent-steps, ``ticks`` simulator steps of one world.
 """
 
 from __future__ import annotations

@@ -95,10 +95,8 @@ def check_seed(seed: Any) -> int | None:
     """:return: ``seed`` as a Python int (or None); :raises ValueError: for anything but None or an int >= 0."""
     if seed is None:
         return None
-    if not is_int(seed):
+    if not is_int(seed) or seed < 0:
         raise ValueError(f"seed must be None or a non-negative int, got {seed!r} of type {type(seed).__name__}")
-    if seed < 0:
-        raise ValueError(f"seed must be None or a non-negative int, got {seed}")
     return int(seed)
 
 
