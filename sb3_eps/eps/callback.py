@@ -1,8 +1,5 @@
-"""``EvolutionCallback``: Evolutionary Policy Search (Marchesini & Farinelli, ICRA 2022, Algorithm 1) as an SB3
-callback on any model with a shared agent network ``model.policy.q_net`` and a replay buffer. The callback holds SB3's
-hooks; what a round does is :class:`~sb3_eps.eps.round.EPSRound`, when it may start
-:class:`~sb3_eps.eps.budget.RoundBudget`, what it records :class:`~sb3_eps.eps.round_log.RoundRecords`, and the
-settings :class:`~sb3_eps.eps.settings.EPSSettings`."""
+"""``EvolutionCallback``: SB3's hooks of EPS. What a round does is :class:`~sb3_eps.eps.round.EPSRound`, when it may
+start :class:`~sb3_eps.eps.budget.RoundBudget`, what it records :class:`~sb3_eps.eps.round_log.RoundRecords`."""
 
 from __future__ import annotations
 
@@ -150,10 +147,8 @@ class EvolutionCallback(BaseCallback):
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore :meth:`state_dict` (before or after ``init_callback``)."""
-        self.records.n_rounds, self.records.n_skipped_rounds = (
-            int(state["n_rounds"]),
-            int(state["n_skipped_rounds"]),
-        )
+        self.records.n_rounds = int(state["n_rounds"])
+        self.records.n_skipped_rounds = int(state["n_skipped_rounds"])
         self.records.eps_time = float(state["eps_time"])
         self.records.history = copy.deepcopy(state["history"])
         self.budget.last_round_mark = state["last_round_mark"]
@@ -260,12 +255,7 @@ class EvolutionCallback(BaseCallback):
         settings = self.settings
         # The workers get the architecture only (a CPU copy); each round sends them the weights.
         template = copy.deepcopy(self.model.policy.q_net).to("cpu")
-        arguments = (
-            settings.eval_env_id,
-            settings.eval_env_kwargs,
-            settings.n_individuals,
-            settings.n_eval_episodes,
-        )
+        arguments = (settings.eval_env_id, settings.eval_env_kwargs, settings.n_individuals, settings.n_eval_episodes)
         kwargs: dict[str, Any] = {"record": record_mode(self.model) if settings.share_experience else None}
         # A worker evaluates whole individuals, so more workers than individuals would idle.
         n_workers = (os.cpu_count() or 1) if settings.n_workers is None else settings.n_workers

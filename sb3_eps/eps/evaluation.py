@@ -1,12 +1,8 @@
 """Greedy evaluation of an EPS population (Algorithm 1, lines 4 and 10).
 
-Every (individual, episode) pair gets its own env. The individuals are split into contiguous blocks, one per
-worker process (:class:`SubprocessEnvPool`), or one block in the main process (:class:`InProcessEnvPool`). A block
-plays all its episodes in lockstep: one forward pass for all its individuals (:class:`PopulationForward`), then
-every running env steps. Episode ``j`` of every individual starts from the same seed (common random numbers).
-Workers play whole episodes and get the weights once per round: a pipe message per tick would cost as much as the
-tick (``docs/modules/eps.md``). With ``record`` (experience sharing) a block also sends back every tick of its
-team-world episodes (:class:`TeamEpisode`).
+The individuals are split into contiguous blocks, one per worker process (:class:`SubprocessEnvPool`) or one in the
+main process (:class:`InProcessEnvPool`); a block plays all its episodes in lockstep, episode ``j`` of every
+individual from the same seed (common random numbers), and gets the weights once per round (``docs/modules/eps.md``).
 """
 
 from __future__ import annotations
@@ -40,10 +36,6 @@ class TeamEpisode:
     truncations: np.ndarray
     alive: np.ndarray
     states: np.ndarray
-
-    @property
-    def n_ticks(self) -> int:
-        return len(self.actions)
 
 
 class _EpisodeRecorder:
@@ -234,8 +226,7 @@ class InProcessEnvPool(_Block):
     pids: list[int] = []  # no worker process
 
     def evaluate(self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float = 0.0) -> PoolAnswer:
-        """Play every episode of every valid individual (:meth:`_Block.evaluate`; ``deadline``, a worker pool's, is
-        not enforced), else raise :class:`EvaluationFailed`."""
+        """:meth:`_Block.evaluate` (``deadline``: a worker pool's, not enforced), else :class:`EvaluationFailed`."""
         try:
             return super().evaluate(population, seeds, valid)
         except Exception as error:  # an env that fails (e.g. its PyBullet client is gone): skip the round
@@ -244,7 +235,7 @@ class InProcessEnvPool(_Block):
 
 
 class SubprocessEnvPool:
-    """Individuals split into contiguous blocks over worker processes, each playing its block's episodes.
+    """Individuals split into contiguous blocks over worker processes.
 
     :param env_id: an id :func:`check_eval_env_id` accepts, built with ``env_kwargs``
     :param n_individuals: individuals per round, each playing ``n_episodes`` episodes
@@ -263,7 +254,6 @@ class SubprocessEnvPool:
         n_workers: int = 2,
         record: str | None = None,
     ) -> None:
-        self.n_individuals, self.n_episodes = n_individuals, n_episodes
         n_blocks = max(1, min(n_workers, n_individuals))
         self.blocks = [block for block in np.array_split(np.arange(n_individuals), n_blocks) if len(block)]
         common = {"env_id": env_id, "env_kwargs": env_kwargs, "n_episodes": n_episodes, "network": network}
@@ -363,11 +353,6 @@ def evaluate_population(
     """Run every individual of ``population`` ``(P, *shape)`` greedily, episode ``j`` seeded with
     ``episode_seeds[j]`` for all (Algorithm 1, line 10), within ``timeout`` seconds; individuals not ``active``
     get no episode and ``-inf``. :raises EvaluationFailed: when a worker crashed, raised or timed out"""
-    n_individuals = next(iter(population.values())).shape[0]
-    if (pool.n_individuals, pool.n_episodes) != (n_individuals, len(episode_seeds)):
-        raise ValueError(
-            f"the pool plays {pool.n_individuals} x {pool.n_episodes} episodes, not {n_individuals} x {len(episode_seeds)}"
-        )
     deadline = time.monotonic() + timeout
     cpu_population = {name: stacked.detach().cpu() for name, stacked in population.items()}
     valid = finite_individuals(cpu_population)

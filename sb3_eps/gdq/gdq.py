@@ -63,17 +63,13 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     the joint state value ``V_G'(v')`` of the world instead of its own ``V_i(s'_i)``
     (:func:`gdq_agent_targets`). The global head ``V_G`` is trained by TD on the team reward,
     ``L = (r_team + gamma^k V_G'(v') - V_G(v))^2``, with ``v`` and ``v'`` entering as numbers (no gradient
-    into the agents). By default ``v'`` comes from the agent target network, on the stored next observations;
-    agents that are no longer acting contribute 0. Action selection uses only ``A``
-    (Eq. 3), so execution stays decentralised.
+    into the agents); agents that are no longer acting contribute 0. Action selection uses only ``A`` (Eq. 3), so
+    execution stays decentralised.
 
-    Where the package departs from the paper (each default links the page that chose it): ``global_bootstrap=0.1``
-    (GDQ-lambda; ``GDQ("MlpPolicy", venv, global_bootstrap=1.0, n_steps=30)`` is the paper's target,
-    ``docs/results/gdq_target.md``), ``team_reward_mode="mean"``, ``learning_rate`` 3e-4 decaying linearly to 0,
-    uniform replay (``docs/results/gdq_uniform_replay.md``), an agent target network (the paper had none; with ``v'``
-    read from it GDQ learned faster and without collapses, ``docs/results/gdq_target.md``) and a
-    weight average for the greedy actions (:class:`~sb3_eps.gdq.policies.GDQPolicy`). Diagnostics (``g_i``, the
-    greedy action's margin) are logged under ``train/``. Other arguments are those of
+    Where the package departs from the paper: ``global_bootstrap=0.1`` (``global_bootstrap=1.0, n_steps=30`` is the
+    paper's target) and an agent target network (``docs/results/gdq_target.md``), ``team_reward_mode="mean"``,
+    ``learning_rate`` 3e-4 decaying linearly to 0, uniform replay (``docs/results/gdq_uniform_replay.md``) and a
+    weight average for the greedy actions (:class:`~sb3_eps.gdq.policies.GDQPolicy`). Other arguments are those of
     :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`.
 
     :param global_values: where ``v'`` comes from: ``"target"``, the agent target network (needs

@@ -27,13 +27,10 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     """QMIX: the team's ``Q_tot = mixer(Q_1(s_1, a_1), ..., Q_n(s_n, a_n); s)`` is trained by TD on the team
     reward, ``y = r_team + gamma^k (1 - done) mixer_target(Q_i'(s'_i, a*_i); s')``; agents act greedily on
     their own ``Q_i`` (monotonicity makes that the joint arg max). Agents that are not acting (a robot that
-    arrived) enter the mixer with ``Q = 0``. Needs the env's global state (``state()``).
-    The mixer's size, initialisation and learning rate are ``policy_kwargs``
-    (:class:`~sb3_eps.qmix.policies.QMIXPolicy`). At a time-limit truncation the agents still driving enter the
-    target mixer with their ``Q_i'(s'_i, a*_i)``: a time limit is not a terminal state (SB3's
-    ``handle_timeout_termination``). Arguments are those of
-    :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm` (the learning rate decays from 3e-4 to 0 by
-    default, ``docs/results/qmix_vdn.md``), and:
+    arrived) enter the mixer with ``Q = 0``. Needs the env's global state (``state()``). The mixer's size,
+    initialisation and learning rate are ``policy_kwargs`` (:class:`~sb3_eps.qmix.policies.QMIXPolicy`). Arguments
+    are those of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm` (the learning rate decays from
+    3e-4 to 0 by default, ``docs/results/qmix_vdn.md``), and:
 
     :param advantage_learning: ``alpha`` of advantage learning (Bellemare et al., "Increasing the Action Gap", AAAI
         2016): the team's target is lowered by ``alpha (mixer'(max_b Q_i'(s_i, b); s) - mixer'(Q_i'(s_i, a_i); s))``,
@@ -107,9 +104,7 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
         self, agent_qs: th.Tensor, next_q: th.Tensor, next_total: th.Tensor, batch: JointReplayBufferSamples
     ) -> dict[str, float]:
         """The mixer's gain ``dQ_tot/dQ_i`` (sum over agents, spread across agents and rows), the agents' Q, and
-        ``zero_input_gap``: how far the target mixer moves when every agent enters it as ``Q = 0`` (what a truncated
-        window's target would read if the agents still driving entered as ``Q = 0``),
-        ``mixer'(0; s') - mixer'(Q'; s')``."""
+        ``zero_input_gap``: ``mixer'(0; s') - mixer'(Q'; s')``, how far the target mixer moves with every agent at 0."""
         gain = input_gain(self.policy.mixer, agent_qs, batch.states)
         with th.no_grad():
             zero_total = self.policy.mixer_target(th.zeros_like(next_q), batch.next_states)
