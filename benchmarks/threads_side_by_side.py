@@ -3,8 +3,8 @@
 Each run is the README's Python path (``GDQ("MlpPolicy", make_vec_env("MultiRobotNav-2-v0", n_envs=4))``, package
 defaults) in its own process: a warm-up of ``--warmup`` agent-steps, then ``--steps`` timed agent-steps. The
 processes are started the way a user's script starts: ``package`` leaves the thread count to the model (one thread,
-``sb3_eps/common/threads.py``); ``torch-default`` sets torch back to one thread per core after the model is built, as torch has it when
-nothing sets the threads (the package before 2026-12-03).
+``set_torch_threads`` in ``sb3_eps/common/off_policy.py``); ``torch-default`` sets torch back to one thread per core
+after the model is built, as torch has it when nothing sets the threads (the package before 2026-12-03).
 Prints agent-steps/s of one run alone and of each of two runs at once, and their ratio, for both settings, measured
 in one invocation (run it on a quiet machine).
 

@@ -106,7 +106,7 @@ def test_shared_rows_equal_the_training_rows_of_the_same_ticks() -> None:
         episode = scripted_episode(seed, record_states=True)
         n_rows, rows = shared_rows(model, [episode])
         reference = training_rows(model, SCRIPTED, seed, episode.actions)
-        assert n_rows == episode.n_ticks == len(reference["actions"])
+        assert n_rows == len(episode.actions) == len(reference["actions"])
         assert_same_rows(rows, reference)
     ends = [scripted_episode(seed, record_states=False) for seed in SCRIPTED_SEEDS]
     assert [bool((~episode.alive).any()) for episode in ends] == [False, True, True]  # parked robots

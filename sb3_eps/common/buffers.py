@@ -104,8 +104,6 @@ class JointReplayBuffer:
 
     def sample(self, batch_size: int, beta: float = 1.0) -> JointReplayBufferSamples:
         """Sample ``batch_size`` rows uniformly with replacement (``beta``: the prioritised variant's)."""
-        if self.size() == 0:
-            raise RuntimeError("cannot sample from an empty replay buffer")
         indices = np.random.randint(0, self.size(), size=batch_size)
         return self._to_samples(indices, np.ones(batch_size, dtype=np.float32))
 
@@ -113,31 +111,14 @@ class JointReplayBuffer:
         """No-op for uniform replay (the prioritised variant overrides it)."""
 
     def _to_samples(self, indices: np.ndarray, weights: np.ndarray) -> JointReplayBufferSamples:
-        def tensor(array: np.ndarray) -> th.Tensor:
-            return th.as_tensor(array[indices], device=self.device)
-
-        if self.state_dim:
-            states, next_states = tensor(self.states), tensor(self.next_states)
-        else:  # algorithms without a global state: nothing to gather
-            states = next_states = th.zeros((len(indices), 0), device=self.device)
-
-        return JointReplayBufferSamples(
-            observations=tensor(self.observations),
-            actions=tensor(self.actions),
-            next_observations=tensor(self.next_observations),
-            rewards=tensor(self.rewards),
-            dones=tensor(self.dones),
-            discounts=tensor(self.discounts),
-            alive=tensor(self.alive),
-            next_alive=tensor(self.next_alive),
-            team_rewards=tensor(self.team_rewards),
-            team_dones=tensor(self.team_dones),
-            team_discounts=tensor(self.team_discounts),
-            states=states,
-            next_states=next_states,
-            weights=th.as_tensor(weights, device=self.device),
-            indices=indices,
-        )
+        no_state = th.zeros((len(indices), 0), device=self.device)  # nothing to gather without a global state
+        rows = {  # every column of the buffer: the samples' fields but the last two
+            name: no_state
+            if name.endswith("states") and not self.state_dim
+            else th.as_tensor(getattr(self, name)[indices], device=self.device)
+            for name in JointReplayBufferSamples._fields[:-2]
+        }
+        return JointReplayBufferSamples(**rows, weights=th.as_tensor(weights, device=self.device), indices=indices)
 
 
 class SumTree:
@@ -209,8 +190,6 @@ class PrioritizedJointReplayBuffer(JointReplayBuffer):
     def sample(self, batch_size: int, beta: float = 0.4) -> JointReplayBufferSamples:
         """Stratified proportional sampling: one draw in each of ``batch_size`` equal slices of the mass."""
         size = self.size()
-        if size == 0:
-            raise RuntimeError("cannot sample from an empty replay buffer")
         total = self.tree.total
         bounds = np.linspace(0.0, total, batch_size + 1)
         draws = np.random.uniform(bounds[:-1], bounds[1:])
@@ -390,8 +369,3 @@ class NStepJointCollector:
         if window[0].alive.any():
             self.buffer.add_row(n_step_row(window, self.gamma, self.team_reward_mode))
             self.n_rows += 1
-
-    def reset(self) -> None:
-        """Forget the unfinished windows (when the env is reset outside of an episode end)."""
-        for window in self.pending:
-            window.clear()

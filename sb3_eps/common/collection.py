@@ -6,7 +6,7 @@ counts episodes per world, and with ``overlap_training`` runs the due gradient s
 from __future__ import annotations
 
 import warnings
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch as th
@@ -18,12 +18,9 @@ from stable_baselines3.common.vec_env import VecEnv
 from sb3_eps.common.buffers import JointTick
 from sb3_eps.common.utils import epsilon_greedy
 
-if TYPE_CHECKING:
-    from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
-
 
 def collect_rollouts(
-    model: MultiAgentOffPolicyAlgorithm,
+    model: Any,
     env: VecEnv,
     callback: BaseCallback,
     train_freq: TrainFreq,
@@ -59,7 +56,7 @@ def collect_rollouts(
     return RolloutReturn(n_collected_steps * env.num_envs, n_collected_episodes, continue_training=True)
 
 
-def sample_actions(model: MultiAgentOffPolicyAlgorithm, learning_starts: int, n_envs: int) -> np.ndarray:
+def sample_actions(model: Any, learning_starts: int, n_envs: int) -> np.ndarray:
     """Uniformly random actions before ``learning_starts``, then the online network's with one epsilon coin per
     agent (SB3's DQN draws one for the whole batch, so all agents would explore on the same steps)."""
     n_actions = int(model.action_space.n)  # type: ignore[attr-defined]
@@ -76,7 +73,7 @@ def sample_actions(model: MultiAgentOffPolicyAlgorithm, learning_starts: int, n_
     return actions
 
 
-def _train_ahead(model: MultiAgentOffPolicyAlgorithm, n_envs: int, n_steps: int) -> None:
+def _train_ahead(model: Any, n_envs: int, n_steps: int) -> None:
     """``overlap_training``: the gradient steps that SB3's ``learn`` runs after this collection, run now while the
     worlds step; its own call to ``train`` then does nothing (the same condition decides both)."""
     if model.num_timesteps + n_envs <= model.learning_starts:
@@ -89,7 +86,7 @@ def _train_ahead(model: MultiAgentOffPolicyAlgorithm, n_envs: int, n_steps: int)
 
 
 def store_joint_transition(
-    model: MultiAgentOffPolicyAlgorithm,
+    model: Any,
     actions: np.ndarray,
     new_obs: np.ndarray,
     rewards: np.ndarray,

@@ -5,10 +5,7 @@ on each rung :meth:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm.set_
 (networks and optimizer carry over; the replay buffer starts empty when the team size changes, its rows hold one
 team) and ``learn`` continues without resetting the counters. So ``model.ticks`` counts the world ticks of every
 rung (the x axis of the curves) and ``model.num_timesteps`` the agent-steps beside them: a rung of 4 robots spends 4
-agent-steps per tick, one of 8 spends 8.
-
-The schedules (learning rate, exploration, prioritized replay's exponent) run once over the whole ladder, its
-total agent-steps, as they run over ``total_timesteps`` in one ``learn``: they do not start again on each rung.
+agent-steps per tick, one of 8 spends 8. The schedules run once over the whole ladder (:class:`ScheduleHorizon`).
 
 Only models whose joint modules read any number of agents can change team size (IQL, VDN, GDQ with
 ``global_head="pooled"``); :func:`check_ladder` refuses the others in one line before anything trains.

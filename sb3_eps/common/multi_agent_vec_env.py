@@ -2,12 +2,10 @@
 
 Sub-env ``w * n_agents + i`` is agent ``i`` of world ``w`` (contract in ``docs/architecture.md``). Before SuperSuit,
 :class:`~sb3_eps.common.parallel_wrappers.FixedAgentSet` keeps the agent set fixed and what SuperSuit drops; on top,
-:class:`MultiAgentVecEnv` concatenates the worlds and repairs what SuperSuit 3.11 + SB3 2.9 get wrong (seeding,
-``TimeLimit.truncated``, ``get_attr`` / ``env_method`` / ``render``, episode statistics per world, the global state,
-per-agent ``alive`` flags). SuperSuit's ``concat_vec_envs_v1`` is not used: its cloudpickled copies of one PyBullet
-world would share one physics client, and it costs more per tick than this whole bridge
-(``benchmarks/bridge_overhead.py``). Do not wrap the result in SB3's ``VecMonitor``: it would count every agent as
-an episode.
+:class:`MultiAgentVecEnv` concatenates the worlds (not SuperSuit's ``concat_vec_envs_v1``: its copies of one PyBullet
+world would share one physics client, ``benchmarks/bridge_overhead.py``) and adds seeding, ``TimeLimit.truncated``,
+episode statistics per world, the global state and per-agent ``alive`` flags. Do not wrap it in SB3's
+``VecMonitor``: it would count every agent as an episode.
 """
 
 from __future__ import annotations
@@ -45,8 +43,6 @@ class MultiAgentVecEnv(VecEnv):
     """
 
     def __init__(self, env_fns: Sequence[Callable[[], ParallelEnv | gymnasium.Env]], env_id: str | None = None):
-        if len(env_fns) < 1:
-            raise ValueError("MultiAgentVecEnv needs at least one env constructor")
         self._worlds = [FixedAgentSet(_as_parallel_env(env_fn())) for env_fn in env_fns]
         first = self._worlds[0]
         self.possible_agents: list[str] = list(first.possible_agents)

@@ -1,13 +1,13 @@
 """Multi-agent off-policy base: set-up, the optimisation step on joint rows, target updates, logging, saving.
 
 An algorithm adds only its loss (:meth:`_compute_loss`) and its joint modules (in its policy); collection lives in
-:mod:`sb3_eps.common.collection`. ``num_timesteps`` counts agent-steps (every agent is a sub-env), ``ticks``
-simulator steps of one world.
+:mod:`sb3_eps.common.collection`. ``num_timesteps`` counts agent-steps, ``ticks`` simulator steps of one world.
 """
 
 from __future__ import annotations
 
 import io
+import os
 import pathlib
 import warnings
 from collections import defaultdict
@@ -41,10 +41,23 @@ from sb3_eps.common.buffers import (
 )
 from sb3_eps.common.multi_agent_vec_env import MultiAgentVecEnv
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.threads import set_torch_threads
 from sb3_eps.common.utils import check_arguments, describe_space, epsilon_greedy, polyak_update_
 
 SelfMultiAgentOffPolicyAlgorithm = TypeVar("SelfMultiAgentOffPolicyAlgorithm", bound="MultiAgentOffPolicyAlgorithm")
+
+#: Torch's intra-op threads a model sets when the user chose none: the networks are small, one thread trains as fast
+#: as one per core and runs side by side keep their speed (``docs/benchmarks.md``, threads).
+DEFAULT_TORCH_THREADS = 1
+#: Torch's thread count when the package was imported: a different count at model construction is the user's choice.
+_THREADS_AT_IMPORT = th.get_num_threads()
+
+
+def set_torch_threads() -> int:
+    """Set torch's intra-op threads to :data:`DEFAULT_TORCH_THREADS` unless the user chose a count (``OMP_NUM_THREADS``
+    or ``torch.set_num_threads`` since import); :return: the count in effect."""
+    if "OMP_NUM_THREADS" not in os.environ and th.get_num_threads() == _THREADS_AT_IMPORT:
+        th.set_num_threads(DEFAULT_TORCH_THREADS)
+    return th.get_num_threads()
 
 
 class TDTerms(NamedTuple):
@@ -146,7 +159,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         if isinstance(env, str):
             raise ValueError(f"pass a vector env, not the id {env!r}: use sb3_eps.make_vec_env({env!r}, n_envs=...)")
         check_arguments(MultiAgentOffPolicyAlgorithm.__init__, locals(), self.argument_ranges)
-        set_torch_threads()  # small networks: one thread unless the user chose (sb3_eps/common/threads.py)
+        set_torch_threads()
         self.n_agents = 0
         self.n_worlds = 0
         self.state_dim = 0
@@ -553,11 +566,6 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                 raise
             raise ValueError(reason) from error
         return model
-
-    def _get_policy_from_name(self, policy_name: str) -> type[MultiAgentQPolicy]:  # type: ignore[override]
-        if policy_name not in self.policy_aliases:
-            raise ValueError(f"unknown policy {policy_name!r}; use one of {sorted(self.policy_aliases)}")
-        return self.policy_aliases[policy_name]
 
 
 def _load_mismatch(cls: type[MultiAgentOffPolicyAlgorithm], path: Any, env: GymEnv | None) -> str | None:

@@ -1,9 +1,8 @@
 """PettingZoo ParallelEnv adapters around the SB3 bridge (:mod:`sb3_eps.common.multi_agent_vec_env`).
 
-:class:`FixedAgentSet` owns the end-of-life logic (SuperSuit's needs every agent in every step, and its
-``black_death_v3`` is broken in 3.11); :class:`SingleAgentParallelEnv` makes a gymnasium env a one-agent world;
-:class:`ParallelEnvAsGymnasium` the reverse; :class:`TeamAsGymnasium` makes a multi-agent world one gymnasium env
-whose agents all act with one policy (EPS's team worlds).
+:class:`FixedAgentSet` keeps every agent in every step, as SuperSuit needs; :class:`SingleAgentParallelEnv` and
+:class:`ParallelEnvAsGymnasium` turn gymnasium envs into one-agent worlds and back; :class:`TeamAsGymnasium` makes a
+multi-agent world one gymnasium env played by a team (EPS's team worlds).
 """
 
 from __future__ import annotations
@@ -167,8 +166,6 @@ class TeamAsGymnasium(gymnasium.Env):
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         actions = np.asarray(action).reshape(-1)
-        if actions.shape != (self.team_size,):
-            raise ValueError(f"expected {self.team_size} actions (one per agent), got {np.shape(action)}")
         observations, rewards, terminations, truncations, _ = self.env.step(
             {agent: int(a) for agent, a in zip(self.agents, actions)}
         )

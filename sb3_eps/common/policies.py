@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
 from typing import Any
 
 import torch as th
@@ -71,10 +72,6 @@ class DuelingQNetwork(BasePolicy):
         """:return: ``(V (batch, 1), A (batch, n_actions))`` for a batch of observations."""
         hidden = self.trunk(self.extract_features(obs, self.features_extractor))
         return self.value_stream(hidden), self.advantage_stream(hidden)
-
-    def value(self, obs: PyTorchObs) -> th.Tensor:
-        """:return: ``V (batch,)`` alone (the advantage stream is not run)."""
-        return self.value_stream(self.trunk(self.extract_features(obs, self.features_extractor))).squeeze(-1)
 
     def advantage(self, obs: PyTorchObs) -> th.Tensor:
         """:return: ``A (batch, n_actions)`` alone (the value stream is not run)."""
@@ -173,13 +170,17 @@ class MultiAgentQPolicy(BasePolicy):
             normalize_images=self.normalize_images,
         ).to(self.device)
 
+    def with_target(self, make: Callable[[], nn.Module]) -> tuple[Any, Any]:
+        """:return: a new module and its target network (a second one, with the first's weights, in eval mode)."""
+        online, target = make().to(self.device), make().to(self.device)
+        target.load_state_dict(online.state_dict())
+        return online, target.train(False)
+
     def _build(self, lr_schedule: Schedule) -> None:
-        self.q_net = self.make_q_net()
-        self.q_net_target = None
         if self.agent_target:
-            self.q_net_target = self.make_q_net()
-            self.q_net_target.load_state_dict(self.q_net.state_dict())
-            self.q_net_target.set_training_mode(False)
+            self.q_net, self.q_net_target = self.with_target(self.make_q_net)
+        else:
+            self.q_net, self.q_net_target = self.make_q_net(), None
         self._build_joint_modules()
         trainable = [self.q_net, *(getattr(self, name) for name in self.joint_module_names())]
         parameters = [param for module in trainable for param in module.parameters()]

@@ -1,8 +1,5 @@
-"""Snapshots of live objects: envs pickled mid-episode, and the global random states.
-
-A checkpoint (``sb3_eps.zoo.checkpoint``) and a vec env with worker processes (which snapshots its workers'
-worlds when it is pickled) both use :func:`snapshot_dumps`, so a resumed run continues exactly.
-"""
+"""Snapshots of live objects: envs pickled mid-episode (:func:`snapshot_dumps`, for checkpoints and the worker vec
+env's pickling, so a resumed run continues exactly), and the global random states."""
 
 from __future__ import annotations
 

@@ -1,13 +1,12 @@
 """The bridge with its worlds in worker processes: :class:`SubprocMultiAgentVecEnv` (``vec_env_cls="subproc"``).
 
-The worlds are split into contiguous blocks, each an in-process
-:class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv`: the main process may step the first itself while
-workers (:class:`~sb3_eps.common.workers.WorkerPool`) step the others, so a seeded run gives the same numbers as
-in-process. Pickling (a checkpoint) snapshots every block mid-episode; unpickling starts new workers from them.
+Each block of worlds is an in-process :class:`~sb3_eps.common.multi_agent_vec_env.MultiAgentVecEnv`, so a seeded run
+gives the same numbers as in-process; pickling (a checkpoint) snapshots every block mid-episode.
 """
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
 import os
 import pickle
@@ -212,8 +211,6 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         spin_s: float | None = None,
     ):
         n_worlds = len(env_fns)
-        if n_worlds < 1:
-            raise ValueError("SubprocMultiAgentVecEnv needs at least one env constructor")
         values = {"n_workers": n_workers, "main_worlds": main_worlds, "spin_s": spin_s}
         # At least one world in a worker (DummyVecEnv keeps them all in this process).
         ranges = {"n_workers": "[1, inf)", "main_worlds": f"[0, {n_worlds - 1}]", "spin_s": "[0, inf)"}
@@ -328,24 +325,18 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         return self._finish_all(command, local, doing)
 
     def _finish_all(self, command: str, local: Any, doing: str | None = None) -> list[Any]:
-        doing = doing or _DOING.get(command, command)
-        mine = self._while_workers_run(lambda block: block.handle(command, local), doing)
-        replies = self._pool.gather(range(self.n_workers), doing)
-        return replies if self._local is None else [mine, *replies]
-
-    def _while_workers_run(self, work: Callable[[_Worlds], Any], doing: str) -> Any:
-        """Run ``work`` on the main process's block while the workers run a command; if it raises, collect the
+        """Run ``command`` on the main process's block while the workers run theirs; if it raises, collect the
         workers' replies first (the error of the main block is the one raised, as in process)."""
+        doing, workers = doing or _DOING.get(command, command), range(self.n_workers)
         if self._local is None:
-            return None
+            return self._pool.gather(workers, doing)
         try:
-            return work(self._local)
+            mine = self._local.handle(command, local)
         except BaseException:
-            try:
-                self._pool.gather(range(self.n_workers), doing)
-            except VecEnvWorkerError:
-                pass
+            with contextlib.suppress(VecEnvWorkerError):
+                self._pool.gather(workers, doing)
             raise
+        return [mine, *self._pool.gather(workers, doing)]
 
     # -------------------------------------------------------------------------------- VecEnv
     def reset(self) -> np.ndarray:
@@ -405,10 +396,8 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
             return
         if self._step_in_flight:  # the workers' step replies come before their answers to "close"
             self._step_in_flight = False
-            try:
+            with contextlib.suppress(VecEnvWorkerError):
                 self._pool.gather(range(self.n_workers), _DOING["step"])
-            except VecEnvWorkerError:
-                pass
         if self._local is not None:
             self._local.close()
         self._pool.close()

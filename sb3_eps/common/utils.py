@@ -37,12 +37,6 @@ def check_arguments(function: Callable[..., Any], values: dict[str, Any], ranges
             raise ValueError(f"{name} must be {_describe(hint, interval)}, got {value!r}")
 
 
-def base_arguments(base_init: Callable[..., Any], values: dict[str, Any]) -> dict[str, Any]:
-    """The arguments of ``base_init`` (a base class's constructor) among ``values`` (a subclass constructor's
-    ``locals()``): a subclass states its defaults in its own explicit signature and hands the shared arguments on."""
-    return {name: values[name] for name in inspect.signature(base_init).parameters if name != "self" and name in values}
-
-
 def _is_number(value: Any) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
 
@@ -101,10 +95,8 @@ def check_seed(seed: Any) -> int | None:
     """:return: ``seed`` as a Python int (or None); :raises ValueError: for anything but None or an int >= 0."""
     if seed is None:
         return None
-    if not is_int(seed):
+    if not is_int(seed) or seed < 0:
         raise ValueError(f"seed must be None or a non-negative int, got {seed!r} of type {type(seed).__name__}")
-    if seed < 0:
-        raise ValueError(f"seed must be None or a non-negative int, got {seed}")
     return int(seed)
 
 

@@ -1,15 +1,14 @@
 """Worker processes that answer the main process's commands over pipes: :class:`WorkerPool`, for the worlds of
 :class:`~sb3_eps.common.subproc_vec_env.SubprocMultiAgentVecEnv` and EPS's evaluation blocks.
 
-A worker builds a :class:`Served` object from its payload, says hello, then answers every ``(command, data)`` with
-``("ok", reply)`` or ``("error", traceback)``; hot messages may travel as raw bytes. Workers ignore SIGINT and
-SIGTERM: the main process decides when they stop (after writing its checkpoint); a worker whose main process is gone
-exits. A worker that dies, hangs or raises becomes one error naming it.
+A worker holds a :class:`Served` object and answers every ``(command, data)`` with ``("ok", reply)`` or ``("error",
+traceback)``. Workers ignore SIGINT and SIGTERM (the main process stops them after its checkpoint) and exit with it.
 """
 
 from __future__ import annotations
 
 import atexit
+import contextlib
 import multiprocessing as mp
 import os
 import select
@@ -129,10 +128,8 @@ def _worker_main(
             else:
                 remote.send(("ok", reply))
     except Exception as error:  # building the object failed
-        try:
+        with contextlib.suppress(OSError):
             remote.send(_error_reply(error))
-        except OSError:
-            pass
     finally:
         if served is not None:
             served.close()
@@ -243,16 +240,12 @@ class WorkerPool:
         if self.closed:
             return
         for remote in self._remotes:
-            try:
+            with contextlib.suppress(EOFError, OSError):
                 remote.send(("close", None))
-            except (EOFError, OSError):
-                pass
         for remote in self._remotes:
-            try:
+            with contextlib.suppress(EOFError, OSError):
                 if remote.poll(self.close_timeout):
                     remote.recv()
-            except (EOFError, OSError):
-                pass
         self.terminate()
 
     def terminate(self) -> None:

@@ -63,8 +63,7 @@ class RoundBudget:
         """:return: the ticks a round is expected to cost: every episode it may play at the last round's mean
         episode length, or before the first round half of the most it can cost."""
         n_played = self.settings.most_episodes_per_round
-        # The last round's episodes stand for the policy now; the mean of earlier rounds' costs underestimated a
-        # round that reevaluated, or whose policy had learned to survive longer (16-17 % EPS shares, eps.md).
+        # The last round's episodes stand for the policy now (earlier rounds' mean underestimated, docs/results/eps.md).
         done = [record for record in history if not record.get("skipped")]
         last = done[-1] if done else {}
         played = np.concatenate(

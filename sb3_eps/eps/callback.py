@@ -1,8 +1,5 @@
-"""``EvolutionCallback``: Evolutionary Policy Search (Marchesini & Farinelli, ICRA 2022, Algorithm 1) as an SB3
-callback on any model with a shared agent network ``model.policy.q_net`` and a replay buffer. The callback holds SB3's
-hooks; what a round does is :class:`~sb3_eps.eps.round.EPSRound`, when it may start
-:class:`~sb3_eps.eps.budget.RoundBudget`, what it records :class:`~sb3_eps.eps.round_log.RoundRecords`, and the
-settings :class:`~sb3_eps.eps.settings.EPSSettings`."""
+"""``EvolutionCallback``: SB3's hooks of EPS. What a round does is :class:`~sb3_eps.eps.round.EPSRound`, when it may
+start :class:`~sb3_eps.eps.budget.RoundBudget`, what it records :class:`~sb3_eps.eps.round_log.RoundRecords`."""
 
 from __future__ import annotations
 
@@ -50,20 +47,12 @@ class EvolutionCallback(BaseCallback):
     single-agent worlds; pick the best (Eq. 4) and move the agent network (and its target network, if any) toward it
     by Polyak averaging (Eq. 5). When the unmutated copy 0 wins nothing changes. See ``docs/modules/eps.md``.
 
-    Where it was tested, and what it did (``docs/results/eps.md``, every variant in its status table): on 2, 4, 8 and
-    12 robots and in the unseen room, with GDQ and IQL, EPS has not been found to help. With these defaults EPS-GDQ ends 2.6 points of greedy
-    team success below GDQ on 4 robots at equal total world ticks (SE 1.3, ten paired seeds; section "Does EPS help
-    on 2, 4 and 8 robots?"); 6 of 73 rounds crossed over, and thirteen crossovers measured directly moved the team
-    by +0.8 points (SE 1.7; "Does EPS act at all?"). :meth:`paper` (Algorithm 1 as published) ended 43 points below
-    GDQ on 4 robots (3 seeds; "The paper's Algorithm 1"); a 4-robot team world with ``share_experience`` -2.7 points
-    ("A team world for fitness and shared experience"); rounds on 8 and 12 robots and arena-trained models in
-    the varied unseen room crossed over once in 51 rounds and stayed 0.7-4.5 points below GDQ (held-out seeds).
+    Where it was measured (2 to 12 robots and the unseen room, with GDQ and IQL), EPS has not been found to help:
+    ``docs/results/eps.md`` holds every variant in its status table.
 
-    Rounds come only while the tick budget (``max_eps_share``, 10 % of the training ticks) allows them: the first
-    comes near 80k training ticks, and a shorter run plays none and warns once, saying what to change. For rounds in
-    a short run lift the cap (``max_eps_share=None``) or make rounds cheaper (``population_size=4,
-    n_eval_episodes=2, n_reevaluation_episodes=2``); ``rounds_until`` keeps them early (``docs/modules/eps.md``,
-    "Getting rounds in a short run, and early rounds").
+    Rounds come only while the tick budget (``max_eps_share``) allows them, the first near 80k training ticks; a
+    shorter run plays none and warns once, saying what to change (``docs/modules/eps.md``, "Getting rounds in a short
+    run, and early rounds").
 
     :param settings: the method's settings (:class:`~sb3_eps.eps.settings.EPSSettings`, every argument documented
         there; :meth:`paper` for Algorithm 1 as published). Default: built from ``settings_kwargs``
@@ -158,10 +147,8 @@ class EvolutionCallback(BaseCallback):
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore :meth:`state_dict` (before or after ``init_callback``)."""
-        self.records.n_rounds, self.records.n_skipped_rounds = (
-            int(state["n_rounds"]),
-            int(state["n_skipped_rounds"]),
-        )
+        self.records.n_rounds = int(state["n_rounds"])
+        self.records.n_skipped_rounds = int(state["n_skipped_rounds"])
         self.records.eps_time = float(state["eps_time"])
         self.records.history = copy.deepcopy(state["history"])
         self.budget.last_round_mark = state["last_round_mark"]
@@ -268,12 +255,7 @@ class EvolutionCallback(BaseCallback):
         settings = self.settings
         # The workers get the architecture only (a CPU copy); each round sends them the weights.
         template = copy.deepcopy(self.model.policy.q_net).to("cpu")
-        arguments = (
-            settings.eval_env_id,
-            settings.eval_env_kwargs,
-            settings.n_individuals,
-            settings.n_eval_episodes,
-        )
+        arguments = (settings.eval_env_id, settings.eval_env_kwargs, settings.n_individuals, settings.n_eval_episodes)
         kwargs: dict[str, Any] = {"record": record_mode(self.model) if settings.share_experience else None}
         # A worker evaluates whole individuals, so more workers than individuals would idle.
         n_workers = (os.cpu_count() or 1) if settings.n_workers is None else settings.n_workers

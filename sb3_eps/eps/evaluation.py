@@ -1,12 +1,8 @@
 """Greedy evaluation of an EPS population (Algorithm 1, lines 4 and 10).
 
-Every (individual, episode) pair gets its own env. The individuals are split into contiguous blocks, one per
-worker process (:class:`SubprocessEnvPool`), or one block in the main process (:class:`InProcessEnvPool`). A block
-plays all its episodes in lockstep: one forward pass for all its individuals (:class:`PopulationForward`), then
-every running env steps. Episode ``j`` of every individual starts from the same seed (common random numbers).
-Workers play whole episodes and get the weights once per round: a pipe message per tick would cost as much as the
-tick (``docs/modules/eps.md``). With ``record`` (experience sharing) a block also sends back every tick of its
-team-world episodes (:class:`TeamEpisode`).
+The individuals are split into contiguous blocks, one per worker process (:class:`SubprocessEnvPool`) or one in the
+main process (:class:`InProcessEnvPool`); a block plays all its episodes in lockstep, episode ``j`` of every
+individual from the same seed (common random numbers), and gets the weights once per round (``docs/modules/eps.md``).
 """
 
 from __future__ import annotations
@@ -40,10 +36,6 @@ class TeamEpisode:
     truncations: np.ndarray
     alive: np.ndarray
     states: np.ndarray
-
-    @property
-    def n_ticks(self) -> int:
-        return len(self.actions)
 
 
 class _EpisodeRecorder:
@@ -164,8 +156,6 @@ class _Block(Served):
         """Play every episode of every ``valid`` individual greedily, all envs in lockstep; an individual whose
         output is not finite becomes invalid. :return: :data:`PoolAnswer`"""
         shape = (self.n_individuals, self.n_episodes)
-        if len(seeds) != self.n_episodes:
-            raise ValueError(f"expected {self.n_episodes} seeds, got {len(seeds)}")
         valid = np.array(valid, dtype=bool)
         self.forward.load(population)
         returns, lengths = np.zeros(shape), np.zeros(shape, dtype=np.int64)
@@ -229,38 +219,23 @@ def _build_served_block(block_kwargs: dict[str, Any]) -> _Block:
     return _Block(**block_kwargs)
 
 
-class InProcessEnvPool:
+class InProcessEnvPool(_Block):
     """All envs in the main process: no start-up cost, no protection against a hanging env (arguments as
     :class:`SubprocessEnvPool`)."""
 
-    def __init__(
-        self,
-        env_id: str,
-        env_kwargs: dict[str, Any] | None,
-        n_individuals: int,
-        n_episodes: int,
-        network: nn.Module,
-        record: str | None = None,
-    ) -> None:
-        self.n_individuals, self.n_episodes = n_individuals, n_episodes
-        self._block = _Block(env_id, env_kwargs, n_individuals, n_episodes, network, record)
-        self.pids: list[int] = []  # no worker process
+    pids: list[int] = []  # no worker process
 
-    def evaluate(self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float) -> PoolAnswer:
-        """Play every episode of every valid individual (:meth:`_Block.evaluate`) before ``deadline``
-        (``time.monotonic()``; a worker pool's), else raise :class:`EvaluationFailed`."""
+    def evaluate(self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float = 0.0) -> PoolAnswer:
+        """:meth:`_Block.evaluate` (``deadline``: a worker pool's, not enforced), else :class:`EvaluationFailed`."""
         try:
-            return self._block.evaluate(population, seeds, valid)
+            return super().evaluate(population, seeds, valid)
         except Exception as error:  # an env that fails (e.g. its PyBullet client is gone): skip the round
             reason = " ".join(str(error).split()) or type(error).__name__
             raise EvaluationFailed(f"an evaluation env raised {type(error).__name__}: {reason}") from error
 
-    def close(self) -> None:
-        self._block.close()
-
 
 class SubprocessEnvPool:
-    """Individuals split into contiguous blocks over worker processes, each playing its block's episodes.
+    """Individuals split into contiguous blocks over worker processes.
 
     :param env_id: an id :func:`check_eval_env_id` accepts, built with ``env_kwargs``
     :param n_individuals: individuals per round, each playing ``n_episodes`` episodes
@@ -279,7 +254,6 @@ class SubprocessEnvPool:
         n_workers: int = 2,
         record: str | None = None,
     ) -> None:
-        self.n_individuals, self.n_episodes = n_individuals, n_episodes
         n_blocks = max(1, min(n_workers, n_individuals))
         self.blocks = [block for block in np.array_split(np.arange(n_individuals), n_blocks) if len(block)]
         common = {"env_id": env_id, "env_kwargs": env_kwargs, "n_episodes": n_episodes, "network": network}
@@ -379,11 +353,6 @@ def evaluate_population(
     """Run every individual of ``population`` ``(P, *shape)`` greedily, episode ``j`` seeded with
     ``episode_seeds[j]`` for all (Algorithm 1, line 10), within ``timeout`` seconds; individuals not ``active``
     get no episode and ``-inf``. :raises EvaluationFailed: when a worker crashed, raised or timed out"""
-    n_individuals = next(iter(population.values())).shape[0]
-    if (pool.n_individuals, pool.n_episodes) != (n_individuals, len(episode_seeds)):
-        raise ValueError(
-            f"the pool plays {pool.n_individuals} x {pool.n_episodes} episodes, not {n_individuals} x {len(episode_seeds)}"
-        )
     deadline = time.monotonic() + timeout
     cpu_population = {name: stacked.detach().cpu() for name, stacked in population.items()}
     valid = finite_individuals(cpu_population)

@@ -1,10 +1,6 @@
-"""The math of one EPS round (Marchesini & Farinelli, ICRA 2022, Section III): the sensitivity (Eq. 6), the safe
-and plain mutations (Algorithm 1, line 9), the selection (Eq. 4) and the Polyak crossover (Eq. 5); and what this
-package adds (``docs/modules/eps.md``, "Beyond Algorithm 1"): frozen parameter groups, the effect of a mutation on
-the greedy policy, and the calibration of the mutation size.
-
-Weights travel as ``{parameter name: tensor}`` for :func:`torch.func.functional_call`; a *population* stacks them
-on a leading axis ``(P, *shape)``, individual 0 the unmutated copy.
+"""The math of one EPS round (Marchesini & Farinelli, ICRA 2022, Section III: Eq. 4-6, Algorithm 1 line 9) and what
+this package adds (``docs/modules/eps.md``, "Beyond Algorithm 1"). Weights travel as ``{parameter name: tensor}``; a
+*population* stacks them on a leading axis ``(P, *shape)``, individual 0 the unmutated copy.
 """
 
 from __future__ import annotations

@@ -92,7 +92,8 @@ class EPSRound:
             "mean_abs_q": float(outputs[0].abs().mean()),
         }
         try:
-            result = self._evaluate(population, record)  # line 10
+            seeds, result = self._play(population)  # line 10
+            record.update(round_ticks=int(result.lengths.sum()), **_episodes_record(seeds, result))
             if not result.valid.all():
                 _warn_disqualified(population, result.valid)
             winner = select_best(result.fitness)  # line 11, Eq. 4 (never a disqualified individual)
@@ -151,12 +152,6 @@ class EPSRound:
             self.shared_rows += rows
             result.episodes = None  # the arrays are in the buffer now
         return seeds, result
-
-    def _evaluate(self, population: Parameters, record: dict[str, Any]) -> PopulationResult:
-        """Algorithm 1, line 10, with every episode noted in the round's record."""
-        seeds, result = self._play(population)
-        record.update(round_ticks=int(result.lengths.sum()), **_episodes_record(seeds, result))
-        return result
 
     def _accept(self, population: Parameters, result: PopulationResult, winner: int, record: dict[str, Any]) -> bool:
         """The acceptance rule: a gain over copy 0 beyond ``min_gain``, and again on fresh episodes."""
@@ -226,16 +221,14 @@ class EPSRound:
         # Mutant i follows robot i % n: the paper's m = n when population_size = n_agents.
         n_agents = int(self.model.n_agents)
         robots = sorted({index % n_agents for index in range(population_size)})
-        by_robot = {robot: self._sensitivity_of(q_net, robot) for robot in robots}
+        by_robot: dict[int, Parameters] = {}
+        for robot in robots:  # a robot without an alive entry yet takes every robot's states
+            robot_observations = self.visited_observations(robot)
+            if robot_observations is None:
+                robot_observations = self.visited_observations(None)
+            assert robot_observations is not None
+            by_robot[robot] = output_sensitivity(q_net, robot_observations)
         return [by_robot[index % n_agents] for index in range(population_size)]
-
-    def _sensitivity_of(self, q_net: nn.Module, robot: int | None) -> Parameters:
-        """Eq. 6 on visited observations of one robot (None: of every robot)."""
-        observations = self.visited_observations(robot)
-        if observations is None:  # this robot has no alive entry yet: use every robot's states
-            observations = self.visited_observations(None)
-        assert observations is not None
-        return output_sensitivity(q_net, observations)
 
 
 def visited_mask(replay_buffer: Any, robot: int | None = None) -> np.ndarray:

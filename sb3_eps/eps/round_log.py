@@ -1,10 +1,6 @@
 """The per-round records of EPS: :class:`RoundRecords` (the history, its counters and the logger's ``eps/`` keys)
-and :class:`RoundLog`, the records as JSON lines (one object per round, ``eps_rounds.jsonl`` in the run folder).
-
-The file mirrors ``EvolutionCallback.history``: record ``i`` of the file is ``history[i]``. A run that resumes from a
-checkpoint keeps the records of the rounds its checkpoint holds and drops those written after it, so the file never
-shows a round twice. Values are plain JSON: numpy arrays become lists, non-finite floats (the ``-inf`` fitness of a
-disqualified individual) become ``null``.
+and :class:`RoundLog`, the records as JSON lines (``eps_rounds.jsonl``: line ``i`` is ``history[i]``, a resumed run
+drops the lines written after its checkpoint; non-finite floats become ``null``).
 """
 
 from __future__ import annotations
@@ -58,16 +54,13 @@ class RoundLog:
             continues its own
         """
         if not self._synced:
-            self._keep_first(n_before)
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            lines = self.path.read_text().splitlines(keepends=True) if self.path.exists() else []
+            if len(lines) != n_before:
+                self.path.write_text("".join(lines[:n_before]))
             self._synced = True
         with self.path.open("a") as stream:
             stream.write(json.dumps(json_safe(record), allow_nan=False) + "\n")
-
-    def _keep_first(self, n_records: int) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        lines = self.path.read_text().splitlines(keepends=True) if self.path.exists() else []
-        if len(lines) != n_records:
-            self.path.write_text("".join(lines[:n_records]))
 
 
 def read_round_log(path: str | os.PathLike[str]) -> list[dict[str, Any]]:

@@ -85,9 +85,8 @@ def eps_env_id_for(env_id: str) -> str:
 class EPSSettings:
     """What one EPS run does (``docs/modules/eps.md``; the defaults' evidence: ``docs/results/eps_probes.md``).
 
-    :meth:`paper` is Algorithm 1 as published (:data:`PAPER_SETTINGS`). The defaults change what the measurements
-    showed to go wrong: a calibrated mutation size, a frozen value stream, an outcome fitness, a reevaluated winner,
-    a decaying alpha, a tick budget and the arena's room with pillars as the evaluation world.
+    :meth:`paper` is Algorithm 1 as published (:data:`PAPER_SETTINGS`); the defaults change what the measurements
+    showed to go wrong.
 
     :param eval_env_id: the evaluation world: single-agent (:func:`eps_env_id_for`), or a multi-agent id where every
         robot acts with the individual's weights and fitness sees robot-robot collisions. Its per-agent spaces must
@@ -197,5 +196,5 @@ class EPSSettings:
     @property
     def most_episodes_per_round(self) -> int:
         """Every episode a round may play: selection, reevaluation (both individuals) and team checks."""
-        per_batch = self.n_eval_episodes
-        return (self.n_individuals + 2 * self.n_reevaluation_batches) * per_batch + 2 * self.n_team_check_episodes
+        episodes = (self.n_individuals + 2 * self.n_reevaluation_batches) * self.n_eval_episodes
+        return episodes + 2 * self.n_team_check_episodes

@@ -1,8 +1,5 @@
 """EPS experience sharing: the population's team-world episodes become replay rows of the learner, as in
-Evolutionary RL (Khadka & Tumer, NeurIPS 2018). Each episode's ticks go through a fresh
-:class:`~sb3_eps.common.buffers.NStepJointCollector` into ``model.replay_buffer`` exactly as a training world's do
-(:class:`~sb3_eps.common.buffers.JointTick`).
-"""
+Evolutionary RL (Khadka & Tumer, NeurIPS 2018)."""
 
 from __future__ import annotations
 
@@ -50,14 +47,14 @@ def record_mode(model: MultiAgentOffPolicyAlgorithm) -> str:
 def share_episodes(model: MultiAgentOffPolicyAlgorithm, episodes: Sequence[TeamEpisode | None]) -> int:
     """Write every tick of ``episodes`` (None entries skipped) into ``model.replay_buffer`` as the training rollout
     writes a world's ticks, non-finite ticks refused as in training. :return: the rows written"""
-    played = [episode for episode in episodes if episode is not None and episode.n_ticks]
+    played = [episode for episode in episodes if episode is not None and len(episode.actions)]
     if not played:
         return 0
     assert model.replay_buffer is not None
     n_rows = 0
     for episode in played:
         collector = NStepJointCollector(model.replay_buffer, 1, model.n_steps, model.gamma, model.team_reward_mode)
-        for tick in range(episode.n_ticks):
+        for tick in range(len(episode.actions)):
             if not _finite_tick(episode, tick):
                 collector.pending[0].clear()
                 warnings.warn(

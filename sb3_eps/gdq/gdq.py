@@ -9,11 +9,11 @@ import torch as th
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import LinearSchedule
 
-from sb3_eps.common.buffers import JointReplayBuffer, JointReplayBufferSamples, TeamRewardMode
+from sb3_eps.common.buffers import JointReplayBufferSamples, TeamRewardMode
 from sb3_eps.common.losses import masked_huber, row_priority, weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm, TDTerms
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import base_arguments, check_arguments, input_gain, td_target
+from sb3_eps.common.utils import check_arguments, input_gain, td_target
 from sb3_eps.gdq.policies import DEFAULT_GLOBAL_HEAD, GDQPolicy, MlpPolicy
 
 #: Where ``v`` and ``v'`` (the inputs of ``V_G`` and ``V_G'``) come from (``GDQ(global_values=...)``).
@@ -63,17 +63,13 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     the joint state value ``V_G'(v')`` of the world instead of its own ``V_i(s'_i)``
     (:func:`gdq_agent_targets`). The global head ``V_G`` is trained by TD on the team reward,
     ``L = (r_team + gamma^k V_G'(v') - V_G(v))^2``, with ``v`` and ``v'`` entering as numbers (no gradient
-    into the agents). By default ``v'`` comes from the agent target network, on the stored next observations;
-    agents that are no longer acting contribute 0. Action selection uses only ``A``
-    (Eq. 3), so execution stays decentralised.
+    into the agents); agents that are no longer acting contribute 0. Action selection uses only ``A`` (Eq. 3), so
+    execution stays decentralised.
 
-    Where the package departs from the paper (each default links the page that chose it): ``global_bootstrap=0.1``
-    (GDQ-lambda; ``GDQ("MlpPolicy", venv, global_bootstrap=1.0, n_steps=30)`` is the paper's target,
-    ``docs/results/gdq_target.md``), ``team_reward_mode="mean"``, ``learning_rate`` 3e-4 decaying linearly to 0,
-    uniform replay (``docs/results/gdq_uniform_replay.md``), an agent target network (the paper had none; with ``v'``
-    read from it GDQ learned faster and without collapses, ``docs/results/gdq_target.md``) and a
-    weight average for the greedy actions (:class:`~sb3_eps.gdq.policies.GDQPolicy`). Diagnostics (``g_i``, the
-    greedy action's margin) are logged under ``train/``. Other arguments are those of
+    Where the package departs from the paper: ``global_bootstrap=0.1`` (``global_bootstrap=1.0, n_steps=30`` is the
+    paper's target) and an agent target network (``docs/results/gdq_target.md``), ``team_reward_mode="mean"``,
+    ``learning_rate`` 3e-4 decaying linearly to 0, uniform replay (``docs/results/gdq_uniform_replay.md``) and a
+    weight average for the greedy actions (:class:`~sb3_eps.gdq.policies.GDQPolicy`). Other arguments are those of
     :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`.
 
     :param global_values: where ``v'`` comes from: ``"target"``, the agent target network (needs
@@ -94,36 +90,12 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         policy: str | type[MultiAgentQPolicy],
         env: GymEnv | None,
         learning_rate: float | Schedule = DEFAULT_LEARNING_RATE,
-        buffer_size: int = 50_000,
-        learning_starts: int = 2_000,
-        batch_size: int = 64,
-        tau: float = 0.01,
-        gamma: float = 0.99,
-        train_freq: int | tuple[int, str] = 1,
-        gradient_steps: int = 1,
-        replay_buffer_class: type[JointReplayBuffer] | None = None,
-        replay_buffer_kwargs: dict[str, Any] | None = None,
-        gradient_steps_per_target_update: int = 1,
-        n_steps: int = 3,
+        *,
         prioritized_replay: bool = False,
-        prioritized_replay_alpha: float = 0.6,
-        prioritized_replay_beta0: float = 0.4,
-        double_q: bool = True,
-        exploration_fraction: float = 0.05,
-        exploration_initial_eps: float = 1.0,
-        exploration_final_eps: float = 0.02,
-        max_grad_norm: float = 10.0,
         team_reward_mode: TeamRewardMode = "mean",
-        overlap_training: bool = False,
-        stats_window_size: int = 100,
-        tensorboard_log: str | None = None,
-        policy_kwargs: dict[str, Any] | None = None,
-        verbose: int = 0,
-        seed: int | None = None,
-        device: th.device | str = "auto",
-        _init_setup_model: bool = True,
         global_values: GlobalValues = "target",
         global_bootstrap: float = 0.1,
+        **kwargs: Any,
     ) -> None:
         check_arguments(
             GDQ.__init__,
@@ -132,7 +104,14 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         )
         self.global_values: GlobalValues = global_values
         self.global_bootstrap = float(global_bootstrap)
-        super().__init__(**base_arguments(MultiAgentOffPolicyAlgorithm.__init__, locals()))
+        super().__init__(
+            policy,
+            env,
+            learning_rate,
+            prioritized_replay=prioritized_replay,
+            team_reward_mode=team_reward_mode,
+            **kwargs,
+        )
 
     def _diagnostics(self, inputs: th.Tensor, terms: TDTerms, batch: JointReplayBufferSamples) -> dict[str, float]:
         """What explains GDQ's learning (docs/results/gdq_target.md): the gain ``g_i = dV_G/dv_i`` of the
@@ -174,12 +153,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         from_target = self.global_values == "target"
         terms = self._td_terms(batch, need_online_next_values=not from_target)
-        values, q_taken, own_next, next_advantages = (
-            terms.values,
-            terms.q_taken,
-            terms.next_values,
-            terms.next_advantage_term,
-        )
+        q_taken = terms.q_taken
         with th.no_grad():
             # v': the agents' state-values of the next joint observation, from the agent target network like the rest
             # of the bootstrap ("target"), or from the current one in the bootstrap's forward pass ("recomputed").
@@ -192,14 +166,14 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
                 batch.discounts,
                 batch.dones,
                 global_next,
-                next_advantages,
-                own_next,
+                terms.next_advantage_term,
+                terms.next_values,
                 self.global_bootstrap,
             )
             global_targets = td_target(batch.team_rewards, batch.team_discounts, batch.team_dones, global_next)
         agent_loss = masked_huber(q_taken, agent_targets, batch.alive, batch.weights)
         # V_G(v) with v detached: the global loss trains only the head.
-        agent_values = values.detach()
+        agent_values = terms.values.detach()
         global_values = self.policy.global_value_net(agent_values * batch.alive)
         global_loss = weighted_huber(global_values, global_targets, batch.weights)
         priorities = row_priority(q_taken - agent_targets, batch.alive)

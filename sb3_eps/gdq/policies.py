@@ -145,10 +145,8 @@ class GDQPolicy(MultiAgentQPolicy):
     :param global_head: ``"mlp"`` (the default, the paper's ``V_G`` over exactly ``n`` agents,
         :class:`GlobalValueNetwork`) or ``"pooled"`` (:class:`PooledGlobalValueNetwork`, any number of agents: the
         model can be loaded on, or ``set_env`` to, a world with another team size and keep training)
-    :param weight_average_tau: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`, but on by default for GDQ
-        (``2e-4``: greedy actions from an exponential moving average of the agent network's weights over about
-        5,000 gradient steps; training is unchanged). Chosen on held-out seeds
-        (``docs/results/gdq_weight_average.md``); ``None`` takes the greedy actions from the online network.
+    :param weight_average_tau: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`, but ``2e-4`` by default for
+        GDQ (``docs/results/gdq_weight_average.md``); ``None`` takes the greedy actions from the online network.
     :param kwargs: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`
 
     GDQ's learning options (``global_values``, ``global_bootstrap``) are arguments of :class:`~sb3_eps.gdq.GDQ`.
@@ -177,12 +175,7 @@ class GDQPolicy(MultiAgentQPolicy):
         # initialisations are exact only with ReLU).
         args = (self.n_agents, self.global_net_arch, nn.ReLU, self.global_init)
         head = PooledGlobalValueNetwork if self.global_head == "pooled" else GlobalValueNetwork
-        self.global_value_net = head(*args)
-        self.global_value_net_target = head(*args)
-        self.global_value_net_target.load_state_dict(self.global_value_net.state_dict())
-        self.global_value_net_target.train(False)
-        self.global_value_net.to(self.device)
-        self.global_value_net_target.to(self.device)
+        self.global_value_net, self.global_value_net_target = self.with_target(lambda: head(*args))
 
     def joint_module_names(self) -> list[str]:
         return ["global_value_net"]

@@ -1,4 +1,3 @@
-from sb3_eps.iql.iql import IQL
-from sb3_eps.iql.policies import MlpPolicy
+from sb3_eps.iql.iql import IQL, MlpPolicy
 
 __all__ = ["IQL", "MlpPolicy"]

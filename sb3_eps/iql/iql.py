@@ -16,7 +16,9 @@ from sb3_eps.common.losses import masked_huber, row_priority
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.common.utils import td_target
-from sb3_eps.iql.policies import MlpPolicy
+
+#: IQL's policy: the shared dueling agent network and its target, no joint module.
+MlpPolicy = MultiAgentQPolicy
 
 
 class IQL(MultiAgentOffPolicyAlgorithm):

@@ -172,10 +172,7 @@ class QMIXPolicy(MultiAgentQPolicy):
         )
 
     def _build_joint_modules(self) -> None:
-        self.mixer = self._make_mixer().to(self.device)
-        self.mixer_target = self._make_mixer().to(self.device)
-        self.mixer_target.load_state_dict(self.mixer.state_dict())
-        self.mixer_target.train(False)
+        self.mixer, self.mixer_target = self.with_target(self._make_mixer)
 
     def joint_module_names(self) -> list[str]:
         return ["mixer"]
@@ -194,10 +191,8 @@ class QMIXPolicy(MultiAgentQPolicy):
 class VDNPolicy(QMIXPolicy):
     """Agent network plus a parameter-free :class:`SumMixer`.
 
-    :param weight_average_tau: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`, but on by default for VDN
-        (``2e-4``, as GDQ's: greedy actions from a moving average of the agent network's weights; training is
-        unchanged). Chosen with ``VDN(advantage_learning=0.5)`` on held-out seeds (``docs/results/qmix_vdn.md``);
-        ``None`` takes the greedy actions from the online network.
+    :param weight_average_tau: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`, but ``2e-4`` by default for VDN
+        (``docs/results/qmix_vdn.md``); ``None`` takes the greedy actions from the online network.
     """
 
     def __init__(self, *args: Any, weight_average_tau: float | None = VDN_WEIGHT_AVERAGE_TAU, **kwargs: Any) -> None:

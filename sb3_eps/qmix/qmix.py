@@ -9,11 +9,11 @@ import torch as th
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import LinearSchedule
 
-from sb3_eps.common.buffers import JointReplayBuffer, JointReplayBufferSamples, TeamRewardMode
+from sb3_eps.common.buffers import JointReplayBufferSamples
 from sb3_eps.common.losses import weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import base_arguments, check_arguments, input_gain, td_target
+from sb3_eps.common.utils import check_arguments, input_gain, td_target
 from sb3_eps.qmix.policies import QMIXPolicy, VDNPolicy, apply_lr_scales
 
 #: QMIX's and VDN's default learning rate: 3e-4 decaying linearly to 0 over the budget (docs/results/qmix_vdn.md).
@@ -27,13 +27,10 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     """QMIX: the team's ``Q_tot = mixer(Q_1(s_1, a_1), ..., Q_n(s_n, a_n); s)`` is trained by TD on the team
     reward, ``y = r_team + gamma^k (1 - done) mixer_target(Q_i'(s'_i, a*_i); s')``; agents act greedily on
     their own ``Q_i`` (monotonicity makes that the joint arg max). Agents that are not acting (a robot that
-    arrived) enter the mixer with ``Q = 0``. Needs the env's global state (``state()``).
-    The mixer's size, initialisation and learning rate are ``policy_kwargs``
-    (:class:`~sb3_eps.qmix.policies.QMIXPolicy`). At a time-limit truncation the agents still driving enter the
-    target mixer with their ``Q_i'(s'_i, a*_i)``: a time limit is not a terminal state (SB3's
-    ``handle_timeout_termination``). Arguments are those of
-    :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm` (the learning rate decays from 3e-4 to 0 by
-    default, ``docs/results/qmix_vdn.md``), and:
+    arrived) enter the mixer with ``Q = 0``. Needs the env's global state (``state()``). The mixer's size,
+    initialisation and learning rate are ``policy_kwargs`` (:class:`~sb3_eps.qmix.policies.QMIXPolicy`). Arguments
+    are those of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm` (the learning rate decays from
+    3e-4 to 0 by default, ``docs/results/qmix_vdn.md``), and:
 
     :param advantage_learning: ``alpha`` of advantage learning (Bellemare et al., "Increasing the Action Gap", AAAI
         2016): the team's target is lowered by ``alpha (mixer'(max_b Q_i'(s_i, b); s) - mixer'(Q_i'(s_i, a_i); s))``,
@@ -51,39 +48,13 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
         policy: str | type[MultiAgentQPolicy],
         env: GymEnv | None,
         learning_rate: float | Schedule = DEFAULT_LEARNING_RATE,
-        buffer_size: int = 50_000,
-        learning_starts: int = 2_000,
-        batch_size: int = 64,
-        tau: float = 0.01,
-        gamma: float = 0.99,
-        train_freq: int | tuple[int, str] = 1,
-        gradient_steps: int = 1,
-        replay_buffer_class: type[JointReplayBuffer] | None = None,
-        replay_buffer_kwargs: dict[str, Any] | None = None,
-        gradient_steps_per_target_update: int = 1,
-        n_steps: int = 3,
-        prioritized_replay: bool = True,
-        prioritized_replay_alpha: float = 0.6,
-        prioritized_replay_beta0: float = 0.4,
-        double_q: bool = True,
-        exploration_fraction: float = 0.05,
-        exploration_initial_eps: float = 1.0,
-        exploration_final_eps: float = 0.02,
-        max_grad_norm: float = 10.0,
-        team_reward_mode: TeamRewardMode = "sum",
-        overlap_training: bool = False,
-        stats_window_size: int = 100,
-        tensorboard_log: str | None = None,
-        policy_kwargs: dict[str, Any] | None = None,
-        verbose: int = 0,
-        seed: int | None = None,
-        device: th.device | str = "auto",
-        _init_setup_model: bool = True,
+        *,
         advantage_learning: float = 0.0,
+        **kwargs: Any,
     ) -> None:
         check_arguments(QMIX.__init__, {"advantage_learning": advantage_learning}, self.argument_ranges)
         self.advantage_learning = float(advantage_learning)
-        super().__init__(**base_arguments(MultiAgentOffPolicyAlgorithm.__init__, locals()))
+        super().__init__(policy, env, learning_rate, **kwargs)
 
     def _update_learning_rate(self, optimizers: list[th.optim.Optimizer] | th.optim.Optimizer) -> None:
         super()._update_learning_rate(optimizers)
@@ -133,9 +104,7 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
         self, agent_qs: th.Tensor, next_q: th.Tensor, next_total: th.Tensor, batch: JointReplayBufferSamples
     ) -> dict[str, float]:
         """The mixer's gain ``dQ_tot/dQ_i`` (sum over agents, spread across agents and rows), the agents' Q, and
-        ``zero_input_gap``: how far the target mixer moves when every agent enters it as ``Q = 0`` (what a truncated
-        window's target would read if the agents still driving entered as ``Q = 0``),
-        ``mixer'(0; s') - mixer'(Q'; s')``."""
+        ``zero_input_gap``: ``mixer'(0; s') - mixer'(Q'; s')``, how far the target mixer moves with every agent at 0."""
         gain = input_gain(self.policy.mixer, agent_qs, batch.states)
         with th.no_grad():
             zero_total = self.policy.mixer_target(th.zeros_like(next_q), batch.next_states)
@@ -159,39 +128,5 @@ class VDN(QMIX):
     # The sum reads any number of agents: a VDN model moves between team sizes (QMIX's hypernetworks cannot).
     requires_fixed_n_agents: ClassVar[bool] = False
 
-    def __init__(
-        self,
-        policy: str | type[MultiAgentQPolicy],
-        env: GymEnv | None,
-        learning_rate: float | Schedule = DEFAULT_LEARNING_RATE,
-        buffer_size: int = 50_000,
-        learning_starts: int = 2_000,
-        batch_size: int = 64,
-        tau: float = 0.01,
-        gamma: float = 0.99,
-        train_freq: int | tuple[int, str] = 1,
-        gradient_steps: int = 1,
-        replay_buffer_class: type[JointReplayBuffer] | None = None,
-        replay_buffer_kwargs: dict[str, Any] | None = None,
-        gradient_steps_per_target_update: int = 1,
-        n_steps: int = 3,
-        prioritized_replay: bool = True,
-        prioritized_replay_alpha: float = 0.6,
-        prioritized_replay_beta0: float = 0.4,
-        double_q: bool = True,
-        exploration_fraction: float = 0.05,
-        exploration_initial_eps: float = 1.0,
-        exploration_final_eps: float = 0.02,
-        max_grad_norm: float = 10.0,
-        team_reward_mode: TeamRewardMode = "sum",
-        overlap_training: bool = False,
-        stats_window_size: int = 100,
-        tensorboard_log: str | None = None,
-        policy_kwargs: dict[str, Any] | None = None,
-        verbose: int = 0,
-        seed: int | None = None,
-        device: th.device | str = "auto",
-        _init_setup_model: bool = True,
-        advantage_learning: float = DEFAULT_VDN_ADVANTAGE_LEARNING,
-    ) -> None:
-        super().__init__(**base_arguments(QMIX.__init__, locals()))
+    def __init__(self, *args: Any, advantage_learning: float = DEFAULT_VDN_ADVANTAGE_LEARNING, **kwargs: Any) -> None:
+        super().__init__(*args, advantage_learning=advantage_learning, **kwargs)
