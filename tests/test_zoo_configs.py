@@ -79,11 +79,11 @@ def test_a_resolved_entry_holds_every_constructor_default(algo) -> None:
     so a run's config.yml lists every value (an entry that sets nothing builds the package-default model)."""
     spec = ALGORITHMS[algo]
     entry = resolve_config(algo, "MultiRobotNav-4-v0").entry
-    signature = _parameters(spec.algorithm_class)
+    signature = inspect.signature(spec.algorithm_class.__init__).parameters
     written = load_config_entries(config_file(algo), algo)
     set_by_file = {**written[DEFAULT_KEY], **written["MultiRobotNav-4-v0"]}
     for name in spec.params:
-        default = signature[name]
+        default = signature[name].default
         if name not in set_by_file and default is not None:
             value = algorithm_kwargs(entry, spec)[name]
             assert value == default or (callable(default) and value(0.5) == default(0.5)), name  # lin_x: a schedule
@@ -115,21 +115,13 @@ def test_a_file_value_wins_over_the_constructor_default(tmp_path) -> None:
 
 
 def _parameters(cls: type) -> dict[str, object]:
-    """Every named constructor argument of the package's classes along ``cls``'s MRO, a subclass's default over its
-    base's (GDQ, QMIX and VDN state only the defaults they change and hand the rest on as ``**kwargs``)."""
-    return {
-        name: p.default
-        for owner in reversed(cls.__mro__)
-        if "__init__" in vars(owner) and owner.__module__.startswith(("sb3_eps", "tests"))
-        for name, p in inspect.signature(vars(owner)["__init__"]).parameters.items()
-        if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
-    }
+    return {name: p.default for name, p in inspect.signature(cls.__init__).parameters.items()}
 
 
 @pytest.mark.parametrize("algo", list(ALGORITHMS))
 def test_schema_covers_every_constructor_argument(algo) -> None:
     spec = ALGORITHMS[algo]
-    arguments = set(_parameters(spec.algorithm_class)) - {"self"}
+    arguments = set(inspect.signature(spec.algorithm_class.__init__).parameters) - {"self"}
     assert arguments == set(spec.params) | set(COMMAND_LINE_ARGUMENTS) | {POLICY_KWARGS_KEY}
     policy_class = spec.algorithm_class.policy_aliases["MlpPolicy"]
     internal = {"self", "args", "kwargs", "observation_space", "action_space", "lr_schedule", "n_agents",

@@ -37,6 +37,12 @@ def check_arguments(function: Callable[..., Any], values: dict[str, Any], ranges
             raise ValueError(f"{name} must be {_describe(hint, interval)}, got {value!r}")
 
 
+def base_arguments(base_init: Callable[..., Any], values: dict[str, Any]) -> dict[str, Any]:
+    """The arguments of ``base_init`` (a base class's constructor) among ``values`` (a subclass constructor's
+    ``locals()``): a subclass states its defaults in its own explicit signature and hands the shared arguments on."""
+    return {name: values[name] for name in inspect.signature(base_init).parameters if name != "self" and name in values}
+
+
 def _is_number(value: Any) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
 

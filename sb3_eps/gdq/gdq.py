@@ -9,11 +9,11 @@ import torch as th
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import LinearSchedule
 
-from sb3_eps.common.buffers import JointReplayBufferSamples, TeamRewardMode
+from sb3_eps.common.buffers import JointReplayBuffer, JointReplayBufferSamples, TeamRewardMode
 from sb3_eps.common.losses import masked_huber, row_priority, weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm, TDTerms
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import check_arguments, input_gain, td_target
+from sb3_eps.common.utils import base_arguments, check_arguments, input_gain, td_target
 from sb3_eps.gdq.policies import DEFAULT_GLOBAL_HEAD, GDQPolicy, MlpPolicy
 
 #: Where ``v`` and ``v'`` (the inputs of ``V_G`` and ``V_G'``) come from (``GDQ(global_values=...)``).
@@ -90,12 +90,36 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         policy: str | type[MultiAgentQPolicy],
         env: GymEnv | None,
         learning_rate: float | Schedule = DEFAULT_LEARNING_RATE,
-        *,
+        buffer_size: int = 50_000,
+        learning_starts: int = 2_000,
+        batch_size: int = 64,
+        tau: float = 0.01,
+        gamma: float = 0.99,
+        train_freq: int | tuple[int, str] = 1,
+        gradient_steps: int = 1,
+        replay_buffer_class: type[JointReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        gradient_steps_per_target_update: int = 1,
+        n_steps: int = 3,
         prioritized_replay: bool = False,
+        prioritized_replay_alpha: float = 0.6,
+        prioritized_replay_beta0: float = 0.4,
+        double_q: bool = True,
+        exploration_fraction: float = 0.05,
+        exploration_initial_eps: float = 1.0,
+        exploration_final_eps: float = 0.02,
+        max_grad_norm: float = 10.0,
         team_reward_mode: TeamRewardMode = "mean",
+        overlap_training: bool = False,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
         global_values: GlobalValues = "target",
         global_bootstrap: float = 0.1,
-        **kwargs: Any,
     ) -> None:
         check_arguments(
             GDQ.__init__,
@@ -104,14 +128,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         )
         self.global_values: GlobalValues = global_values
         self.global_bootstrap = float(global_bootstrap)
-        super().__init__(
-            policy,
-            env,
-            learning_rate,
-            prioritized_replay=prioritized_replay,
-            team_reward_mode=team_reward_mode,
-            **kwargs,
-        )
+        super().__init__(**base_arguments(MultiAgentOffPolicyAlgorithm.__init__, locals()))
 
     def _diagnostics(self, inputs: th.Tensor, terms: TDTerms, batch: JointReplayBufferSamples) -> dict[str, float]:
         """What explains GDQ's learning (docs/results/gdq_target.md): the gain ``g_i = dV_G/dv_i`` of the

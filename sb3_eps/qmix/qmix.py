@@ -9,11 +9,11 @@ import torch as th
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 from stable_baselines3.common.utils import LinearSchedule
 
-from sb3_eps.common.buffers import JointReplayBufferSamples
+from sb3_eps.common.buffers import JointReplayBuffer, JointReplayBufferSamples, TeamRewardMode
 from sb3_eps.common.losses import weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import check_arguments, input_gain, td_target
+from sb3_eps.common.utils import base_arguments, check_arguments, input_gain, td_target
 from sb3_eps.qmix.policies import QMIXPolicy, VDNPolicy, apply_lr_scales
 
 #: QMIX's and VDN's default learning rate: 3e-4 decaying linearly to 0 over the budget (docs/results/qmix_vdn.md).
@@ -48,13 +48,39 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
         policy: str | type[MultiAgentQPolicy],
         env: GymEnv | None,
         learning_rate: float | Schedule = DEFAULT_LEARNING_RATE,
-        *,
+        buffer_size: int = 50_000,
+        learning_starts: int = 2_000,
+        batch_size: int = 64,
+        tau: float = 0.01,
+        gamma: float = 0.99,
+        train_freq: int | tuple[int, str] = 1,
+        gradient_steps: int = 1,
+        replay_buffer_class: type[JointReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        gradient_steps_per_target_update: int = 1,
+        n_steps: int = 3,
+        prioritized_replay: bool = True,
+        prioritized_replay_alpha: float = 0.6,
+        prioritized_replay_beta0: float = 0.4,
+        double_q: bool = True,
+        exploration_fraction: float = 0.05,
+        exploration_initial_eps: float = 1.0,
+        exploration_final_eps: float = 0.02,
+        max_grad_norm: float = 10.0,
+        team_reward_mode: TeamRewardMode = "sum",
+        overlap_training: bool = False,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
         advantage_learning: float = 0.0,
-        **kwargs: Any,
     ) -> None:
         check_arguments(QMIX.__init__, {"advantage_learning": advantage_learning}, self.argument_ranges)
         self.advantage_learning = float(advantage_learning)
-        super().__init__(policy, env, learning_rate, **kwargs)
+        super().__init__(**base_arguments(MultiAgentOffPolicyAlgorithm.__init__, locals()))
 
     def _update_learning_rate(self, optimizers: list[th.optim.Optimizer] | th.optim.Optimizer) -> None:
         super()._update_learning_rate(optimizers)
@@ -128,5 +154,39 @@ class VDN(QMIX):
     # The sum reads any number of agents: a VDN model moves between team sizes (QMIX's hypernetworks cannot).
     requires_fixed_n_agents: ClassVar[bool] = False
 
-    def __init__(self, *args: Any, advantage_learning: float = DEFAULT_VDN_ADVANTAGE_LEARNING, **kwargs: Any) -> None:
-        super().__init__(*args, advantage_learning=advantage_learning, **kwargs)
+    def __init__(
+        self,
+        policy: str | type[MultiAgentQPolicy],
+        env: GymEnv | None,
+        learning_rate: float | Schedule = DEFAULT_LEARNING_RATE,
+        buffer_size: int = 50_000,
+        learning_starts: int = 2_000,
+        batch_size: int = 64,
+        tau: float = 0.01,
+        gamma: float = 0.99,
+        train_freq: int | tuple[int, str] = 1,
+        gradient_steps: int = 1,
+        replay_buffer_class: type[JointReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        gradient_steps_per_target_update: int = 1,
+        n_steps: int = 3,
+        prioritized_replay: bool = True,
+        prioritized_replay_alpha: float = 0.6,
+        prioritized_replay_beta0: float = 0.4,
+        double_q: bool = True,
+        exploration_fraction: float = 0.05,
+        exploration_initial_eps: float = 1.0,
+        exploration_final_eps: float = 0.02,
+        max_grad_norm: float = 10.0,
+        team_reward_mode: TeamRewardMode = "sum",
+        overlap_training: bool = False,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+        advantage_learning: float = DEFAULT_VDN_ADVANTAGE_LEARNING,
+    ) -> None:
+        super().__init__(**base_arguments(QMIX.__init__, locals()))
