@@ -49,7 +49,7 @@ CASES = [
     ("negative-budget", GOOD.replace("100", "-5"), [], ["n_timesteps", "bad.yml", ">= 1"]),
     ("negative-n", None, ["-n", "-5"], ["-n", ">= 1"]),
     ("bad-schedule", GOOD + "  learning_rate: lin_abc\n", [], ["learning_rate", "lin_"]),
-    ("bad-train-freq", GOOD + "  train_freq: [4, epoch]\n", [], ["train_freq", "'step' or 'episode'"]),
+    ("bad-train-freq", GOOD + "  train_freq: [4, epoch]\n", [], ["train_freq", "one of step, episode"]),
     ("yaml-syntax", GOOD + "  gamma: [0.9\n", [], ["bad.yml", "not valid YAML"]),
     (
         "python-tag",

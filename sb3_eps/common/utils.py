@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import collections.abc
 import inspect
-import math
 import numbers
 import os
 import types
@@ -23,18 +22,22 @@ def is_int(value: Any) -> bool:
     return isinstance(value, int | np.integer) and not isinstance(value, bool)
 
 
+def is_number(value: Any) -> bool:
+    """Whether ``value`` is a real number (a bool is not)."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
+
+
 def check_arguments(function: Callable[..., Any], values: dict[str, Any], ranges: dict[str, str]) -> None:
     """Check ``values`` against the type hints of ``function`` (a constructor or a dataclass) and the intervals of
-    ``ranges`` (``"(0, 1]"``, ``"[1, inf)"``), one config schema derived from the signatures.
+    ``ranges`` (``"(0, 1]"``, ``"[1, inf)"``) with :func:`conform`, the checker the config schema uses too.
 
     :raises ValueError: one line naming the first argument that does not fit and what it may be
     """
     hints = inspect.get_annotations(function, eval_str=True)
     for name, value in values.items():
         hint, interval = hints.get(name, Any), ranges.get(name)
-        in_range = interval is None or not _is_number(value) or _in_interval(float(value), interval)
-        if not (_fits(value, hint) and in_range):
-            raise ValueError(f"{name} must be {_describe(hint, interval)}, got {value!r}")
+        if conform(value, hint, interval) is INVALID:
+            raise ValueError(f"{name} must be {describe_hint(hint, interval)}, got {value!r}")
 
 
 def base_arguments(base_init: Callable[..., Any], values: dict[str, Any]) -> dict[str, Any]:
@@ -43,58 +46,88 @@ def base_arguments(base_init: Callable[..., Any], values: dict[str, Any]) -> dic
     return {name: values[name] for name in inspect.signature(base_init).parameters if name != "self" and name in values}
 
 
-def _is_number(value: Any) -> bool:
-    return isinstance(value, numbers.Real) and not isinstance(value, bool | np.bool_)
+#: What :func:`conform` returns for a value that does not fit its hint.
+INVALID: Any = object()
+#: The check of a plain hint: ``(value, hint) ->`` the value in canonical form, or :data:`INVALID`.
+Leaf = Callable[[Any, Any], Any]
 
 
-#: What each plain type hint accepts, and its name in an error.
-_PLAIN_HINTS: dict[Any, tuple[str, Callable[[Any], bool]]] = {
-    type(None): ("None", lambda value: value is None),
-    bool: ("True or False", lambda value: isinstance(value, bool | np.bool_)),
-    int: ("an int", is_int),
-    float: ("a number", _is_number),
-    str: ("a string", lambda value: isinstance(value, str | os.PathLike)),
-    dict: ("a mapping", lambda value: isinstance(value, collections.abc.Mapping)),
-    collections.abc.Callable: ("a schedule (callable)", callable),
+def leaf(test: Callable[[Any], bool], cast: Callable[[Any], Any] = lambda value: value) -> Leaf:
+    """:return: the check of a plain hint that accepts the values passing ``test``, as ``cast`` of them."""
+    return lambda value, hint: cast(value) if test(value) else INVALID
+
+
+#: Each plain type hint (or origin) the constructors check: its words in an error (or a function of the hint giving
+#: them) and its :data:`Leaf`. Hints not listed (classes, envs) accept anything and have no words.
+PLAIN_HINTS: dict[Any, tuple[str | Callable[[Any], str | None], Leaf]] = {
+    type(None): ("None", leaf(lambda value: value is None)),
+    bool: ("True or False", leaf(lambda value: isinstance(value, bool | np.bool_), bool)),
+    int: ("an int", leaf(is_int, int)),
+    float: ("a number", leaf(is_number, float)),
+    str: ("a string", leaf(lambda value: isinstance(value, str | os.PathLike))),
+    dict: ("a mapping", leaf(lambda value: isinstance(value, collections.abc.Mapping))),
+    collections.abc.Callable: ("a schedule (callable)", leaf(callable)),
 }
+
+
+def hint_members(hint: Any) -> tuple[Any, ...]:
+    """:return: the members of a union hint (``int | None``), else ``(hint,)``."""
+    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
+        return typing.get_args(hint)
+    return (hint,)
+
+
+def conform(value: Any, hint: Any, interval: str | None = None, plain: dict[Any, Any] = PLAIN_HINTS) -> Any:
+    """:return: ``value`` in canonical form (a list for a list or tuple) when it fits ``hint`` and its numbers lie in
+    ``interval`` (``"(0, 1]"``, ``"[1, inf)"``; never NaN), else :data:`INVALID`.
+
+    :param plain: the checks of the plain hints (a config's add their own spellings to :data:`PLAIN_HINTS`)
+    """
+    members, origin, arguments = hint_members(hint), typing.get_origin(hint), typing.get_args(hint)
+    if len(members) > 1:
+        results = (conform(value, member, interval, plain) for member in members)
+        return next((result for result in results if result is not INVALID), INVALID)
+    if origin is typing.Literal:
+        return value if any(value == choice and type(value) is type(choice) for choice in arguments) else INVALID
+    if origin in (list, tuple):
+        if not isinstance(value, list | tuple):
+            return INVALID
+        hints = arguments if origin is tuple and Ellipsis not in arguments else arguments[:1] * len(value)
+        items = [conform(item, item_hint, interval, plain) for item, item_hint in zip(value, hints)]
+        return items if len(hints) == len(value) and all(item is not INVALID for item in items) else INVALID
+    result = plain.get(origin or hint, ("", lambda value, _: value))[1](value, hint)
+    if hint not in (int, float) or result is INVALID:
+        return result
+    return result if _in_interval(result, interval or "[-inf, inf]") else INVALID
 
 
 def _in_interval(number: float, interval: str) -> bool:
     low, high = (float(bound) for bound in interval[1:-1].split(","))
     above = number > low or (interval[0] == "[" and number == low)
-    return above and (number < high or (interval[-1] == "]" and number == high))
+    return above and (number < high or (interval[-1] == "]" and number == high))  # NaN is neither
 
 
-def _fits(value: Any, hint: Any) -> bool:
-    """Whether ``value`` fits ``hint``; hints a config cannot hold (classes, envs) accept anything."""
-    origin, arguments = typing.get_origin(hint), typing.get_args(hint)
-    if isinstance(hint, types.UnionType) or origin is typing.Union:
-        return any(_fits(value, member) for member in arguments)
+def describe_hint(hint: Any, interval: str | None = None, plain: dict[Any, Any] = PLAIN_HINTS) -> str | None:
+    """:return: what a value of ``hint`` may be, in words (for error messages), with ``interval``; None for a hint
+    that ``plain`` has no words for."""
+    members, origin, arguments = hint_members(hint), typing.get_origin(hint), typing.get_args(hint)
+    if len(members) > 1:
+        words = [describe_hint(member, interval, plain) for member in members]
+        return None if None in words else " or ".join(words)  # type: ignore[arg-type]
     if origin is typing.Literal:
-        return any(value == choice and type(value) is type(choice) for choice in arguments)
+        return f"one of {', '.join(map(str, arguments))}"
     if origin in (list, tuple):
-        if not isinstance(value, list | tuple):
-            return False
-        items = arguments if origin is tuple and Ellipsis not in arguments else arguments[:1] * len(value)
-        return len(items) == len(value) and all(map(_fits, value, items))
-    return _PLAIN_HINTS.get(origin or hint, ("", lambda _: True))[1](value)
-
-
-def _describe(hint: Any, interval: str | None) -> str:
-    origin, arguments = typing.get_origin(hint), typing.get_args(hint)
-    if isinstance(hint, types.UnionType) or origin is typing.Union:
-        return " or ".join(_describe(member, interval) for member in arguments)
-    if origin is typing.Literal:
-        return f"one of {arguments}"
-    if origin in (list, tuple):
-        return f"a list of {'/'.join(getattr(item, '__name__', '') for item in arguments if item is not Ellipsis)}"
-    word = _PLAIN_HINTS.get(origin or hint, (getattr(hint, "__name__", str(hint)),))[0]
-    if interval is None or hint not in (int, float):
+        items = [describe_hint(item, interval, plain) for item in arguments if item is not Ellipsis]
+        if not items or None in items:
+            return None
+        fixed = origin is tuple and Ellipsis not in arguments
+        return f"a list [{', '.join(items)}]" if fixed else f"a list, each {items[0]}"  # type: ignore[arg-type]
+    word = plain.get(origin or hint, (None,))[0]
+    word = word(hint) if callable(word) else word
+    if word is None or interval is None or hint not in (int, float):
         return word
-    low, high = interval[1:-1].split(", ")
-    if math.isinf(float(high)):
-        return f"{word} {'>=' if interval[0] == '[' else '>'} {low}"
-    return f"{word} in {interval}"
+    low, high = (bound.strip() for bound in interval[1:-1].split(","))
+    return f"{word} in {interval}" if high != "inf" else f"{word} {'>=' if interval[0] == '[' else '>'} {low}"
 
 
 def check_seed(seed: Any) -> int | None:

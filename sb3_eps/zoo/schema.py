@@ -14,7 +14,6 @@ import dataclasses
 import inspect
 import re
 import sys
-import types
 import typing
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -29,6 +28,7 @@ from torch import nn
 from sb3_eps.common import buffers
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
+from sb3_eps.common.utils import INVALID, PLAIN_HINTS, Leaf, conform, describe_hint, hint_members, is_number, leaf
 from sb3_eps.eps import EvolutionCallback, eps_env_id_for
 from sb3_eps.eps.population import PopulationTrainer
 from sb3_eps.gdq import GDQ
@@ -59,8 +59,8 @@ REPLAY_BUFFER_CLASSES: dict[str, type[buffers.JointReplayBuffer]] = {
     name: cls for name, cls in vars(buffers).items() if isinstance(cls, type) and issubclass(cls, buffers.JointReplayBuffer)
 }
 
-_SCHEDULE_PATTERN = re.compile(r"^lin_([0-9.eE+-]+)$")
-_FLOAT_PATTERN = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
+_NUMBER = r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?"
+_SCHEDULE_PATTERN, _FLOAT_PATTERN = re.compile(rf"^lin_({_NUMBER})$"), re.compile(rf"^{_NUMBER}$")
 
 
 # ---------------------------------------------------------------------------------------------- parameters
@@ -75,13 +75,65 @@ RANGES: dict[str, str] = {
     "n_trials": "[1, inf)", "n_jobs": "[1, inf)", "n_evaluations": "[1, inf)", "n_seeds_per_trial": "[1, inf)",
     "n_startup_trials": "[0, inf)",
 }  # fmt: skip
-#: The strings a plain ``str`` inside a key's hint may hold (SB3's ``train_freq`` unit).
-CHOICES: dict[str, tuple[str, ...]] = {"train_freq": tuple(unit.value for unit in TrainFrequencyUnit)}
 #: The classes a ``type[...]`` hint may name: base class -> {config name: class}.
 CLASS_NAMES: dict[Any, dict[str, type]] = {
     nn.Module: ACTIVATIONS,
     th.optim.Optimizer: OPTIMIZERS,
     buffers.JointReplayBuffer: REPLAY_BUFFER_CLASSES,
+}
+
+
+def _classes(hint: Any) -> dict[str, type] | None:
+    """:return: the classes a ``type[...]`` hint may name in a config (:data:`CLASS_NAMES`), or None."""
+    arguments = typing.get_args(hint)
+    return CLASS_NAMES.get(arguments[0]) if arguments else None
+
+
+def _class_name(value: Any, hint: Any) -> Any:
+    canonical = NAME_SPELLINGS.get(value, value) if isinstance(value, str) else None
+    return canonical if canonical in (_classes(hint) or {}) else INVALID
+
+
+def _schedule(value: Any, hint: Any) -> Any:
+    """RL Zoo's ``lin_<x>``: x at the start, decreasing linearly to 0."""
+    match = _SCHEDULE_PATTERN.match(value.strip()) if isinstance(value, str) else None
+    return f"lin_{match[1]}" if match else INVALID
+
+
+def _mapping(value: Any, hint: Any) -> Any:
+    value = parse_literal(value, {}, "a 'dict(...)' string") if isinstance(value, str) else value  # RL Zoo's form
+    return dict(value) if isinstance(value, Mapping) and _is_plain_data(value) else INVALID
+
+
+def _is_numeric(value: Any) -> bool:
+    """A number, or a numeric string (YAML 1.1 reads ``1e-4`` as a string)."""
+    return is_number(value) or (isinstance(value, str) and _FLOAT_PATTERN.match(value.strip()) is not None)
+
+
+def _is_plain_data(value: Any, depth: int = 0) -> bool:
+    """Numbers, strings, booleans, None, and lists / string-keyed mappings of them."""
+    if depth > 16:
+        return False
+    if value is None or isinstance(value, bool | int | float | str):
+        return True
+    if isinstance(value, list | tuple):
+        return all(_is_plain_data(item, depth + 1) for item in value)
+    if isinstance(value, Mapping):
+        return all(isinstance(key, str) and _is_plain_data(item, depth + 1) for key, item in value.items())
+    return False
+
+
+#: The plain hints of a config value: the constructors' (:data:`~sb3_eps.common.utils.PLAIN_HINTS`) and what only a
+#: config needs: YAML's null and numeric strings, RL Zoo's ``lin_<x>`` schedules and ``dict(...)`` strings, class
+#: names, plain data. A hint without words here is one a config cannot hold.
+CONFIG_HINTS: dict[Any, tuple[Any, Leaf]] = {
+    **PLAIN_HINTS,
+    type(None): ("null", PLAIN_HINTS[type(None)][1]),
+    float: ("a number", leaf(_is_numeric, float)),
+    dict: ("a mapping of names to values (or a 'dict(...)' string)", _mapping),
+    Any: ("plain data (numbers, strings, lists, mappings)", leaf(_is_plain_data)),
+    collections.abc.Callable: ("a linear schedule 'lin_<initial value>' (e.g. lin_1e-3)", _schedule),
+    type: (lambda hint: f"one of {allowed(_classes(hint) or ())}" if _classes(hint) else None, _class_name),
 }
 #: Run keys of an entry (not algorithm arguments) and their types. ``policy`` and ``callback`` are checked separately.
 RUN_PARAMS: dict[str, Any] = {
@@ -112,12 +164,11 @@ _POLICY_INTERNALS = (
     "observation_space", "action_space", "lr_schedule", "n_agents", "state_dim", "features_extractor_class",
     "features_extractor_kwargs",
 )  # fmt: skip
-_INVALID = object()
 
 
 def params_from_signature(function: Callable[..., Any], skip: Sequence[str] = (), every: bool = False) -> dict[str, Any]:
     """:return: ``{argument: type hint}`` of the keyword arguments of ``function`` whose hint a config can hold
-    (:func:`describe`); with ``every``, the others too, as plain data. A keyword whose hint is a dataclass
+    (:data:`CONFIG_HINTS`); with ``every``, the others too, as plain data. A keyword whose hint is a dataclass
     (``EPSSettings``) stands for the dataclass's fields."""
     hints = typing.get_type_hints(function)
     params: dict[str, Any] = {}
@@ -126,62 +177,12 @@ def params_from_signature(function: Callable[..., Any], skip: Sequence[str] = ()
         if variadic or name in skip or name == "self" or (name not in hints and not every):
             continue
         hint = hints.get(name, Any)
-        settings = [member for member in _hint_members(hint) if dataclasses.is_dataclass(member)]
+        settings = [member for member in hint_members(hint) if dataclasses.is_dataclass(member)]
         if settings:
             params.update(params_from_signature(settings[0], skip, every))
-        elif describe(hint) is not None or every:
-            params[name] = hint if describe(hint) is not None else Any
+        elif describe_hint(hint, None, CONFIG_HINTS) is not None or every:
+            params[name] = hint if describe_hint(hint, None, CONFIG_HINTS) is not None else Any
     return params
-
-
-def describe(hint: Any, name: str = "") -> str | None:
-    """:return: what a value of ``hint`` may be, in words (for error messages), with the range of :data:`RANGES`;
-    None for a hint a config cannot hold."""
-    members = _hint_members(hint)
-    if len(members) > 1:
-        words = [describe(member, name) for member in members if member is not type(None)]
-        if None in words:
-            return None
-        return " or ".join(words) + (" or null" if type(None) in members else "")  # type: ignore[arg-type]
-    origin, arguments = typing.get_origin(hint), typing.get_args(hint)
-    if origin is typing.Literal:
-        return f"one of {allowed(arguments)}"
-    if origin is collections.abc.Callable:  # SB3's Schedule
-        return "a linear schedule 'lin_<initial value>' (e.g. lin_1e-3)"
-    if origin in (list, tuple):
-        items = [describe(argument, name) for argument in arguments]
-        if not items or None in items:
-            return None
-        return f"a list [{', '.join(items)}]" if origin is tuple else f"a list, each {items[0]}"  # type: ignore[arg-type]
-    if origin is type:
-        return f"one of {allowed(CLASS_NAMES[arguments[0]])}" if arguments[0] in CLASS_NAMES else None
-    if hint is str and name in CHOICES:
-        return " or ".join(map(repr, CHOICES[name]))
-    bounds = _bounds(RANGES.get(name))
-    words = {bool: "true or false", int: f"an int{bounds}", float: f"a number{bounds}", str: "a string",
-             dict: "a mapping of names to values (or a 'dict(...)' string)",
-             Any: "plain data (numbers, strings, lists, mappings)"}  # fmt: skip
-    return words.get(origin or hint)
-
-
-def _bounds(interval: str | None) -> str:
-    """:return: an interval of :data:`RANGES` in words: ``" >= 1"``, ``" > 0"``, ``" in [0, 1]"``."""
-    if interval is None:
-        return ""
-    low, high = (bound.strip() for bound in interval[1:-1].split(","))
-    return f" in {interval}" if high != "inf" else f" {'>=' if interval[0] == '[' else '>'} {low}"
-
-
-def _in_range(number: float, interval: str) -> bool:
-    low, high = (float(bound) for bound in interval[1:-1].split(","))
-    above = number > low if interval[0] == "(" else number >= low
-    return above and (number < high if interval[-1] == ")" else number <= high)  # NaN is neither
-
-
-def _hint_members(hint: Any) -> tuple[Any, ...]:
-    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
-        return typing.get_args(hint)
-    return (hint,)
 
 
 #: Arguments of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm` a config may set, read from its
@@ -190,6 +191,8 @@ def _hint_members(hint: Any) -> tuple[Any, ...]:
 ALGORITHM_PARAMS: dict[str, Any] = params_from_signature(
     MultiAgentOffPolicyAlgorithm.__init__, (*COMMAND_LINE_ARGUMENTS, POLICY_KWARGS_KEY)
 )
+#: SB3's ``train_freq`` unit is a plain ``str`` in the signature; a config names one of its units.
+ALGORITHM_PARAMS["train_freq"] = int | tuple[int, Literal[tuple(unit.value for unit in TrainFrequencyUnit)]]  # type: ignore[misc]
 #: ``policy_kwargs`` keys of every algorithm, read from the shared policy's signature.
 COMMON_POLICY_PARAMS: dict[str, Any] = params_from_signature(MultiAgentQPolicy.__init__, _POLICY_INTERNALS)
 
@@ -382,73 +385,20 @@ def check_complete(entry: Mapping[str, Any], spec: AlgorithmSpec, where: str) ->
 
 
 def normalize_value(value: Any, hint: Any, where: str, name: str = "") -> Any:
-    """Check one value against its type hint (and the :data:`RANGES` / :data:`CHOICES` of ``name``); return its
+    """Check one value against its type hint (and the :data:`RANGES` interval of ``name``) with the constructors'
+    checker (:func:`~sb3_eps.common.utils.conform`) and the config spellings of :data:`CONFIG_HINTS`; return its
     canonical form.
 
     :raises ConfigError: naming ``where`` and what is allowed
     """
-    result = _conform(value, hint, name, where)
-    if result is _INVALID:
-        raise ConfigError(f"{where} must be {describe(hint, name)}, got {value!r} ({type(value).__name__})")
+    try:
+        result = conform(value, hint, RANGES.get(name), CONFIG_HINTS)
+    except ConfigError as error:  # a 'dict(...)' string that does not parse
+        raise ConfigError(f"{where}: {error}") from None
+    if result is INVALID:
+        words = describe_hint(hint, RANGES.get(name), CONFIG_HINTS)
+        raise ConfigError(f"{where} must be {words}, got {value!r} ({type(value).__name__})")
     return result
-
-
-def _conform(value: Any, hint: Any, name: str, where: str) -> Any:
-    """:return: ``value`` in canonical form when it fits ``hint``, else ``_INVALID``."""
-    members = _hint_members(hint)
-    if len(members) > 1:
-        if value is None and type(None) in members:
-            return None
-        results = (_conform(value, member, name, where) for member in members if member is not type(None))
-        return next((result for result in results if result is not _INVALID), _INVALID)
-    origin, arguments = typing.get_origin(hint), typing.get_args(hint)
-    if origin is typing.Literal:
-        return value if isinstance(value, str) and value in arguments else _INVALID
-    if origin is collections.abc.Callable:  # RL Zoo's lin_<x>: x at the start, decreasing linearly to 0
-        match = _SCHEDULE_PATTERN.match(value.strip()) if isinstance(value, str) else None
-        fits = match is not None and _conform(match[1], float, name, where) is not _INVALID
-        return f"lin_{match[1]}" if fits else _INVALID  # type: ignore[index]
-    if origin in (list, tuple):
-        if not isinstance(value, list | tuple) or (origin is tuple and len(value) != len(arguments)):
-            return _INVALID
-        items = [_conform(item, arguments[index if origin is tuple else 0], name, where)
-                 for index, item in enumerate(value)]  # fmt: skip
-        return _INVALID if any(item is _INVALID for item in items) else items
-    if origin is type:
-        canonical = NAME_SPELLINGS.get(value, value) if isinstance(value, str) else None
-        return canonical if canonical in CLASS_NAMES[arguments[0]] else _INVALID
-    if hint is dict or origin is dict:
-        value = parse_literal(value, {}, where) if isinstance(value, str) else value  # RL Zoo's "dict(...)"
-        return dict(value) if isinstance(value, Mapping) and _is_plain_data(value) else _INVALID
-    if hint is Any:
-        return value if _is_plain_data(value) else _INVALID
-    if hint in (bool, str):
-        fits = isinstance(value, hint) and (hint is bool or value in CHOICES.get(name, (value,)))
-        return value if fits else _INVALID
-    number = _as_number(value) if hint is float else value
-    if isinstance(number, bool) or not isinstance(number, int | float) or (hint is int and isinstance(number, float)):
-        return _INVALID
-    return hint(number) if _in_range(float(number), RANGES.get(name, "[-inf, inf]")) else _INVALID
-
-
-def _as_number(value: Any) -> Any:
-    """YAML 1.1 reads ``1e-4`` as a string: accept numeric strings where a number is expected."""
-    if isinstance(value, str) and _FLOAT_PATTERN.match(value.strip()):
-        return float(value)
-    return value
-
-
-def _is_plain_data(value: Any, depth: int = 0) -> bool:
-    """Numbers, strings, booleans, None, and lists / string-keyed mappings of them."""
-    if depth > 16:
-        return False
-    if value is None or isinstance(value, bool | int | float | str):
-        return True
-    if isinstance(value, list | tuple):
-        return all(_is_plain_data(item, depth + 1) for item in value)
-    if isinstance(value, Mapping):
-        return all(isinstance(key, str) and _is_plain_data(item, depth + 1) for key, item in value.items())
-    return False
 
 
 def normalize_arguments(
@@ -564,7 +514,7 @@ def to_object(value: Any, hint: Any) -> Any:
     """:return: a canonical config value as its constructor takes it: RL Zoo's ``lin_<x>`` as SB3's
     ``LinearSchedule(x, 0, 1)`` (x at the start, decreasing linearly to 0 at the end of training), a class name as
     the class, a list as a tuple where the hint says ``tuple``."""
-    for member in _hint_members(hint):
+    for member in hint_members(hint):
         origin, arguments = typing.get_origin(member), typing.get_args(member)
         if isinstance(value, str) and origin is collections.abc.Callable:
             return LinearSchedule(float(value[4:]), 0.0, 1.0)
