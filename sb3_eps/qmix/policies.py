@@ -15,6 +15,8 @@ from sb3_eps.common.utils import check_arguments
 #: VDN greedy-acts from a weight average of its agent network by default (docs/results/qmix_vdn.md; the
 #: same rate as GDQ's).
 VDN_WEIGHT_AVERAGE_TAU = 2e-4
+#: QMIX's mixer learns at this fraction of the agents' rate (with one rate it diverged, docs/results/qmix_vdn.md).
+MIXER_LR_SCALE = 0.1
 
 
 class QMixer(nn.Module):
@@ -125,8 +127,6 @@ class QMIXPolicy(MultiAgentQPolicy):
     :param hypernet_hidden_dim: hidden width of the hypernetworks (64)
     :param mixer_init: initialisation of the mixer, ``"sum"`` (default: it starts as VDN's sum) or ``"random"``
         (PyTorch's default initialisation, the QMIX paper's) (see :class:`QMixer`)
-    :param mixer_lr_scale: the mixer's learning rate as a fraction of the agent network's (default 0.1; 1: one rate
-        for all): the hypernetworks re-weight the agents more slowly than the agents learn their own ``Q_i``
     :param kwargs: as :class:`~sb3_eps.common.policies.MultiAgentQPolicy`
     """
 
@@ -139,24 +139,20 @@ class QMIXPolicy(MultiAgentQPolicy):
         mixing_embed_dim: int = 32,
         hypernet_hidden_dim: int = 64,
         mixer_init: MixerInit = "sum",
-        mixer_lr_scale: float = 0.1,
         **kwargs: Any,
     ):
-        values = {"mixer_init": mixer_init, "mixer_lr_scale": mixer_lr_scale}
-        check_arguments(QMIXPolicy.__init__, values, {"mixer_lr_scale": "(0, inf)"})
+        check_arguments(QMIXPolicy.__init__, {"mixer_init": mixer_init}, {})
         self.mixing_embed_dim = mixing_embed_dim
         self.hypernet_hidden_dim = hypernet_hidden_dim
         self.mixer_init = mixer_init
-        self.mixer_lr_scale = float(mixer_lr_scale)
         super().__init__(*args, **kwargs)
 
     def _build(self, lr_schedule: Schedule) -> None:
         super()._build(lr_schedule)
-        if self.mixer_lr_scale != 1.0 and any(True for _ in self.mixer.parameters()):  # VDN's sum has none
-            # Two parameter groups; the algorithm multiplies each group's rate by its lr_scale at every update.
+        if any(True for _ in self.mixer.parameters()):  # two rates (VDN's sum has no parameters): see apply_lr_scales
             groups = [
                 {"params": list(self.q_net.parameters()), "lr_scale": 1.0},
-                {"params": list(self.mixer.parameters()), "lr_scale": self.mixer_lr_scale},
+                {"params": list(self.mixer.parameters()), "lr_scale": MIXER_LR_SCALE},
             ]
             defaults = {key: value for key, value in self.optimizer.defaults.items() if key != "lr"}
             self.optimizer = self.optimizer_class(groups, lr=lr_schedule(1), **defaults)
@@ -183,7 +179,6 @@ class QMIXPolicy(MultiAgentQPolicy):
             mixing_embed_dim=self.mixing_embed_dim,
             hypernet_hidden_dim=self.hypernet_hidden_dim,
             mixer_init=self.mixer_init,
-            mixer_lr_scale=self.mixer_lr_scale,
         )
         return data
 

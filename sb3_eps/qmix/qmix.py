@@ -27,8 +27,8 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     """QMIX: the team's ``Q_tot = mixer(Q_1(s_1, a_1), ..., Q_n(s_n, a_n); s)`` is trained by TD on the team
     reward, ``y = r_team + gamma^k (1 - done) mixer_target(Q_i'(s'_i, a*_i); s')``; agents act greedily on
     their own ``Q_i`` (monotonicity makes that the joint arg max). Agents that are not acting (a robot that
-    arrived) enter the mixer with ``Q = 0``. Needs the env's global state (``state()``). The mixer's size,
-    initialisation and learning rate are ``policy_kwargs`` (:class:`~sb3_eps.qmix.policies.QMIXPolicy`). Arguments
+    arrived) enter the mixer with ``Q = 0``. Needs the env's global state (``state()``). The mixer's size and
+    initialisation are ``policy_kwargs`` (:class:`~sb3_eps.qmix.policies.QMIXPolicy`). Arguments
     are those of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm` (the learning rate decays from
     3e-4 to 0 by default, ``docs/results/qmix_vdn.md``), and:
 
@@ -84,7 +84,7 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
 
     def _update_learning_rate(self, optimizers: list[th.optim.Optimizer] | th.optim.Optimizer) -> None:
         super()._update_learning_rate(optimizers)
-        apply_lr_scales(self.policy.optimizer)  # the mixer's own rate (policy_kwargs mixer_lr_scale)
+        apply_lr_scales(self.policy.optimizer)  # the mixer's own rate (MIXER_LR_SCALE)
 
     def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
         terms = self._td_terms(batch)
