@@ -22,9 +22,13 @@ def _kernels() -> set[int]:
     """:return: the process ids of the kernels this test process started."""
     import psutil
 
-    return {
-        child.pid for child in psutil.Process().children(recursive=True) if "ipykernel_launcher" in " ".join(child.cmdline())
-    }
+    def is_kernel(child: psutil.Process) -> bool:
+        try:
+            return "ipykernel_launcher" in " ".join(child.cmdline())
+        except (psutil.ZombieProcess, psutil.NoSuchProcess):  # a finished child of an earlier test, not a kernel
+            return False
+
+    return {child.pid for child in psutil.Process().children(recursive=True) if is_kernel(child)}
 
 
 def test_there_are_three_notebooks() -> None:

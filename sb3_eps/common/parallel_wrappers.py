@@ -166,6 +166,8 @@ class TeamAsGymnasium(gymnasium.Env):
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         actions = np.asarray(action).reshape(-1)
+        if actions.shape != (self.team_size,):  # zip would drop the extra actions silently
+            raise ValueError(f"expected {self.team_size} actions (one per agent), got {np.shape(action)}")
         observations, rewards, terminations, truncations, _ = self.env.step(
             {agent: int(a) for agent, a in zip(self.agents, actions)}
         )
