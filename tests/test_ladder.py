@@ -160,7 +160,10 @@ def the_run(folder: Path) -> Path:
 
 def assert_equal_buffers(run: Path, expected: Path) -> None:
     """The replay buffers that the runs' final checkpoints kept are equal."""
-    buffers = [load_checkpoint(path / "checkpoint.zip").training["replay_buffer"] for path in (run, expected)]
+    trainings = [load_checkpoint(path / "checkpoint.zip").training for path in (run, expected)]
+    for training in trainings:  # unpickling a checkpoint starts its worlds' workers again
+        training["env"].close()
+    buffers = [training["replay_buffer"] for training in trainings]
     assert buffers[0].size() == buffers[1].size() > 0
     for name in ("observations", "actions", "team_rewards", "next_observations"):
         np.testing.assert_array_equal(getattr(buffers[0], name), getattr(buffers[1], name), err_msg=name)
