@@ -111,13 +111,10 @@ class JointReplayBuffer:
         """No-op for uniform replay (the prioritised variant overrides it)."""
 
     def _to_samples(self, indices: np.ndarray, weights: np.ndarray) -> JointReplayBufferSamples:
-        no_state = th.zeros((len(indices), 0), device=self.device)  # nothing to gather without a global state
-        rows = {  # every column of the buffer: the samples' fields but the last two
-            name: no_state
-            if name.endswith("states") and not self.state_dim
-            else th.as_tensor(getattr(self, name)[indices], device=self.device)
-            for name in JointReplayBufferSamples._fields[:-2]
-        }
+        columns = JointReplayBufferSamples._fields[:-2]  # the samples' fields but weights and indices
+        gathered = columns if self.state_dim else columns[:-2]  # without a global state its two columns stay empty
+        rows = {name: th.as_tensor(getattr(self, name)[indices], device=self.device) for name in gathered}
+        rows.update({name: th.zeros((len(indices), 0), device=self.device) for name in columns[len(gathered) :]})
         return JointReplayBufferSamples(**rows, weights=th.as_tensor(weights, device=self.device), indices=indices)
 
 

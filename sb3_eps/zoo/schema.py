@@ -180,8 +180,8 @@ def params_from_signature(function: Callable[..., Any], skip: Sequence[str] = ()
         settings = [member for member in hint_members(hint) if dataclasses.is_dataclass(member)]
         if settings:
             params.update(params_from_signature(settings[0], skip, every))
-        elif describe_hint(hint, None, CONFIG_HINTS) is not None or every:
-            params[name] = hint if describe_hint(hint, None, CONFIG_HINTS) is not None else Any
+        elif (holdable := describe_hint(hint, None, CONFIG_HINTS) is not None) or every:
+            params[name] = hint if holdable else Any
     return params
 
 
