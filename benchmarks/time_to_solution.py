@@ -29,6 +29,7 @@ from typing import Any
 
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.utils import LinearSchedule
 
 import envs  # noqa: F401
 from sb3_eps import GDQ, IQL, QMIX, VDN, make_vec_env
@@ -47,6 +48,13 @@ PRESETS: dict[str, dict[str, Any]] = {
     # 16 worlds and batch 256: the same sampled rows per tick again, in a quarter of the defaults' gradient steps, so
     # the fixed cost of a vector step (buffer writes, action selection, optimizer) falls on twice the ticks.
     "overlap16-b256": {"n_envs": 16, "overlap_training": True, "batch_size": 256},
+    # The same with the learning rate doubled (6e-4 decaying linearly to 0): a quarter of the gradient steps, longer.
+    "overlap16-b256-lr6e-4": {
+        "n_envs": 16,
+        "overlap_training": True,
+        "batch_size": 256,
+        "learning_rate": LinearSchedule(6e-4, 0.0, 1.0),
+    },
 }
 
 
