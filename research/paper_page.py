@@ -422,8 +422,8 @@ def section_table1(findings: Findings) -> list[str]:
     lines += [
         "Over the whole training, as the paper measures: its average reward (its scale; ours is the team return of an",
         "episode, 25 ticks, so the two differ in scale and only the ordering is compared) and the share of training",
-        "episodes with a collision; and, ours only, greedy success at the end. Verdict: the paper's ordering (GDQ over",
-        "IL, each EPS variant over its base, in reward and in collisions) holds in our runs.",
+        "episodes with a collision; and, ours only, greedy success at the end. A row is reproduced when the paper's",
+        "ordering (GDQ over IL, each EPS variant over its base, in reward and in collisions) holds in our runs.",
         "",
     ]
     lines += _paper_table(PAPER_TABLE1, cells, ours, verdicts, "ours: avg. team return")
