@@ -111,10 +111,14 @@ class JointReplayBuffer:
         """No-op for uniform replay (the prioritised variant overrides it)."""
 
     def _to_samples(self, indices: np.ndarray, weights: np.ndarray) -> JointReplayBufferSamples:
-        columns = JointReplayBufferSamples._fields[:-2]  # the samples' fields but weights and indices
-        gathered = columns if self.state_dim else columns[:-2]  # without a global state its two columns stay empty
-        rows = {name: th.as_tensor(getattr(self, name)[indices], device=self.device) for name in gathered}
-        rows.update({name: th.zeros((len(indices), 0), device=self.device) for name in columns[len(gathered) :]})
+        state_columns = ("states", "next_states")
+        rows = {  # every column of the buffer: the samples' fields but weights and indices
+            name: th.as_tensor(getattr(self, name)[indices], device=self.device)
+            for name in JointReplayBufferSamples._fields[:-2]
+            if self.state_dim or name not in state_columns
+        }
+        if not self.state_dim:  # nothing to gather without a global state
+            rows.update(dict.fromkeys(state_columns, th.zeros((len(indices), 0), device=self.device)))
         return JointReplayBufferSamples(**rows, weights=th.as_tensor(weights, device=self.device), indices=indices)
 
 
