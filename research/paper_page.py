@@ -175,19 +175,34 @@ def read_record_seed(path: Path) -> Seed:
     )
 
 
+def monitor_seconds(times: np.ndarray) -> float:
+    """A run's measured wall seconds from its ``monitor.csv`` column ``t`` (seconds from the start of its worlds to
+    each training episode's end): the last ``t`` of every stretch, summed; a resumed run starts its clock again, so a
+    ``t`` below the one before starts a new stretch. NaN without episodes."""
+    times = times[np.isfinite(times)]
+    if not len(times):
+        return math.nan
+    restarts = np.nonzero(np.diff(times) < 0)[0]
+    return float(np.sum(times[restarts]) + times[-1])
+
+
 def read_run_seed(run_dir: Path) -> Seed:
-    """A finished run folder of ``sb3_eps.train``: its greedy evaluations and its training episodes' means."""
+    """A finished run folder of ``sb3_eps.train``: its greedy evaluations, its training episodes' means and its
+    measured wall seconds (:func:`monitor_seconds`)."""
     data = np.load(run_dir / EVALUATIONS_NAME)
     training = {}
+    wall_s = math.nan
     if (run_dir / MONITOR_NAME).is_file():  # none before a training episode ends
         _, monitor = read_monitor(run_dir / MONITOR_NAME)
         training = {key: float(np.mean(monitor[key])) for key in ("r", "collision") if len(monitor.get(key, []))}
+        wall_s = monitor_seconds(monitor.get("t", np.array([])))
     return Seed(
         run_dir.name,
         data["ticks"] + data["eps_ticks"],
         np.nanmean(data["successes"], axis=1),
         data["results"].mean(axis=1),
         np.nanmean(data["collisions"], axis=1),
+        wall_s=wall_s,
         training=training,
     )
 
@@ -230,6 +245,7 @@ class Findings:
     table2: dict[str, Cell | None]
     table3: dict[float, tuple[Seed | None, Cell | None]]
     best: list[tuple[str, str, Cell]]
+    pretrain: list[Seed] = field(default_factory=list)
 
 
 def _unseen_cell(folder: Path, algo: str) -> Cell | None:
@@ -268,7 +284,15 @@ def collect(folder: Path) -> Findings:
         cell = record_cell(source)
         if cell is not None:
             best.append((source["env"], source["label"], cell))
-    return Findings({algo: run_cell(folder / "table1", algo, MPE) for algo in TABLE1_ALGOS}, fig4, table2, table3, best)
+    pretrain = run_cell(folder / "pretrain", "gdq", "SingleRobotNav-v0")
+    return Findings(
+        {algo: run_cell(folder / "table1", algo, MPE) for algo in TABLE1_ALGOS},
+        fig4,
+        table2,
+        table3,
+        best,
+        pretrain.seeds if pretrain else [],
+    )
 
 
 # ---------------------------------------------------------------------------------------------- verdicts
@@ -600,38 +624,64 @@ def section_best(findings: Findings) -> list[str]:
     return lines + _table(header, rows)
 
 
-def wall_time_estimate(findings: Findings) -> tuple[float, float, list[str]]:
-    """Hours of the full command on 2 cores (2 runs at a time), from the committed records' measured minutes.
+@dataclass
+class CommandTime:
+    """The full command's runs: the seconds measured by the records, and an estimate of the runs without one."""
 
-    Per world, the ticks per second of the committed records of Fig. 4 and of ``timing`` in ``records.yml`` (their
-    last ``wall_s``; they ran on a shared machine, so the rates spread); each grid's runs at the fastest and at the
-    slowest rate, summed and halved. Pre-GDQ counts as one more 4-robot GDQ run per stage and seed.
+    measured_s: float
+    n_measured: int
+    estimated_s: float
+    n_estimated: int
+    unmeasured: list[str]
 
-    :return: (hours at the fastest rates, at the slowest, the grids without a measured rate)
-    """
-    rates: dict[int, list[float]] = {}
-    seeds = [(n, seed) for (n, _), cell in findings.fig4.items() if cell for seed in cell.seeds]
-    for source in load_sources().get("timing", []):
-        n = int(source["env"].split("-")[1])
-        seeds += [(n, read_record_seed(path)) for path in sorted(RESULTS.glob(source["records"]))]
-    for n, seed in seeds:
-        if math.isfinite(seed.wall_s) and seed.wall_s > 0:
-            rates.setdefault(n, []).append(float(seed.ticks[-1]) / seed.wall_s)
-    ticks: dict[int, float] = {}
-    unmeasured = []
-    for name in ["table1", *(f"fig4_n{n}" for n in FIG4_WORLDS), "pretrain"]:
-        grid = yaml.safe_load((SPECS / f"{name}.yml").read_text())
-        env = grid["envs"][0]
-        n = int(env.split("-")[1]) if env.startswith("MultiRobotNav-") else None
-        if n not in rates:
-            unmeasured.append(name)
-            continue
-        n_seeds = grid["seeds"] if isinstance(grid["seeds"], int) else len(grid["seeds"])
-        n_runs = len(grid["algos"]) * n_seeds + (len(PRETRAIN_STAGES) * n_seeds if n == 4 else 0)
-        ticks[n] = ticks.get(n, 0.0) + n_runs * grid["n_timesteps"] / n
-    fast = sum(total / max(rates[n]) for n, total in ticks.items())
-    slow = sum(total / min(rates[n]) for n, total in ticks.items())
-    return fast / 2 / 3600, slow / 2 / 3600, unmeasured
+
+def _grid_runs(name: str) -> tuple[int, int]:
+    """(runs, world ticks per run) of the grid file ``name``."""
+    grid = yaml.safe_load((SPECS / f"{name}.yml").read_text())
+    n_seeds = grid["seeds"] if isinstance(grid["seeds"], int) else len(grid["seeds"])
+    env = grid["envs"][0]
+    n_agents = int(env.split("-")[1]) if env.startswith("MultiRobotNav-") else 1
+    return len(grid["algos"]) * n_seeds, grid["n_timesteps"] // n_agents
+
+
+def command_time(findings: Findings) -> CommandTime:
+    """Wall seconds of every run the full command makes (its grids and the Pre-GDQ stages; the unseen-room
+    evaluations are not counted): each run's own measured seconds where a record has them (a run folder's
+    :func:`monitor_seconds`, a JSON-lines record's ``wall_s``), else its world ticks at the median ticks per second
+    measured on its world (``timing`` records of ``records.yml`` included)."""
+    sources = load_sources()
+    groups: dict[str, tuple[str, list[Seed]]] = {
+        "table1": ("mpe", [seed for cell in findings.table1.values() if cell for seed in cell.seeds]),
+        "pretrain": ("single", findings.pretrain),
+    }
+    for n in FIG4_WORLDS:
+        groups[f"fig4_n{n}"] = (str(n), [s for (m, _), cell in findings.fig4.items() if m == n and cell for s in cell.seeds])
+    rates: dict[str, list[float]] = {}
+    timing = [
+        (str(int(source["env"].split("-")[1])), read_record_seed(path))
+        for source in sources.get("timing", [])
+        for path in sorted(RESULTS.glob(source["records"]))
+    ]
+    table3 = [seed for _, cell in findings.table3.values() if cell for seed in cell.seeds]
+    for world, seeds in [*groups.values(), ("4", table3), *((world, [seed]) for world, seed in timing)]:
+        for seed in seeds:
+            if math.isfinite(seed.wall_s) and seed.wall_s > 0 and seed.ticks[-1] > 0:
+                rates.setdefault(world, []).append(float(seed.ticks[-1]) / seed.wall_s)
+    plan = {name: (world, seeds, *_grid_runs(name)) for name, (world, seeds) in groups.items()}
+    n_stage_runs = _grid_runs("fig4_n4")[0] // len(FIG4_ALGOS)
+    plan["table3"] = ("4", table3, len(PRETRAIN_STAGES) * n_stage_runs, _grid_runs("fig4_n4")[1])
+    time = CommandTime(0.0, 0, 0.0, 0, [])
+    for name, (world, seeds, n_runs, ticks) in plan.items():
+        measured = [seed.wall_s for seed in seeds if math.isfinite(seed.wall_s) and seed.wall_s > 0][:n_runs]
+        time.measured_s += float(sum(measured))
+        time.n_measured += len(measured)
+        missing = n_runs - len(measured)
+        if missing and world in rates:
+            time.estimated_s += missing * ticks / float(np.median(rates[world]))
+            time.n_estimated += missing
+        elif missing:
+            time.unmeasured.append(f"{name} ({missing} run{'s' * (missing > 1)})")
+    return time
 
 
 def verdict_counts(findings: Findings) -> dict[str, dict[str, int]]:
@@ -660,12 +710,20 @@ WHAT = {
 
 
 def full_command_line(findings: Findings) -> str:
-    fast, slow, unmeasured = wall_time_estimate(findings)
+    time = command_time(findings)
+    command = "Every record: `python research/paper_page.py run`"
+    halved = "(two runs at a time, the grids' default on 2 cores: the runs' seconds summed and halved"
+    if not time.n_estimated and not time.unmeasured:
+        return (
+            f"{command}: measured {time.measured_s / 7200:.1f} h on 2 cores {halved}; each of its "
+            f"{time.n_measured} runs timed by its own records, the unseen-room evaluations not counted)."
+        )
+    unmeasured = f"; not counted, no rate measured on their world: {', '.join(time.unmeasured)}" if time.unmeasured else ""
     return (
-        f"Every record: `python research/paper_page.py run`, an estimated {fast:.0f}-{slow:.0f} h on 2 cores (not "
-        "measured: the full command has not been run; each grid's runs at the fastest and the slowest ticks per "
-        "second that the committed records of its world measured, two runs at a time; "
-        f"{', '.join(unmeasured) or 'none'} without a measured rate, not counted)."
+        f"{command}: about {(time.measured_s + time.estimated_s) / 7200:.1f} h on 2 cores {halved}). "
+        f"Measured: {time.n_measured} runs with records, {time.measured_s / 3600:.1f} h of run time; estimated: "
+        f"{time.n_estimated} runs not made yet, {time.estimated_s / 3600:.1f} h at the median ticks per second of "
+        f"their world's records{unmeasured}."
     )
 
 

@@ -140,3 +140,20 @@ def test_the_quick_pipeline_runs_every_item_and_renders_its_page(tmp_path: Path)
     table3 = text.split("## Table III")[1].split("## The package")[0]
     assert "| 50 % |" in table3 and "`stage50/gdq/` (1 run of this command)" in table3
     assert (page.parent / "paper" / paper_page.FIGURE_NAME).is_file()
+
+
+def test_a_runs_seconds_add_the_stretches_of_a_resumed_run() -> None:
+    # t counts from each start of the worlds: a resume starts it again, so the stretch before it ends at its last t.
+    assert paper_page.monitor_seconds(np.array([5.0, 60.0, 120.0, 3.0, 40.0, np.nan])) == 160.0
+    assert paper_page.monitor_seconds(np.array([1.0, 2.0])) == 2.0
+    assert np.isnan(paper_page.monitor_seconds(np.array([])))
+
+
+def test_the_full_commands_time_counts_every_planned_run_once() -> None:
+    findings = paper_page.collect(paper_page.RUNS)
+    time = paper_page.command_time(findings)
+    planned = sum(paper_page._grid_runs(name)[0] for name in ["table1", "pretrain", *(f"fig4_n{n}" for n in (2, 4, 8, 12))])
+    planned += len(paper_page.PRETRAIN_STAGES) * paper_page._grid_runs("fig4_n4")[0] // len(paper_page.FIG4_ALGOS)
+    unmeasured = sum(int(item.split("(")[1].split()[0]) for item in time.unmeasured)
+    assert time.n_measured + time.n_estimated + unmeasured == planned
+    assert time.measured_s > 0 and "Every record:" in paper_page.full_command_line(findings)
