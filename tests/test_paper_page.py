@@ -91,7 +91,11 @@ def test_fig4_verdicts_read_the_paper_point_or_say_the_runs_end_before_it() -> N
     assert paper_page.fig4_verdict(findings, 8, "qmix")[1] == "reproduced"  # "does not learn": below 20 %
     assert paper_page.fig4_verdict(findings, 8, "eps_gdq")[1] == "not reproduced"  # behind GDQ
     assert paper_page.fig4_verdict(findings, 4, "iql")[1] == "reproduced"  # "lowest of the four"
-    assert paper_page.fig4_verdict(findings, 8, "gdq")[1] == "no success figure"  # a reward read from the figure
+    assert paper_page.fig4_verdict(findings, 8, "gdq")[1] == paper_page.NOT_RUN  # above IL and QMIX: no IL here
+    findings.fig4[(8, "iql")] = _cell([0.3, 0.85])
+    assert paper_page.fig4_verdict(findings, 8, "gdq")[1] == "not reproduced"  # IL ends above GDQ's 80 %
+    findings.fig4[(8, "iql")] = _cell([0.3, 0.4])
+    assert paper_page.fig4_verdict(findings, 8, "gdq")[1] == "reproduced"
     assert paper_page.fig4_verdict(findings, 12, "gdq") == ("-", paper_page.NOT_RUN)
     short = _findings(qmix4=_cell([0.3, 0.6], every=25_000))  # ends at 50k, below the paper's 90 %
     assert paper_page.fig4_verdict(short, 4, "qmix") == ("60.0 % at 50k (runs end there)", paper_page.NOT_RUN)
