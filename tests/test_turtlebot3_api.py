@@ -301,7 +301,7 @@ def test_pictures_script(tmp_path: Any) -> None:
     from envs.turtlebot3 import pictures
 
     written = pictures.run(tmp_path, n_forward_ticks=2)
-    assert [path.name for path in written] == ["multi_robot_4.png", "single_robot.png", "unseen_4.png"]
+    assert [path.name for path in written] == ["multi_robot_4.png", "single_robot.png", "unseen_4.png", "blocks_4.png"]
     assert all(path.stat().st_size > 1000 for path in written)
 
 
@@ -316,6 +316,14 @@ def test_gui_visuals_build() -> None:
     world.show_targets(env._targets)
     world.show_targets(env._targets)  # replaces the markers
     assert len(world._target_ids) == 2
+    env.close()
+    env = MultiRobotNavEnv(2, scenario="blocks")
+    env.reset(seed=0)
+    env.world.gui = True
+    env.world.set_blocks(env.layout.obstacles)  # the map's boxes and the blocks, drawn in place of the last ones
+    assert len(env.world._map_visual_ids) == len(env.layout.boxes)
+    env.world.set_blocks(env.layout.obstacles[:1])
+    assert len(env.world._map_visual_ids) == len(env.layout.walls) + 1
     env.close()
 
 

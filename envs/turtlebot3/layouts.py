@@ -10,6 +10,8 @@ Scenarios (see ``docs/envs.md`` for the pictures):
 - ``"eps"``: the single-robot EPS world (paper Fig. 3 left): the 4-robot arena's walls plus static bars.
 - ``"eps_pillars"``: an EPS world closer to the 4-robot training arena: its walls plus three robot-sized static
   pillars standing for the other three robots (no thin bars, which the training worlds never show).
+- ``"blocks"``: the multi-robot arena with rectangular blocks drawn anew at every reset (:func:`sample_blocks`): a
+  training option for rooms never seen in training (the unseen room's blocks and corridors), not the paper's world.
 - ``"unseen"``: the 4-robot evaluation room (paper Fig. 5 analogue): a 6 m room whose four inner blocks
   leave a central cross and a ring corridor; fixed start poses and a fixed sequence of target sets. With a
   placement jitter (:func:`jitter_starts`, :func:`jitter_targets`) every episode moves those poses by a seeded
@@ -33,8 +35,12 @@ TICKS_PER_METRE = 150  # default time limit per metre of the room's longer side 
 PLACEMENT_JITTER_MAX = 0.5  # [m] largest offset of a fixed start or target (keeps each problem recognisable)
 HEADING_JITTER = np.pi / 6  # [rad] largest turn of a fixed start heading when the placement is jittered
 MIN_START_TARGET = 2.0  # [m] a jittered target to its own robot's start (the fixed sets' shortest is 2.6 m)
-SCENARIOS = ("arena", "eps", "eps_pillars", "unseen")
-MAX_ROBOTS = {"arena": 16, "eps": 4, "eps_pillars": 4, "unseen": 4}
+SCENARIOS = ("arena", "blocks", "eps", "eps_pillars", "unseen")
+MAX_ROBOTS = {"arena": 16, "blocks": 12, "eps": 4, "eps_pillars": 4, "unseen": 4}
+BLOCK_HALF_STEP = 0.05  # [m] a block's half extents are whole multiples of this (a bounded set of shapes to build)
+BLOCK_HALF_SIZES = (0.05, 0.6)  # [m] range of a block's half extents, each axis drawn alone: bars to 1.2 m blocks
+BLOCK_GAP = 0.5  # [m] least free gap between two blocks and between a block and a wall (robot diameter 0.21 m)
+BLOCK_AREA = 4.0  # [m^2] of room per block: 4 blocks in the 4-robot arena, 6 with 8 robots, 9 with 12
 
 
 @dataclass(frozen=True)
@@ -199,12 +205,56 @@ def unseen_layout() -> Layout:
     )
 
 
+def sample_blocks(rng: np.random.Generator, side: float, n_blocks: int | None = None) -> np.ndarray:
+    """Random axis-aligned blocks in a square room of side ``side``: half extents uniform over the multiples of
+    :data:`BLOCK_HALF_STEP` in :data:`BLOCK_HALF_SIZES` (each axis alone, so thin bars and squat blocks both occur),
+    centres uniform, every block at least
+    :data:`BLOCK_GAP` from the walls and from the others, so every passage admits a robot. Blocks that do not fit
+    after a few draws are left out, so a crowded room may hold fewer than ``n_blocks``.
+
+    :param rng: the env's generator
+    :param side: interior side of the room [m]
+    :param n_blocks: how many to place (default: one per :data:`BLOCK_AREA` of floor)
+    :return: boxes ``(k, 4)``, ``k <= n_blocks``
+    """
+    if n_blocks is None:
+        n_blocks = round(side * side / BLOCK_AREA)
+    half = side / 2.0
+    blocks: list[np.ndarray] = []
+    for _ in range(20 * n_blocks):
+        if len(blocks) == n_blocks:
+            break
+        low, high = (round(size / BLOCK_HALF_STEP) for size in BLOCK_HALF_SIZES)
+        extent = rng.integers(low, high + 1, size=2) * BLOCK_HALF_STEP
+        bound = half - BLOCK_GAP - extent
+        if np.any(bound <= 0):
+            continue
+        centre = rng.uniform(-bound, bound)
+        box = np.concatenate([centre, extent])
+        if all(np.any(np.abs(box[:2] - other[:2]) >= box[2:] + other[2:] + BLOCK_GAP) for other in blocks):
+            blocks.append(box)
+    return np.array(blocks).reshape(-1, 4)
+
+
+def blocks_layout(n_robots: int, rng: np.random.Generator | None = None) -> Layout:
+    """The multi-robot arena (side :func:`arena_side`) with blocks from :func:`sample_blocks`; none without ``rng``
+    (the env draws them at every reset).
+
+    :param n_robots: number of robots
+    :param rng: the env's generator, or None for the empty arena
+    :return: the layout
+    """
+    side = arena_side(n_robots)
+    obstacles = sample_blocks(rng, side) if rng is not None else np.zeros((0, 4))
+    return Layout("blocks", side, side, walls_around(side, side), obstacles)
+
+
 def make_layout(scenario: str, n_robots: int) -> Layout:
     """Build the layout of a scenario, checking ``n_robots`` against what it can place.
 
-    :param scenario: one of ``"arena"``, ``"eps"``, ``"unseen"``
+    :param scenario: one of :data:`SCENARIOS`
     :param n_robots: number of robots
-    :return: the layout
+    :return: the layout (``"blocks"``: the arena before its first reset draws the blocks)
     """
     if scenario not in SCENARIOS:
         raise ValueError(f"Unknown scenario {scenario!r}: choose one of {SCENARIOS}.")
@@ -215,6 +265,8 @@ def make_layout(scenario: str, n_robots: int) -> Layout:
         raise ValueError(f"n_robots={n_robots} is out of range for scenario {scenario!r}: allowed 1 to {max_robots}.")
     if scenario == "arena":
         return arena_layout(int(n_robots))
+    if scenario == "blocks":
+        return blocks_layout(int(n_robots))
     if scenario == "eps":
         return eps_layout()
     if scenario == "eps_pillars":

@@ -23,6 +23,7 @@ from envs.seeding import check_seed
 from envs.turtlebot3.layouts import (
     PLACEMENT_JITTER_MAX,
     Layout,
+    blocks_layout,
     in_room,
     jitter_starts,
     jitter_targets,
@@ -83,8 +84,9 @@ class MultiRobotNavEnv(ParallelEnv):
       ``"targets"`` ``(n, 2)``, and in the unseen world ``"target_set"`` (index into its fixed sequence);
       other keys are ignored.
 
-    :param n_robots: number of robots (1-16 in ``"arena"``, 1-4 in the ``"eps*"`` worlds and ``"unseen"``)
-    :param scenario: ``"arena"`` (walls only, side 3 m + 0.25 m per robot), ``"eps"`` (the single-robot EPS
+    :param n_robots: number of robots (1-16 in ``"arena"``, 1-12 in ``"blocks"``, 1-4 in the ``"eps*"`` worlds and ``"unseen"``)
+    :param scenario: ``"arena"`` (walls only, side 3 m + 0.25 m per robot), ``"blocks"`` (the same arena with
+        rectangular blocks drawn anew at every reset, a training option for unseen rooms), ``"eps"`` (the single-robot EPS
         world with bars), ``"eps_pillars"`` (the 4 m arena with three robot-sized pillars) or
         ``"unseen"`` (the evaluation room: fixed starts, fixed cycling target sequence)
     :param max_episode_steps: time limit in ticks; None = 150 ticks per metre of the room's side
@@ -148,7 +150,7 @@ class MultiRobotNavEnv(ParallelEnv):
         self.action_spaces = dict.fromkeys(self.possible_agents, self._action_space)
         self.state_space = self._make_state_space()
 
-        self.world = NavWorld(self.layout, self.n_robots, gui=render_mode == "human")
+        self.world = self._new_world()
         self._rasteriser: Rasteriser | None = None
         self.np_random, self._np_random_seed = seeding.np_random(None)
         self._episode_index = 0
@@ -166,6 +168,15 @@ class MultiRobotNavEnv(ParallelEnv):
         self._distance_travelled = 0.0
         self._collision = False
         self._last_render_time = 0.0
+
+    def _new_world(self) -> NavWorld:
+        """The PyBullet world of the room; in ``"blocks"`` the walls are its map and the episode's blocks bodies
+        beside it (:meth:`NavWorld.set_blocks`), replaced at each reset."""
+        if self.scenario != "blocks":
+            return NavWorld(self.layout, self.n_robots, gui=self.render_mode == "human")
+        world = NavWorld(make_layout("blocks", self.n_robots), self.n_robots, gui=self.render_mode == "human")
+        world.set_blocks(self.layout.obstacles)
+        return world
 
     def _check_placement_jitter(self, placement_jitter: float) -> float:
         if (
@@ -225,7 +236,11 @@ class MultiRobotNavEnv(ParallelEnv):
         options = options or {}
         if self.world.client is None:
             # close() released the PyBullet client; like gymnasium's envs, a later reset() starts afresh.
-            self.world = NavWorld(self.layout, self.n_robots, gui=self.render_mode == "human")
+            self.world = self._new_world()
+        if self.scenario == "blocks":  # new blocks every episode
+            self.layout = blocks_layout(self.n_robots, self.np_random)
+            self.world.set_blocks(self.layout.obstacles)
+            self._rasteriser = None
         starts = self._start_poses(options)
         self.world.set_poses(starts)
         self._targets = self._pick_targets(options, starts[:, :2])
@@ -499,7 +514,7 @@ class MultiRobotNavEnv(ParallelEnv):
         pose = state.pop("_world_pose")
         world_open = state.pop("_world_open")
         self.__dict__.update(state)
-        self.world = NavWorld(self.layout, self.n_robots, gui=self.render_mode == "human")
+        self.world = self._new_world()
         self.world.set_poses(pose)
         self.world.show_targets(self._targets)
         if not world_open:

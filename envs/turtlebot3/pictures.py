@@ -20,9 +20,10 @@ def _picture(frame: np.ndarray | None) -> np.ndarray:
 
 
 def run(out_dir: str | Path = "docs/images", n_forward_ticks: int = 15) -> list[Path]:
-    """Draw the 4-robot arena (with lidar), the EPS world and the unseen room, and save them as PNG.
+    """Draw the 4-robot arena (with lidar), the EPS world, the unseen room and two rooms of the 4-robot blocks
+    scenario, and save them as PNG.
 
-    :param out_dir: folder for ``multi_robot_4.png``, ``single_robot.png`` and ``unseen_4.png``
+    :param out_dir: folder for ``multi_robot_4.png``, ``single_robot.png``, ``unseen_4.png`` and ``blocks_4.png``
     :param n_forward_ticks: ticks the arena robots drive straight before the picture
     :return: the files written
     """
@@ -50,6 +51,16 @@ def run(out_dir: str | Path = "docs/images", n_forward_ticks: int = 15) -> list[
     written.append(out / "unseen_4.png")
     imageio.imwrite(written[-1], _picture(unseen.render()))
     unseen.close()
+
+    blocks = MultiRobotNavEnv(4, scenario="blocks", render_mode="rgb_array", render_lidar=True)
+    rooms = []
+    for seed in (0, 1):
+        blocks.reset(seed=seed)
+        rooms.append(_picture(blocks.render()))
+    written.append(out / "blocks_4.png")
+    gap = np.full((rooms[0].shape[0], 8, 3), 255, dtype=np.uint8)
+    imageio.imwrite(written[-1], np.concatenate([rooms[0], gap, rooms[1]], axis=1))
+    blocks.close()
     return written
 
 

@@ -152,6 +152,9 @@ class NavWorld:
         vertices, indices = box_mesh(layout.boxes, WALL_HEIGHT)
         mesh = p.createCollisionShape(p.GEOM_MESH, vertices=vertices.tolist(), indices=indices.tolist(), physicsClientId=cid)
         self.map_id = p.createMultiBody(0.0, mesh, -1, [0.0, 0.0, 0.0], physicsClientId=cid)
+        self._block_ids: list[int] = []  # bodies of set_blocks, beside the map
+        self._block_shapes: dict[tuple[int, int], int] = {}  # their collision shapes by half extents in 5 mm
+        self._map_visual_ids: list[int] = []
         sphere = p.createCollisionShape(
             p.GEOM_SPHERE,
             radius=ROBOT_RADIUS,
@@ -171,6 +174,24 @@ class NavWorld:
         self.xy = np.zeros((n_robots, 2))
         self.theta = np.zeros(n_robots)
         self._rays = np.full((2, n_robots, N_BEAMS, 3), LIDAR_HEIGHT)
+
+    def set_blocks(self, blocks: np.ndarray) -> None:
+        """Put ``blocks`` (boxes ``(k, 4)``, half extents whole multiples of 5 mm) in the room as static bodies beside
+        its map, replacing the previous call's (a scenario that draws its obstacles at every reset). Each size's
+        collision shape is built once and kept: PyBullet cannot free a shape, so only bodies come and go."""
+        cid = self.client
+        for body in self._block_ids:
+            p.removeBody(body, physicsClientId=cid)
+        self._block_ids = []
+        for cx, cy, hx, hy in np.asarray(blocks, dtype=float).reshape(-1, 4):
+            size = (round(hx * 200), round(hy * 200))
+            if size not in self._block_shapes:
+                half = [size[0] / 200, size[1] / 200, WALL_HEIGHT / 2]
+                self._block_shapes[size] = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=cid)
+            position = [cx, cy, WALL_HEIGHT / 2]
+            self._block_ids.append(p.createMultiBody(0.0, self._block_shapes[size], -1, position, physicsClientId=cid))
+        if self.gui:
+            self._add_map_visuals(np.asarray(blocks, dtype=float).reshape(-1, 4))
 
     # --- poses and motion ---------------------------------------------------------------------------------
 
@@ -269,6 +290,8 @@ class NavWorld:
         """
         p.performCollisionDetection(physicsClientId=self.client)
         contacts = p.getContactPoints(bodyA=self.map_id, physicsClientId=self.client)
+        for block in self._block_ids:
+            contacts += p.getContactPoints(bodyA=block, physicsClientId=self.client)
         hit = np.zeros(self.n_robots, dtype=bool)
         touching = [contact[2] for contact in contacts if contact[8] < 0.0]
         if touching:
@@ -309,13 +332,18 @@ class NavWorld:
             physicsClientId=self.client,
         )
 
-    def _add_map_visuals(self) -> None:
+    def _add_map_visuals(self, blocks: np.ndarray | None = None) -> None:
+        """Draw the map's boxes (GUI only), with ``blocks`` beside them in place of the previous call's."""
         rgba = [*(np.array(MAP_COLOUR) / 255.0).tolist(), 1.0]
-        for cx, cy, hx, hy in self.layout.boxes:
+        for body in self._map_visual_ids:
+            p.removeBody(body, physicsClientId=self.client)
+        self._map_visual_ids = []
+        for cx, cy, hx, hy in self.layout.boxes if blocks is None else np.concatenate([self.layout.boxes, blocks]):
             shape = p.createVisualShape(
                 p.GEOM_BOX, halfExtents=[hx, hy, WALL_HEIGHT / 2], rgbaColor=rgba, physicsClientId=self.client
             )
-            p.createMultiBody(0.0, -1, shape, [cx, cy, WALL_HEIGHT / 2], physicsClientId=self.client)
+            body = p.createMultiBody(0.0, -1, shape, [cx, cy, WALL_HEIGHT / 2], physicsClientId=self.client)
+            self._map_visual_ids.append(body)
 
     def show_targets(self, targets: np.ndarray) -> None:
         """Draw the targets as coloured markers (GUI only; they have no collision shape).
