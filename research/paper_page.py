@@ -296,6 +296,8 @@ def collect(folder: Path) -> Findings:
 
 
 # ---------------------------------------------------------------------------------------------- verdicts
+#: Table III's verdict for a stage the single-robot pre-training never reached (no snapshot starts Pre-GDQ there).
+STAGE_NOT_REACHED = "stage not reached in pre-training"
 NOT_RUN = "not run yet"
 
 
@@ -539,13 +541,20 @@ def table3_verdicts(findings: Findings) -> dict[float, str]:
     eps = findings.fig4[(4, "eps_gdq")]
     eps_at = eps.at(PAPER_TABLE3_EPS[0] * 1000) if eps else None
     verdicts = {}
-    for stage, (_, cell) in findings.table3.items():
+    for stage, (start, cell) in findings.table3.items():
         pre_at = cell.at(PAPER_TABLE3_EPS[0] * 1000) if cell else None
-        if eps_at is None or pre_at is None:
+        if start is None and _stage_missed(findings, stage):
+            verdicts[stage] = STAGE_NOT_REACHED
+        elif eps_at is None or pre_at is None:
             verdicts[stage] = NOT_RUN
         else:
             verdicts[stage] = "reproduced" if eps_at > pre_at else "not reproduced"
     return verdicts
+
+
+def _stage_missed(findings: Findings, stage: float) -> bool:
+    """Whether the finished pre-training never reached ``stage`` (so that stage has no snapshot to start from)."""
+    return bool(findings.pretrain) and max(float(np.max(seed.success)) for seed in findings.pretrain) < stage
 
 
 def section_table3(findings: Findings) -> list[str]:
@@ -555,6 +564,13 @@ def section_table3(findings: Findings) -> list[str]:
     for stage, (start, cell) in findings.table3.items():
         pre_steps, pre_reward, gdq_steps, gdq_reward = PAPER_TABLE3[stage]
         ours_start = f"{_pct(float(start.success[0]))} at {_k(int(start.ticks[0]))}" if start else "-"
+        if start is None and _stage_missed(findings, stage):
+            seed = findings.pretrain[0]
+            best = int(np.argmax(seed.success))
+            ours_start = (
+                f"never reached in {_k(int(seed.ticks[-1]))} (best {_pct(float(seed.success[best]))} at "
+                f"{_k(int(seed.ticks[best]))})"
+            )
         ours_pre = "-"
         if cell:
             end = cell.end
@@ -591,7 +607,7 @@ def section_table3(findings: Findings) -> list[str]:
         ],
         rows,
     )
-    if any(cell is None for _, cell in findings.table3.values()):
+    if any(cell is None and not _stage_missed(findings, stage) for stage, (_, cell) in findings.table3.items()):
         lines += [
             "",
             "Not run yet: `python research/paper_page.py run` (pre-training "

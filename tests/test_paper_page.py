@@ -161,3 +161,15 @@ def test_the_full_commands_time_counts_every_planned_run_once() -> None:
     unmeasured = sum(int(item.split("(")[1].split()[0]) for item in time.unmeasured)
     assert time.n_measured + time.n_estimated + unmeasured == planned
     assert time.measured_s > 0 and "Every record:" in paper_page.full_command_line(findings)
+
+
+def test_a_pre_training_stage_never_reached_is_said_so_not_left_unrun() -> None:
+    findings = _findings(eps_gdq4=_cell([0.5, 0.6, 0.8]))
+    start = paper_page.one_point("snapshot", 0.61, 1.0, np.nan, 50_000)
+    findings.table3 = {0.5: (start, _cell([0.5, 0.7])), 0.75: (None, None), 0.95: (None, None)}
+    assert paper_page.table3_verdicts(findings) == {0.5: "not reproduced", 0.75: "not run yet", 0.95: "not run yet"}
+    findings.pretrain = _cell([0.3, 0.8, 0.91, 0.9]).seeds  # finished: 91 % at best
+    verdicts = paper_page.table3_verdicts(findings)
+    assert verdicts[0.95] == paper_page.STAGE_NOT_REACHED and verdicts[0.75] == "not run yet"
+    section = "\n".join(paper_page.section_table3(findings))
+    assert "never reached in 200k (best 91.0 % at 150k)" in section and "Not run yet" in section
