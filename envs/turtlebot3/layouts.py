@@ -220,11 +220,11 @@ def sample_blocks(rng: np.random.Generator, side: float, n_blocks: int | None = 
     if n_blocks is None:
         n_blocks = round(side * side / BLOCK_AREA)
     half = side / 2.0
+    low, high = (round(size / BLOCK_HALF_STEP) for size in BLOCK_HALF_SIZES)
     blocks: list[np.ndarray] = []
     for _ in range(20 * n_blocks):
         if len(blocks) == n_blocks:
             break
-        low, high = (round(size / BLOCK_HALF_STEP) for size in BLOCK_HALF_SIZES)
         extent = rng.integers(low, high + 1, size=2) * BLOCK_HALF_STEP
         bound = half - BLOCK_GAP - extent
         if np.any(bound <= 0):

@@ -174,7 +174,7 @@ class MultiRobotNavEnv(ParallelEnv):
         beside it (:meth:`NavWorld.set_blocks`), replaced at each reset."""
         if self.scenario != "blocks":
             return NavWorld(self.layout, self.n_robots, gui=self.render_mode == "human")
-        world = NavWorld(make_layout("blocks", self.n_robots), self.n_robots, gui=self.render_mode == "human")
+        world = NavWorld(blocks_layout(self.n_robots), self.n_robots, gui=self.render_mode == "human")
         world.set_blocks(self.layout.obstacles)
         return world
 

@@ -180,10 +180,11 @@ class NavWorld:
         its map, replacing the previous call's (a scenario that draws its obstacles at every reset). Each size's
         collision shape is built once and kept: PyBullet cannot free a shape, so only bodies come and go."""
         cid = self.client
+        blocks = np.asarray(blocks, dtype=float).reshape(-1, 4)
         for body in self._block_ids:
             p.removeBody(body, physicsClientId=cid)
         self._block_ids = []
-        for cx, cy, hx, hy in np.asarray(blocks, dtype=float).reshape(-1, 4):
+        for cx, cy, hx, hy in blocks:
             size = (round(hx * 200), round(hy * 200))
             if size not in self._block_shapes:
                 half = [size[0] / 200, size[1] / 200, WALL_HEIGHT / 2]
@@ -191,7 +192,7 @@ class NavWorld:
             position = [cx, cy, WALL_HEIGHT / 2]
             self._block_ids.append(p.createMultiBody(0.0, self._block_shapes[size], -1, position, physicsClientId=cid))
         if self.gui:
-            self._add_map_visuals(np.asarray(blocks, dtype=float).reshape(-1, 4))
+            self._add_map_visuals(blocks)
 
     # --- poses and motion ---------------------------------------------------------------------------------
 
