@@ -70,7 +70,10 @@ def reference_scores(folder: Path) -> dict[int, float]:
     scores = {}
     for curve in record_curves([folder]):
         within = curve.x // REFERENCE_EVAL_EVERY * REFERENCE_EVAL_EVERY <= REFERENCE_BUDGET
-        seed = int(RECORD_FILE.match(curve.run_dir.name)["seed"])
+        match = RECORD_FILE.match(curve.run_dir.name)
+        if match is None:
+            raise ValueError(f"{curve.run_dir}: not a record file (<algo>_<env id>_seed<n>.jsonl)")
+        seed = int(match["seed"])
         scores[seed] = float(curve.values["success"][within][-REFERENCE_LAST:].mean())
     return scores
 

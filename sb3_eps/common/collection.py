@@ -6,7 +6,7 @@ counts episodes per world, and with ``overlap_training`` runs the due gradient s
 from __future__ import annotations
 
 import warnings
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import numpy as np
 import torch as th
@@ -44,7 +44,7 @@ def collect_rollouts(
         if not callback.on_step():
             return RolloutReturn(n_collected_steps * env.num_envs, n_collected_episodes, continue_training=False)
         model._update_info_buffer(infos, dones)
-        n_ended = store_joint_transition(model, actions, new_obs, rewards, dones, infos)
+        n_ended = store_joint_transition(model, actions, cast(np.ndarray, new_obs), rewards, dones, infos)
         model._update_current_progress_remaining(model.num_timesteps, model._total_timesteps)
         model._on_step()
         for _ in range(n_ended):
@@ -59,7 +59,7 @@ def collect_rollouts(
 def sample_actions(model: Any, learning_starts: int, n_envs: int) -> np.ndarray:
     """Uniformly random actions before ``learning_starts``, then the online network's with one epsilon coin per
     agent (SB3's DQN draws one for the whole batch, so all agents would explore on the same steps)."""
-    n_actions = int(model.action_space.n)  # type: ignore[attr-defined]
+    n_actions = int(model.action_space.n)
     if model.num_timesteps < learning_starts:
         return np.random.randint(n_actions, size=n_envs)
     # ``model.predict`` without SB3's generic input checks, which cost as much as the network itself here.
@@ -157,7 +157,7 @@ def _read_step(new_obs: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any
         alive=alive.reshape(shape),
         truncated=truncated.reshape(shape),
         ended=ended.reshape(shape),
-        world_ended=dones.reshape(shape).all(axis=1),
+        world_ended=np.asarray(dones.reshape(shape).all(axis=1)),
     )
 
 

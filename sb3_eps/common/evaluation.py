@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -48,7 +48,8 @@ def evaluate_team(
         observations = venv.reset()
         while sum(counts) < n_eval_episodes:
             actions, _ = model.predict(observations, deterministic=deterministic)
-            observations, _, _, infos = venv.step(actions)
+            next_observations, _, _, infos = venv.step(actions)
+            observations = cast(np.ndarray, next_observations)  # a MultiAgentVecEnv's are arrays
             for world in range(n_worlds):
                 episode = infos[world * n_agents].get("episode")
                 if episode is not None and counts[world] < quotas[world]:
@@ -121,7 +122,8 @@ def record_frames(
             if picture is not None and tick % frame_every == 0:
                 frames.append(picture)
             actions, _ = model.predict(observations, deterministic=True)
-            observations, _, _, infos = venv.step(actions)
+            next_observations, _, _, infos = venv.step(actions)
+            observations = cast(np.ndarray, next_observations)  # a MultiAgentVecEnv's are arrays
             tick += 1
             if "episode" in infos[0]:
                 # The world has already been reset for the next episode: its picture starts that one.

@@ -27,7 +27,8 @@ def export_policy(model: Any, path: str | os.PathLike[str], opset_version: int =
     model; :return: their paths."""
     policy = getattr(model, "policy", None)
     # The network the greedy actions come from: the weight average when the policy keeps one (weight_average_tau).
-    q_net = policy.greedy_net() if hasattr(policy, "greedy_net") else getattr(policy, "q_net", None)
+    greedy_net = getattr(policy, "greedy_net", None)
+    q_net = greedy_net() if greedy_net is not None else getattr(policy, "q_net", None)
     if q_net is None:
         raise ValueError(f"{type(model).__name__} has no agent Q-network (policy.q_net) to export")
     if importlib.util.find_spec("onnx") is None:  # torch's exporter needs it; checked before any file is made

@@ -11,7 +11,7 @@ import os
 import pathlib
 import warnings
 from collections import defaultdict
-from typing import Any, ClassVar, NamedTuple, TypeVar
+from typing import Any, ClassVar, NamedTuple, TypeVar, cast
 
 import numpy as np
 import torch as th
@@ -106,7 +106,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
 
     policy: MultiAgentQPolicy
     replay_buffer: JointReplayBuffer | None  # type: ignore[assignment]
-    policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": MultiAgentQPolicy}
+    # Narrower than SB3's BasePolicy: every algorithm here builds a MultiAgentQPolicy.
+    policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": MultiAgentQPolicy}  # type: ignore[assignment]
     requires_fixed_n_agents: ClassVar[bool] = False  # joint modules sized by the number of agents
     _tick_offset: int = 0  # ticks and agent-steps before the last change of team size
     _step_offset: int = 0
@@ -256,11 +257,12 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         """SB3's ``set_env``; another team size is accepted where the joint modules read any (the replay buffer
         then starts empty, the ticks so far stay counted)."""
         previous_team = self.n_agents
-        self._read_env_layout(env)  # type: ignore[arg-type]
+        vec_env = cast(VecEnv, env)  # _read_env_layout refuses an env that is not the bridge's
+        self._read_env_layout(vec_env)
         if self.n_agents != previous_team and getattr(self, "policy", None) is not None:
             self.policy.n_agents = self.n_agents
             self.replay_buffer = self._make_replay_buffer()
-            self.n_envs = env.num_envs  # one SB3 sub-env per agent: SB3's check would refuse the new count
+            self.n_envs = vec_env.num_envs  # one SB3 sub-env per agent: SB3's check would refuse the new count
         super().set_env(env, force_reset=force_reset)
         self._collector = None
         self._last_state = None
@@ -281,9 +283,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self.replay_buffer = self._make_replay_buffer()
         kwargs = {"agent_target": self.default_agent_target, **self.policy_kwargs}
         kwargs.update(n_agents=self.n_agents, state_dim=self.state_dim)
-        self.policy = self.policy_class(  # type: ignore[assignment]
-            self.observation_space, self.action_space, self.lr_schedule, **kwargs
-        ).to(self.device)
+        action_space = cast(spaces.Discrete, self.action_space)  # SB3 checked it against supported_action_spaces
+        self.policy = self.policy_class(self.observation_space, action_space, self.lr_schedule, **kwargs).to(self.device)
         self.exploration_schedule = LinearSchedule(
             self.exploration_initial_eps, self.exploration_final_eps, self.exploration_fraction
         )
@@ -429,23 +430,25 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         next_obs = batch.next_observations.reshape(rows, obs_dim)
         target = self.policy.q_net_target
         double = self.double_q and target is not None
-        online_next: tuple[th.Tensor | None, th.Tensor] | None = None
+        online_next_values: th.Tensor | None = None  # V(s') and A(s', .) of the online network, where needed
+        online_next_advantages: th.Tensor | None = None
         values, advantages = self.policy.q_net.value_advantage(obs)
         with th.no_grad():
             if target is None or need_online_next_values:
-                online_next = self.policy.q_net.value_advantage(next_obs)
+                online_next_values, online_next_advantages = self.policy.q_net.value_advantage(next_obs)
             elif double:  # only the online arg max is needed: skip the value stream
-                online_next = (None, self.policy.q_net.advantage(next_obs))
+                online_next_advantages = self.policy.q_net.advantage(next_obs)
         q_values = values + advantages - advantages.mean(dim=1, keepdim=True)
         taken = q_values.gather(1, batch.actions.reshape(-1, 1))
         with th.no_grad():
             if target is not None:
                 next_values, next_advantages = target.value_advantage(next_obs)
             else:
-                assert online_next is not None and online_next[0] is not None
-                next_values, next_advantages = online_next
+                assert online_next_values is not None and online_next_advantages is not None
+                next_values, next_advantages = online_next_values, online_next_advantages
             centred = next_advantages - next_advantages.mean(dim=1, keepdim=True)
-            chooser = online_next[1] if double else next_advantages  # type: ignore[index]
+            chooser = online_next_advantages if double else next_advantages
+            assert chooser is not None
             advantage_term = centred.gather(1, chooser.argmax(dim=1, keepdim=True))
         shape = (batch_size, n_agents)
         return TDTerms(
@@ -453,7 +456,9 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             q_taken=taken.reshape(shape),
             next_values=next_values.reshape(shape),
             next_advantage_term=advantage_term.reshape(shape),
-            online_next_values=online_next[0].reshape(shape) if need_online_next_values else None,  # type: ignore[index]
+            online_next_values=(
+                online_next_values.reshape(shape) if need_online_next_values and online_next_values is not None else None
+            ),
         )
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:

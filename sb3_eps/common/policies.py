@@ -189,7 +189,7 @@ class MultiAgentQPolicy(BasePolicy):
             # The fused kernel updates every tensor in one call: about 0.4 ms less per gradient step on a CPU
             # for our small networks (benchmarks/train_throughput.py); pass fused=False to opt out.
             kwargs["fused"] = True
-        self.optimizer = self.optimizer_class(parameters, lr=lr_schedule(1), **kwargs)
+        self.optimizer = self.optimizer_class(parameters, lr=lr_schedule(1), **kwargs)  # type: ignore[call-arg]
         self.q_net_average: DuelingQNetwork | None = None
         if self.weight_average_tau is not None:  # built after the optimizer: never trained, only averaged
             # A copy, not make_q_net(): a fresh initialisation would draw from torch's generator and change

@@ -205,7 +205,7 @@ def epsilon_greedy(
     batch). ``rng`` None: numpy's global generator, which SB3 seeds. :return: ``(actions, explore_flags)``"""
     draw_uniform = np.random.random if rng is None else rng.random
     draw_integers = np.random.randint if rng is None else rng.integers
-    explore = draw_uniform(greedy_actions.shape[0]) < epsilon
+    explore = np.asarray(draw_uniform(greedy_actions.shape[0]) < epsilon)
     random_actions = draw_integers(0, n_actions, size=greedy_actions.shape[0])
     return np.where(explore, random_actions, greedy_actions), explore
 

@@ -168,7 +168,8 @@ class GDQPolicy(MultiAgentQPolicy):
         self.global_init = global_init
         check_arguments(GDQPolicy.__init__, {"global_head": global_head}, {})
         self.global_head = global_head
-        super().__init__(*args, weight_average_tau=weight_average_tau, **kwargs)
+        kwargs["weight_average_tau"] = weight_average_tau
+        super().__init__(*args, **kwargs)
 
     def _build_joint_modules(self) -> None:
         # Dense ReLU layers as the paper's V_G, whatever the agent network's activation (the sum/mean

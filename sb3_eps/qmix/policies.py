@@ -100,6 +100,7 @@ def _init_mixer_as_sum(mixer: QMixer) -> None:
         (mixer.hyper_b2[-1], -float(n_agents), 1.0),
     ]
     for layer, bias, scale in outputs:
+        assert isinstance(layer, nn.Linear), f"a hypernetwork ends in {type(layer).__name__}, not a Linear layer"
         layer.weight.mul_(SUM_INIT_PERTURBATION * scale)
         layer.bias.fill_(bias)
 
@@ -155,7 +156,7 @@ class QMIXPolicy(MultiAgentQPolicy):
                 {"params": list(self.mixer.parameters()), "lr_scale": MIXER_LR_SCALE},
             ]
             defaults = {key: value for key, value in self.optimizer.defaults.items() if key != "lr"}
-            self.optimizer = self.optimizer_class(groups, lr=lr_schedule(1), **defaults)
+            self.optimizer = self.optimizer_class(groups, lr=lr_schedule(1), **defaults)  # type: ignore[call-arg]
             apply_lr_scales(self.optimizer)
 
     def _make_mixer(self) -> nn.Module:

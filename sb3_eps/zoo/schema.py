@@ -177,7 +177,7 @@ def params_from_signature(function: Callable[..., Any], skip: Sequence[str] = ()
         if variadic or name in skip or name == "self" or (name not in hints and not every):
             continue
         hint = hints.get(name, Any)
-        settings = [member for member in hint_members(hint) if dataclasses.is_dataclass(member)]
+        settings = [member for member in hint_members(hint) if isinstance(member, type) and dataclasses.is_dataclass(member)]
         if settings:
             params.update(params_from_signature(settings[0], skip, every))
         elif (holdable := describe_hint(hint, None, CONFIG_HINTS) is not None) or every:
