@@ -175,15 +175,26 @@ def read_record_seed(path: Path) -> Seed:
     )
 
 
+#: A gap between two training episodes' ends longer than this is a stop: a run resumed from a checkpoint written
+#: before the worlds' clock left out the time stopped (2026-12-05) counts the stop in its ``t``. Runs never stopped
+#: have gaps of at most about a minute (12 robots' greedy evaluations, ``docs/results/paper/runs/``).
+PAUSE_S = 600.0
+
+
 def monitor_seconds(times: np.ndarray) -> float:
-    """A run's measured wall seconds from its ``monitor.csv`` column ``t`` (seconds from the start of its worlds to
-    each training episode's end): the last ``t`` of every stretch, summed; a resumed run starts its clock again, so a
-    ``t`` below the one before starts a new stretch. NaN without episodes."""
+    """A run's measured wall seconds from its ``monitor.csv`` column ``t`` (seconds of run time at each training
+    episode's end): the gaps between episode ends summed, a gap longer than :data:`PAUSE_S` (a stop) counted as the
+    run's median gap, and a ``t`` below the one before (a clock started again) as a new stretch from zero. NaN
+    without episodes."""
     times = times[np.isfinite(times)]
     if not len(times):
         return math.nan
-    restarts = np.nonzero(np.diff(times) < 0)[0]
-    return float(np.sum(times[restarts]) + times[-1])
+    gaps = np.diff(times)
+    restarts, pauses = gaps < 0, gaps > PAUSE_S
+    ordinary = gaps[~restarts & ~pauses]
+    typical = float(np.median(ordinary)) if len(ordinary) else 0.0
+    counted = np.where(restarts, times[1:], np.where(pauses, typical, gaps))
+    return float(times[0] + np.sum(counted))
 
 
 def read_run_seed(run_dir: Path) -> Seed:

@@ -147,8 +147,10 @@ def test_the_quick_pipeline_runs_every_item_and_renders_its_page(tmp_path: Path)
 
 
 def test_a_runs_seconds_add_the_stretches_of_a_resumed_run() -> None:
-    # t counts from each start of the worlds: a resume starts it again, so the stretch before it ends at its last t.
+    # A clock started again: the stretch before it ends at its last t.
     assert paper_page.monitor_seconds(np.array([5.0, 60.0, 120.0, 3.0, 40.0, np.nan])) == 160.0
+    # A stop counted in t (checkpoints written before the clock left stops out): it counts as the median gap.
+    assert paper_page.monitor_seconds(np.array([5.0, 10.0, 20.0, 2020.0, 2030.0])) == 5.0 + 5.0 + 10.0 + 10.0 + 10.0
     assert paper_page.monitor_seconds(np.array([1.0, 2.0])) == 2.0
     assert np.isnan(paper_page.monitor_seconds(np.array([])))
 

@@ -170,6 +170,28 @@ def test_a_snapshot_continues_mid_episode_in_new_workers(closing, vec_env_kwargs
         np.testing.assert_array_equal(copy.get_state(), venv.get_state())
 
 
+@pytest.mark.parametrize("vec_env_cls", [DummyVecEnv, SubprocVecEnv])
+def test_a_snapshot_counts_run_time_not_the_pause(closing, monkeypatch, vec_env_cls) -> None:
+    """Episodes' ``t`` is run time: a checkpoint loaded 1000 s after it was written goes on from the seconds that
+    had elapsed when it was written, so a stopped and resumed run does not count its pause."""
+    venv = make_vec_env(ROBOTS, n_envs=1, seed=1, env_kwargs=SHORT, vec_env_cls=vec_env_cls)
+    closing(venv)
+    venv.reset()
+    venv._t_start = time.time() - 100.0  # 100 s into the run
+    payload = snapshot_dumps(venv)
+    real_time = time.time
+    monkeypatch.setattr(time, "time", lambda: real_time() + 1000.0)
+    copy = pickle.loads(payload)
+    closing(copy)
+    assert 100.0 <= time.time() - copy._t_start < 130.0
+    if vec_env_cls is DummyVecEnv:  # in this process, where the clock is patched: the episodes' t itself
+        ended = []
+        for _ in range(SHORT["max_episode_steps"] + 1):
+            _, _, _, infos = copy.step(np.zeros(copy.num_envs, dtype=np.int64))
+            ended += [info["episode"]["t"] for info in infos if "episode" in info]
+        assert ended and all(100.0 <= t < 130.0 for t in ended)
+
+
 def test_gdq_trains_the_same_with_workers() -> None:
     """A seeded GDQ run (PER, n-step returns, the global state every tick) gives the same network in both modes."""
     weights = []
