@@ -649,7 +649,7 @@ def section_best(findings: Findings) -> list[str]:
     lines = ["## The package's best per world", ""]
     lines += [
         "The configuration with the highest mean greedy team success at the end among the records above and",
-        "the options listed in `docs/results/paper/records.yml`.",
+        "the options listed in `docs/results/paper/records.yml`, on the report seeds (0-4) only.",
         "",
     ]
     header = ["world", "configuration", "greedy success", "collisions", "ticks", "seeds", "records"]
