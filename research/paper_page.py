@@ -487,6 +487,10 @@ def section_fig4(findings: Findings, figure: str | None) -> list[str]:
         "every other algorithm at the end, above IL and QMIX = above both at the end; a reward alone gets no verdict.",
         "EPS-GDQ's committed runs ([EPS](eps.md)) trained GDQ with its former defaults (prioritized replay), and the",
         "8- and 12-robot curves of [baselines](baselines.md) too, so they are not read here.",
+        "Greedy episodes per point of this command's runs: "
+        + ", ".join(f"{_eval_episodes(f'fig4_n{n}')} at {n} robots" for n in FIG4_WORLDS)
+        + " (the grid files' `--eval-episodes`). At 50, half this project's standard of 100, one seed's point has a",
+        "standard error of up to 7 points.",
         "",
     ]
     if figure:
@@ -674,6 +678,12 @@ def _grid_runs(name: str) -> tuple[int, int]:
     env = grid["envs"][0]
     n_agents = int(env.split("-")[1]) if env.startswith("MultiRobotNav-") else 1
     return len(grid["algos"]) * n_seeds, grid["n_timesteps"] // n_agents
+
+
+def _eval_episodes(name: str) -> int:
+    """The greedy episodes per evaluation (``--eval-episodes``) of the grid file ``name``."""
+    args = yaml.safe_load((SPECS / f"{name}.yml").read_text())["train_args"]
+    return int(args[args.index("--eval-episodes") + 1])
 
 
 def command_time(findings: Findings) -> CommandTime:
