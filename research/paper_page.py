@@ -813,6 +813,9 @@ def render_status(findings: Findings, page_link: str) -> str:
     """The README's status block: one row per paper item and the best per world."""
     counts = verdict_counts(findings)
     rows = [[f"[{item}]({page_link}#{ANCHORS[item]})", WHAT[item], _counts(c)] for item, c in counts.items()]
+    figure = (Path(page_link).parent / "paper" / FIGURE_NAME).as_posix()
+    rows = [[item, f"{what} ([figure]({figure}))" if item.startswith("[Fig. 4]") else what, verdicts]
+            for item, what, verdicts in rows]  # fmt: skip
     best = "; ".join(
         f"{WORLD_NAMES.get(env, env)}: "
         f"{100 * float(np.mean(cell.final('success'))):.1f} % ({len(cell.seeds)} seed{'s' * (len(cell.seeds) > 1)})"
