@@ -671,9 +671,14 @@ class CommandTime:
     unmeasured: list[str]
 
 
+def _grid_file(name: str) -> dict[str, Any]:
+    """The grid file ``name`` of this folder, parsed."""
+    return yaml.safe_load((SPECS / f"{name}.yml").read_text())
+
+
 def _grid_runs(name: str) -> tuple[int, int]:
     """(runs, world ticks per run) of the grid file ``name``."""
-    grid = yaml.safe_load((SPECS / f"{name}.yml").read_text())
+    grid = _grid_file(name)
     n_seeds = grid["seeds"] if isinstance(grid["seeds"], int) else len(grid["seeds"])
     env = grid["envs"][0]
     n_agents = int(env.split("-")[1]) if env.startswith("MultiRobotNav-") else 1
@@ -682,7 +687,7 @@ def _grid_runs(name: str) -> tuple[int, int]:
 
 def _eval_episodes(name: str) -> int:
     """The greedy episodes per evaluation (``--eval-episodes``) of the grid file ``name``."""
-    args = yaml.safe_load((SPECS / f"{name}.yml").read_text())["train_args"]
+    args = _grid_file(name)["train_args"]
     return int(args[args.index("--eval-episodes") + 1])
 
 
@@ -812,10 +817,11 @@ WORLD_NAMES = {f"MultiRobotNav-{n}-v0": f"{n} robots" for n in FIG4_WORLDS} | {
 def render_status(findings: Findings, page_link: str) -> str:
     """The README's status block: one row per paper item and the best per world."""
     counts = verdict_counts(findings)
-    rows = [[f"[{item}]({page_link}#{ANCHORS[item]})", WHAT[item], _counts(c)] for item, c in counts.items()]
-    figure = (Path(page_link).parent / "paper" / FIGURE_NAME).as_posix()
-    rows = [[item, f"{what} ([figure]({figure}))" if item.startswith("[Fig. 4]") else what, verdicts]
-            for item, what, verdicts in rows]  # fmt: skip
+    figure = f" ([figure]({(Path(page_link).parent / 'paper' / FIGURE_NAME).as_posix()}))"
+    rows = [
+        [f"[{item}]({page_link}#{ANCHORS[item]})", WHAT[item] + figure * (item == "Fig. 4"), _counts(c)]
+        for item, c in counts.items()
+    ]
     best = "; ".join(
         f"{WORLD_NAMES.get(env, env)}: "
         f"{100 * float(np.mean(cell.final('success'))):.1f} % ({len(cell.seeds)} seed{'s' * (len(cell.seeds) > 1)})"

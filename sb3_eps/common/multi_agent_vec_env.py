@@ -29,21 +29,6 @@ from sb3_eps.common.utils import check_seed
 _EPISODE_RENAMED_KEYS = ("team_return", "ticks")
 
 
-def clock_out(state: dict[str, Any]) -> dict[str, Any]:
-    """A vec env's pickled state with its clock start ``_t_start`` turned into the seconds elapsed."""
-    if "_t_start" in state:
-        state["_t_elapsed"] = time.time() - state.pop("_t_start")
-    return state
-
-
-def clock_in(state: dict[str, Any]) -> dict[str, Any]:
-    """The inverse of :func:`clock_out`: the clock starts that many seconds before now (a pickle written before the
-    clock was kept as seconds elapsed keeps its start)."""
-    if "_t_elapsed" in state:
-        state["_t_start"] = time.time() - state.pop("_t_elapsed")
-    return state
-
-
 class MultiAgentVecEnv(VecEnv):
     """SB3 ``VecEnv`` over ``n_worlds`` PettingZoo worlds of ``n_agents`` agents each, one sub-env per agent.
 
@@ -172,10 +157,16 @@ class MultiAgentVecEnv(VecEnv):
     def __getstate__(self) -> dict[str, Any]:
         """Everything, with the episodes' clock (``t``) kept as the seconds elapsed: a run resumed from a
         checkpoint goes on counting its run time, not the time it spent stopped."""
-        return clock_out(dict(self.__dict__))
+        state = dict(self.__dict__)
+        state["_t_elapsed"] = time.time() - state.pop("_t_start")
+        return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(clock_in(state))
+        """The clock starts the pickled seconds elapsed before now (a pickle from before they were kept keeps its
+        start)."""
+        if "_t_elapsed" in state:
+            state["_t_start"] = time.time() - state.pop("_t_elapsed")
+        self.__dict__.update(state)
 
     def close(self) -> None:
         """Close every world."""

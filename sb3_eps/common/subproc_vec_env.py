@@ -19,7 +19,7 @@ import numpy as np
 from pettingzoo import ParallelEnv
 from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper, VecEnv, VecEnvStepReturn
 
-from sb3_eps.common.multi_agent_vec_env import MultiAgentVecEnv, clock_in, clock_out
+from sb3_eps.common.multi_agent_vec_env import MultiAgentVecEnv
 from sb3_eps.common.snapshots import snapshot_dumps
 from sb3_eps.common.utils import check_arguments
 from sb3_eps.common.workers import START_TIMEOUT, Served, WorkerError, WorkerPool, default_start_method
@@ -434,11 +434,11 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
     def __getstate__(self) -> dict[str, Any]:
         """The main process's bookkeeping plus a snapshot of every block's worlds (mid-episode)."""
         snapshots = self._ask_all("snapshot")
-        state = {key: value for key, value in self.__dict__.items() if key not in _PROCESS_LOCAL}
+        state = {key: value for key, value in super().__getstate__().items() if key not in _PROCESS_LOCAL}
         if self._local is not None:
             state["_main_snapshot"], snapshots = snapshots[0], snapshots[1:]
         state["_snapshots"] = snapshots
-        return clock_out(state)
+        return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         snapshots = state.pop("_snapshots")
@@ -448,7 +448,7 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
             for key in ("alive", "_seed", "_seeds", "_options", "_n_steps", "_want_state", "reset_infos")
             if key in state
         }
-        self.__dict__.update(clock_in(state))
+        super().__setstate__(state)
         self._start_workers(
             [("snapshot", snapshot) for snapshot in snapshots],
             None if main_snapshot is None else ("snapshot", main_snapshot),
