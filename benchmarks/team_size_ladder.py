@@ -199,8 +199,13 @@ def main() -> None:
 def train_whole(
     args: argparse.Namespace, rungs: list[tuple[str, int]], seed: int, path: pathlib.Path, save: pathlib.Path
 ) -> None:
-    """One model over every rung (``learn_ladder``); rung ``i``'s worlds seeded ``seed + 1000 i``."""
-    venvs = [make_vec_env(env_id, n_envs=args.n_envs, seed=seed + 1000 * i) for i, (env_id, _) in enumerate(rungs)]
+    """One model over every rung (``learn_ladder``); rung ``i``'s worlds seeded ``seed + 1000 i``. Rungs of one env id
+    share its worlds (built for the first of them), so a ladder that alternates two worlds runs two vector envs."""
+    built: dict[str, Any] = {}
+    for i, (env_id, _) in enumerate(rungs):
+        if env_id not in built:
+            built[env_id] = make_vec_env(env_id, n_envs=args.n_envs, seed=seed + 1000 * i)
+    venvs = [built[env_id] for env_id, _ in rungs]
     model = ALGORITHMS[args.algo]("MlpPolicy", venvs[0], seed=seed, **args.hyperparams)
     callback = LadderEval(args, path, seed, 0, 0, 0, args.eval_every, time.time())
     callback.rungs = [Rung(venv, ticks) for venv, (_, ticks) in zip(venvs, rungs)]
@@ -209,7 +214,7 @@ def train_whole(
         callback.evaluate()
     if args.save_models:
         model.save(save)
-    for venv in venvs:
+    for venv in built.values():
         venv.close()
 
 
