@@ -100,7 +100,7 @@ class LadderEval(BaseCallback):
 def write_evaluation(args: argparse.Namespace, path: pathlib.Path, seed: int, model: Any, record: dict[str, Any]) -> None:
     """Evaluate ``model`` greedily on every ``--eval-env`` and append the record as one JSON line."""
     for env_id in args.eval_env:
-        summary = evaluate_team(model, env_id, args.eval_episodes, n_envs=4, seed=10_000 + seed)
+        summary = evaluate_team(model, env_id, args.eval_episodes, n_envs=4, seed=10_000 + seed, env_kwargs=args.env_kwargs)
         summary.pop("episodes")
         key = "" if env_id == args.eval_env[0] else f"{env_id}/"
         record.update({f"{key}{name}": value for name, value in summary.items()})
@@ -128,6 +128,12 @@ def main() -> None:
         help="exploration_initial_eps of the rungs after the first (default: the algorithm's)",
     )
     parser.add_argument("--hyperparams", type=json.loads, default={}, help="JSON dict of algorithm arguments")
+    parser.add_argument(
+        "--env-kwargs",
+        type=json.loads,
+        default=None,
+        help="JSON dict of world arguments, for the training and the evaluation worlds (lidar_frames...)",
+    )
     parser.add_argument(
         "--carry",
         choices=("agent", "whole"),
@@ -166,7 +172,7 @@ def main() -> None:
         next_eval, start, previous = args.eval_every, time.time(), None
         with tempfile.TemporaryDirectory() as scratch:
             for index, (env_id, ticks) in enumerate(rungs):
-                venv = make_vec_env(env_id, n_envs=args.n_envs, seed=seed + 1000 * index)
+                venv = make_vec_env(env_id, n_envs=args.n_envs, seed=seed + 1000 * index, env_kwargs=args.env_kwargs)
                 hyperparams = dict(args.hyperparams)
                 if index > 0 and args.later_eps is not None:
                     hyperparams["exploration_initial_eps"] = args.later_eps
@@ -204,7 +210,7 @@ def train_whole(
     built: dict[str, Any] = {}
     for i, (env_id, _) in enumerate(rungs):
         if env_id not in built:
-            built[env_id] = make_vec_env(env_id, n_envs=args.n_envs, seed=seed + 1000 * i)
+            built[env_id] = make_vec_env(env_id, n_envs=args.n_envs, seed=seed + 1000 * i, env_kwargs=args.env_kwargs)
     venvs = [built[env_id] for env_id, _ in rungs]
     model = ALGORITHMS[args.algo]("MlpPolicy", venvs[0], seed=seed, **args.hyperparams)
     callback = LadderEval(args, path, seed, 0, 0, 0, args.eval_every, time.time())
@@ -226,7 +232,7 @@ def train_population(
     One ``learn`` call over the whole total, the evaluations made between turns: the learners' schedules (learning
     rate, exploration) run once over the run, as in a command-line run (a call per mark would restart them)."""
     env_id, total = rung
-    settings = {"log_path": str(save) + "_selections.jsonl", "seed": seed, **args.population}
+    settings = {"log_path": str(save) + "_selections.jsonl", "seed": seed, "env_kwargs": args.env_kwargs, **args.population}
     population = PopulationTrainer(ALGORITHMS[args.algo], env_id, **settings, **args.hyperparams)
     start, marks = time.time(), list(range(args.eval_every, total + args.eval_every, args.eval_every))
 

@@ -195,6 +195,10 @@ def test_bad_seed_raises(seed: Any) -> None:
         ({"max_episode_steps": 0}, "max_episode_steps"),
         ({"render_mode": "ansi"}, "render_mode"),
         ({"lidar_noise_std": -0.1}, "lidar_noise_std"),
+        ({"lidar_frames": 0}, "lidar_frames must be an int in"),
+        ({"lidar_frames": 5}, "lidar_frames must be an int in"),
+        ({"lidar_frames": 2.0}, "lidar_frames must be an int in"),
+        ({"lidar_frame_ticks": 0}, "lidar_frame_ticks must be an int in"),
     ],
 )
 def test_bad_constructor_arguments_raise(kwargs: dict[str, Any], match: str) -> None:
@@ -348,3 +352,39 @@ def test_a_team_world_as_one_gymnasium_env() -> None:
         assert info["is_success"] is False and info["team"]["ticks"] == 5
     finally:
         env.close()
+
+
+def test_stacked_scans_are_the_scans_of_earlier_ticks() -> None:
+    """``lidar_frames=3, lidar_frame_ticks=2``: the first 30 floats are the one-scan observation, then the scans of 2
+    and 4 ticks ago (the first scan while the episode is younger), for every robot, parked ones aside."""
+    single_scan = MultiRobotNavEnv(n_robots=4)
+    stacked = MultiRobotNavEnv(n_robots=4, lidar_frames=3, lidar_frame_ticks=2)
+    assert single_scan.observation_space("robot_0").shape == (30,)
+    space = stacked.observation_space("robot_0")
+    assert space.shape == (86,) and space.low[29] == -1.0 and (space.low[30:] == 0.0).all()
+    plain, _ = single_scan.reset(seed=5)
+    obs, _ = stacked.reset(seed=5)
+    history = {agent: [o[:28]] for agent, o in obs.items()}
+    for agent in obs:
+        np.testing.assert_array_equal(obs[agent][:30], plain[agent])
+        np.testing.assert_array_equal(obs[agent][30:58], obs[agent][:28])
+        np.testing.assert_array_equal(obs[agent][58:], obs[agent][:28])
+    rng = np.random.default_rng(0)
+    moved = False
+    for _ in range(40):
+        actions = {agent: int(rng.integers(20)) for agent in stacked.agents}
+        plain, *_ = single_scan.step(actions)
+        obs, *_ = stacked.step(actions)
+        for agent, o in obs.items():
+            np.testing.assert_array_equal(o[:30], plain[agent])  # the option adds scans, changes nothing else
+            history[agent].append(o[:28])
+            scans = history[agent]
+            np.testing.assert_array_equal(o[30:58], scans[max(len(scans) - 3, 0)])
+            np.testing.assert_array_equal(o[58:86], scans[max(len(scans) - 5, 0)])
+            moved |= not np.array_equal(o[:28], o[58:86])
+        if not stacked.agents:
+            break
+    assert moved, "the stacked scans never differed from the current one"
+    assert SingleRobotNavEnv(lidar_frames=2).observation_space.shape == (58,)
+    single_scan.close()
+    stacked.close()

@@ -53,14 +53,18 @@ from envs.turtlebot3.robot import (
 from envs.turtlebot3.world import NavWorld
 
 OBS_DIM = N_BEAMS + 2  # 28 ranges, target distance, target heading
+LIDAR_FRAMES_MAX = 4
+LIDAR_FRAME_TICKS_MAX = 20
 STAND_STILL = 2  # the action (v, w) = (0, 0)
 
 
-def observation_space() -> gymnasium.spaces.Box:
-    """The 30-float observation box: 28 ranges / 3.5 m in [0, 1], distance / 10 m in [0, 1], heading / pi."""
-    low = np.zeros(OBS_DIM, dtype=np.float32)
-    low[-1] = -1.0
-    return gymnasium.spaces.Box(low=low, high=np.ones(OBS_DIM, dtype=np.float32), dtype=np.float32)
+def observation_space(lidar_frames: int = 1) -> gymnasium.spaces.Box:
+    """The observation box: 28 ranges / 3.5 m in [0, 1], distance / 10 m in [0, 1], heading / pi in [-1, 1), then
+    28 earlier ranges / 3.5 m for every scan of ``lidar_frames`` after the first (30 floats with one scan)."""
+    dim = OBS_DIM + (lidar_frames - 1) * N_BEAMS
+    low = np.zeros(dim, dtype=np.float32)
+    low[N_BEAMS + 1] = -1.0
+    return gymnasium.spaces.Box(low=low, high=np.ones(dim, dtype=np.float32), dtype=np.float32)
 
 
 class MultiRobotNavEnv(ParallelEnv):
@@ -68,7 +72,9 @@ class MultiRobotNavEnv(ParallelEnv):
 
     - Observation (per robot, float32, 30): ``[0:28]`` lidar ranges / 3.5 m (beam 0 at -120 deg, beam 27 at
       +120 deg, counter-clockwise positive), ``[28]`` distance to the target / 10 m clipped to [0, 1],
-      ``[29]`` target bearing relative to the heading / pi, in [-1, 1).
+      ``[29]`` target bearing relative to the heading / pi, in [-1, 1). With ``lidar_frames = k > 1``, the
+      ``k - 1`` earlier scans follow, newest first: ``[30 + 28 j : 58 + 28 j]`` is the scan of
+      ``(j + 1) * lidar_frame_ticks`` ticks ago (at the start of an episode, the first scan).
     - Action: Discrete(20), index ``5 * i_linear + i_angular`` over linear {0, 0.07, 0.14, 0.21} m/s and
       angular {-90, -45, 0, 45, 90} deg/s, held for one 0.05 s tick (20 Hz).
     - Reward (Eq. 7): -1 on collision; +1 on arriving within 0.1 m of the target; otherwise
@@ -98,6 +104,11 @@ class MultiRobotNavEnv(ParallelEnv):
         start and target at each reset (start headings turn by up to 30 degrees too), kept clear of walls,
         obstacles and the other robots, with each target at least 2 m from its robot's start; 0 (the default)
         keeps the fixed poses. Up to 0.5 m
+    :param lidar_frames: scans in each observation (1-4): 1 (the default, the paper's observation) is the current
+        scan; more add earlier scans, from which a policy can tell how the robots around it move (multi-robot lidar
+        policies stack the last three scans: Long et al., ICRA 2018, arXiv 1709.10082). An option beside the paper's
+        world, measured in ``docs/results/many_robots.md``
+    :param lidar_frame_ticks: ticks between two stacked scans (1-20; 5 = 0.25 s); read only with ``lidar_frames > 1``
     """
 
     metadata: dict[str, Any] = {
@@ -116,6 +127,8 @@ class MultiRobotNavEnv(ParallelEnv):
         lidar_noise_std: float = 0.0,
         render_lidar: bool = False,
         placement_jitter: float = 0.0,
+        lidar_frames: int = 1,
+        lidar_frame_ticks: int = 5,
     ) -> None:
         self.layout: Layout = make_layout(scenario, n_robots)
         self.scenario = scenario
@@ -135,6 +148,14 @@ class MultiRobotNavEnv(ParallelEnv):
         ):
             raise ValueError(f"lidar_noise_std must be a finite number >= 0 (metres), got {lidar_noise_std!r}.")
         self.placement_jitter = self._check_placement_jitter(placement_jitter)
+        for name, value, largest in (
+            ("lidar_frames", lidar_frames, LIDAR_FRAMES_MAX),
+            ("lidar_frame_ticks", lidar_frame_ticks, LIDAR_FRAME_TICKS_MAX),
+        ):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 1 <= value <= largest:
+                raise ValueError(f"{name} must be an int in [1, {largest}], got {value!r}.")
+        self.lidar_frames = int(lidar_frames)
+        self.lidar_frame_ticks = int(lidar_frame_ticks)
         self.max_episode_steps = int(max_episode_steps)
         self.render_mode = render_mode
         self.lidar_noise_std = float(lidar_noise_std)
@@ -144,7 +165,7 @@ class MultiRobotNavEnv(ParallelEnv):
         self.agents: list[str] = []
         self._agent_index = {agent: i for i, agent in enumerate(self.possible_agents)}
         # One space object shared by every robot, built once: never depends on reset().
-        self._observation_space = observation_space()
+        self._observation_space = observation_space(self.lidar_frames)
         self._action_space = gymnasium.spaces.Discrete(N_ACTIONS)
         self.observation_spaces = dict.fromkeys(self.possible_agents, self._observation_space)
         self.action_spaces = dict.fromkeys(self.possible_agents, self._action_space)
@@ -163,6 +184,9 @@ class MultiRobotNavEnv(ParallelEnv):
         self._command = np.full(n, STAND_STILL)  # last action of each robot (parked: standing still)
         self._scan_ranges = np.full((n, N_BEAMS), RANGE_MAX)
         self._scanned = np.zeros(0, dtype=int)
+        # Normalised scans of the last (lidar_frames - 1) * lidar_frame_ticks ticks, newest first (lidar_frames > 1).
+        history = (self.lidar_frames - 1) * self.lidar_frame_ticks + 1 if self.lidar_frames > 1 else 0
+        self._scan_history = np.zeros((n, history, N_BEAMS), dtype=np.float32)
         self._ticks = 0
         self._team_return = 0.0
         self._distance_travelled = 0.0
@@ -260,7 +284,7 @@ class MultiRobotNavEnv(ParallelEnv):
         offset = self._targets - self.world.xy
         self._distance = np.hypot(offset[:, 0], offset[:, 1])
         bearing = self._bearing(self._live_index, offset)
-        obs = self._observe(self._live_index, offset, self._distance, bearing)
+        obs = self._observe(self._live_index, offset, self._distance, bearing, new_episode=True)
         team = self._team_info()
         observations = dict(zip(self.agents, obs))
         infos = {agent: {"arrived": False, "collided": False, "team": team} for agent in self.agents}
@@ -411,22 +435,39 @@ class MultiRobotNavEnv(ParallelEnv):
 
     # --- observations, state, infos ----------------------------------------------------------------------
 
-    def _observe(self, indices: np.ndarray, offset: np.ndarray, distance: np.ndarray, bearing: np.ndarray) -> np.ndarray:
-        """Scan and build the 30-float observations of the robots in ``indices`` (one ray batch).
+    def _observe(
+        self,
+        indices: np.ndarray,
+        offset: np.ndarray,
+        distance: np.ndarray,
+        bearing: np.ndarray,
+        new_episode: bool = False,
+    ) -> np.ndarray:
+        """Scan and build the observations of the robots in ``indices`` (one ray batch).
 
         :param indices: robot indices
         :param offset: ``(k, 2)`` target minus robot position
         :param distance: ``(k,)`` norms of ``offset``
         :param bearing: ``(k,)`` the target bearings, ``self._bearing(indices, offset)``
+        :param new_episode: the first scan of an episode, which fills the earlier scans of ``lidar_frames > 1``
         """
         ranges = self.world.scan(indices, self.lidar_noise_std, self.np_random)
         rows = self.world.rows_of(indices)
         self._scan_ranges[rows] = ranges
         self._scanned = indices
-        obs = np.empty((len(indices), OBS_DIM), dtype=np.float32)
+        obs = np.empty((len(indices), self._observation_space.shape[0]), dtype=np.float32)
         obs[:, :N_BEAMS] = ranges * (1.0 / RANGE_MAX)
         obs[:, N_BEAMS] = np.minimum(distance * (1.0 / DISTANCE_SCALE), 1.0)
         obs[:, N_BEAMS + 1] = bearing * (1.0 / np.pi)
+        if self.lidar_frames > 1:
+            history = self._scan_history
+            if new_episode:
+                history[indices] = obs[:, None, :N_BEAMS]
+            else:
+                history[indices, 1:] = history[indices, :-1]
+                history[indices, 0] = obs[:, :N_BEAMS]
+            earlier = history[indices, self.lidar_frame_ticks :: self.lidar_frame_ticks]  # (k, lidar_frames - 1, 28)
+            obs[:, OBS_DIM:] = earlier.reshape(len(indices), -1)
         return obs
 
     def _bearing(self, indices: np.ndarray, offset: np.ndarray) -> np.ndarray:

@@ -39,6 +39,9 @@ class SingleRobotNavEnv(gymnasium.Env):
     :param render_lidar: draw the lidar beams in ``rgb_array`` pictures
     :param placement_jitter: in ``"unseen"``, the largest seeded offset [m] of robot 0's fixed start and targets
         (as in :class:`~envs.turtlebot3.MultiRobotNavEnv`); 0 keeps them fixed
+    :param lidar_frames: scans in each observation, as in :class:`~envs.turtlebot3.MultiRobotNavEnv` (an EPS world
+        for a model trained with stacked scans needs the same)
+    :param lidar_frame_ticks: ticks between two stacked scans
     """
 
     metadata: dict[str, Any] = {
@@ -55,6 +58,8 @@ class SingleRobotNavEnv(gymnasium.Env):
         lidar_noise_std: float = 0.0,
         render_lidar: bool = False,
         placement_jitter: float = 0.0,
+        lidar_frames: int = 1,
+        lidar_frame_ticks: int = 5,
     ) -> None:
         self.multi_env = MultiRobotNavEnv(
             n_robots=1,
@@ -64,6 +69,8 @@ class SingleRobotNavEnv(gymnasium.Env):
             lidar_noise_std=lidar_noise_std,
             render_lidar=render_lidar,
             placement_jitter=placement_jitter,
+            lidar_frames=lidar_frames,
+            lidar_frame_ticks=lidar_frame_ticks,
         )
         self.observation_space = self.multi_env.observation_space(AGENT)
         self.action_space = self.multi_env.action_space(AGENT)

@@ -33,8 +33,11 @@ def load(path: pathlib.Path) -> GDQ:
     return GDQ.load(path, device="cpu", custom_objects={"policy_kwargs": policy_kwargs})
 
 
-def evaluate_models(models: list[pathlib.Path], out: pathlib.Path, rooms: tuple[str, ...] = ROOMS) -> None:
-    """Evaluate every model on every room, appending one JSON line each to ``out`` (lines already there are kept)."""
+def evaluate_models(
+    models: list[pathlib.Path], out: pathlib.Path, rooms: tuple[str, ...] = ROOMS, env_kwargs: dict | None = None
+) -> None:
+    """Evaluate every model on every room (built with ``env_kwargs``), appending one JSON line each to ``out`` (lines
+    already there are kept)."""
     th.set_num_threads(1)
     done = set()
     if out.exists():
@@ -46,7 +49,7 @@ def evaluate_models(models: list[pathlib.Path], out: pathlib.Path, rooms: tuple[
             if (arm, int(seed), room) in done:
                 continue
             model = model or load(path)
-            summary = evaluate_team(model, room, 100, n_envs=4, seed=EVAL_SEED)
+            summary = evaluate_team(model, room, 100, n_envs=4, seed=EVAL_SEED, env_kwargs=env_kwargs)
             summary.pop("episodes")
             record = {"arm": arm, "seed": int(seed), "room": room, **summary}
             with out.open("a") as file:
@@ -58,8 +61,9 @@ def main(rooms: tuple[str, ...] = ROOMS) -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("models", nargs="+", type=pathlib.Path)
     parser.add_argument("--out", required=True, type=pathlib.Path)
+    parser.add_argument("--env-kwargs", type=json.loads, default=None, help="JSON dict of world arguments")
     args = parser.parse_args()
-    evaluate_models(args.models, args.out, rooms)
+    evaluate_models(args.models, args.out, rooms, args.env_kwargs)
 
 
 if __name__ == "__main__":

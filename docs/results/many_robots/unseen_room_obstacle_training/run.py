@@ -1,6 +1,6 @@
 """The `bars` arm of this folder's rule: GDQ, package defaults, 4 robots in the arena with the EPS world's bars.
 
-    python docs/results/many_robots/unseen_room_obstacle_training/run.py --seed 220 --out runs/bars
+python docs/results/many_robots/unseen_room_obstacle_training/run.py --seed 220 --out runs/bars
 """
 
 import argparse

@@ -48,15 +48,11 @@ def load(path: pathlib.Path) -> GDQ:
 
 if args.summary:
     records = [json.loads(line) for line in pathlib.Path(args.out).read_text().splitlines()]
-    print(
-        "| arm | room | success, seeds " + ", ".join(map(str, args.seeds)) + " | mean | collisions | mean |"
-    )
+    print("| arm | room | success, seeds " + ", ".join(map(str, args.seeds)) + " | mean | collisions | mean |")
     print("|---|---|---|---|---|---|")
     for arm in ("open", "bars"):
         for env_id in ROOMS:
-            rows = sorted(
-                (r for r in records if (r["arm"], r["env_id"]) == (arm, env_id)), key=lambda r: r["seed"]
-            )
+            rows = sorted((r for r in records if (r["arm"], r["env_id"]) == (arm, env_id)), key=lambda r: r["seed"])
             rows = [r for r in rows if r["seed"] in args.seeds]
             mean_success = 100 * sum(r["success_rate"] for r in rows) / len(rows)
             mean_collision = 100 * sum(r["collision_rate"] for r in rows) / len(rows)
