@@ -45,7 +45,13 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument("-n", "--n-episodes", type=int, default=100, help="world (team) episodes")
     parser.add_argument("--n-envs", type=int, default=4, help="worlds run side by side")
     parser.add_argument("--seed", type=int, default=0, help="seed of the evaluation worlds")
-    parser.add_argument("--env-kwargs", nargs="+", default=[], metavar="KEY:VALUE", help="env constructor arguments")
+    parser.add_argument(
+        "--env-kwargs",
+        nargs="+",
+        default=[],
+        metavar="KEY:VALUE",
+        help="env constructor arguments, updating the run's own (its config.yml's env_kwargs)",
+    )
     parser.add_argument("--gif", default=None, metavar="PATH", help="also write a GIF of greedy episodes")
     parser.add_argument("--gif-episodes", type=int, default=1, help="episodes in the GIF")
     parser.add_argument("--output", default=None, help="JSON file of the results")

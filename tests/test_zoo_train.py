@@ -280,3 +280,19 @@ def test_record_curves_read_the_committed_evaluation_records(tmp_path) -> None:
     main_job = ROOT / "docs" / "results" / "main_job" / "2026-11-30_eps_gdq_seed0"
     assert draw_evaluations(main_job, tmp_path / "main.png").stat().st_size > 10_000
     assert draw_evaluations(tmp_path, tmp_path / "none.png") is None  # no evaluations.npz: nothing drawn
+
+
+def test_a_run_on_stacked_scans_is_evaluated_on_worlds_that_stack_them(tmp_path) -> None:
+    """A run trained with ``--env-kwargs lidar_frames:2`` evaluates (on its world and on the unseen room) with its own
+    world arguments; overriding them with a one-scan world is refused in one line."""
+    argv = train_args(tmp_path, "--hyperparams", *TINY, "--env-kwargs", "lidar_frames:2", "max_episode_steps:30",
+                      env_id="MultiRobotNav-2-v0", n=400)  # fmt: skip
+    assert train.main(argv) == 0
+    (run,) = (tmp_path / "gdq").iterdir()
+    output = tmp_path / "eval.json"
+    assert evaluate.main(["--run", str(run), "-n", "2", "--n-envs", "1", "--output", str(output)]) == 0
+    assert json.loads(output.read_text())["n_episodes"] == 2
+    room = ["--run", str(run), "--eval-env", "MultiRobotNavUnseen-4-v0", "-n", "1", "--n-envs", "1"]
+    assert evaluate.main([*room, "--output", str(tmp_path / "room.json"), "--env-kwargs", "max_episode_steps:20"]) == 0
+    with pytest.raises(ConfigError, match="observation_space .*58"):
+        evaluate.main(["--run", str(run), "-n", "1", "--env-kwargs", "lidar_frames:1"])

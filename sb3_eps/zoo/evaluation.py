@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +16,7 @@ from sb3_eps.common.vec_env import make_vec_env
 from sb3_eps.zoo import run_folder
 from sb3_eps.zoo.checkpoint import write_text_atomic
 from sb3_eps.zoo.cli import import_gym_packages
-from sb3_eps.zoo.config import check_env_id
+from sb3_eps.zoo.config import check_env_id, load_yaml
 from sb3_eps.zoo.errors import ConfigError
 from sb3_eps.zoo.schema import algorithm_spec
 
@@ -34,13 +34,26 @@ METRICS = {
 @dataclass
 class LoadedRun:
     """A run folder (its algorithm, the env id it trained on) and the model loaded from ``model_path``, without an
-    env: it predicts on any world with the same spaces."""
+    env: it predicts on any world with the same spaces. ``env_kwargs``: the world arguments the run trained with (its
+    ``config.yml``), which its evaluations start from (a model trained on stacked scans needs worlds that stack them)."""
 
     run_dir: Path
     algo: str
     env_id: str
     model: MultiAgentOffPolicyAlgorithm
     model_path: Path
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+
+
+def run_env_kwargs(run_dir: str | Path, env_id: str) -> dict[str, Any]:
+    """:return: the ``env_kwargs`` of a run's resolved entry (its ``config.yml``), empty when it has none."""
+    path = run_folder.run_file(run_dir, run_folder.CONFIG_NAME)
+    if not path.is_file():
+        return {}
+    config = load_yaml(path)
+    entry = config.get(env_id) if isinstance(config, dict) else None
+    kwargs = entry.get("env_kwargs") if isinstance(entry, dict) else None
+    return dict(kwargs) if isinstance(kwargs, dict) else {}
 
 
 def load_run(run_dir: str | Path, which: str | int = "final", device: str = "auto") -> LoadedRun:
@@ -71,7 +84,8 @@ def load_run(run_dir: str | Path, which: str | int = "final", device: str = "aut
     cls = algorithm_spec(str(args["algo"])).algorithm_class
     # buffer_size=1: no replay memory is needed to predict.
     model = cls.load(path, env=None, device=device, buffer_size=1)
-    return LoadedRun(run_dir, str(args["algo"]), str(args["env"]), model, path)
+    env_id = str(args["env"])
+    return LoadedRun(run_dir, str(args["algo"]), env_id, model, path, run_env_kwargs(run_dir, env_id))
 
 
 def evaluate_run(
@@ -83,11 +97,13 @@ def evaluate_run(
     env_kwargs: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Evaluate a run's greedy model on ``env_id`` (default: its training env id), world episodes counted per team.
+    The worlds get the run's own ``env_kwargs`` updated by ``env_kwargs``.
 
     :return: the summary of :func:`~sb3_eps.evaluate_team` plus ``path_length_per_robot`` and what was run
     :raises ConfigError: when the env id is unknown or its spaces differ from the model's
     """
     env_id = env_id or run.env_id
+    env_kwargs = {**run.env_kwargs, **(env_kwargs or {})} or None
     check_env_id(env_id, "--eval-env")
     if n_episodes < 1 or n_envs < 1:
         raise ConfigError(f"-n (episodes) and --n-envs must be >= 1, got {n_episodes} and {n_envs}")
@@ -161,7 +177,8 @@ def record_gif(
     from envs.turtlebot3 import save_gif
 
     env_id = env_id or run.env_id
-    venv = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs={**(env_kwargs or {}), "render_mode": "rgb_array"})
+    kwargs = {**run.env_kwargs, **(env_kwargs or {}), "render_mode": "rgb_array"}
+    venv = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=kwargs)
     try:
         check_spaces(run.model, venv, env_id, f"the model of {run.run_dir}")
         frames, _ = record_frames(run.model, venv, n_episodes, max_frames=3_000)
