@@ -294,5 +294,5 @@ def test_a_run_on_stacked_scans_is_evaluated_on_worlds_that_stack_them(tmp_path)
     assert json.loads(output.read_text())["n_episodes"] == 2
     room = ["--run", str(run), "--eval-env", "MultiRobotNavUnseen-4-v0", "-n", "1", "--n-envs", "1"]
     assert evaluate.main([*room, "--output", str(tmp_path / "room.json"), "--env-kwargs", "max_episode_steps:20"]) == 0
-    with pytest.raises(ConfigError, match="observation_space .*58"):
+    with pytest.raises(ConfigError, match=r"observation_space .*58"):
         evaluate.main(["--run", str(run), "-n", "1", "--env-kwargs", "lidar_frames:1"])
