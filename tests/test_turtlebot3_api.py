@@ -199,6 +199,8 @@ def test_bad_seed_raises(seed: Any) -> None:
         ({"lidar_frames": 5}, "lidar_frames must be an int in"),
         ({"lidar_frames": 2.0}, "lidar_frames must be an int in"),
         ({"lidar_frame_ticks": 0}, "lidar_frame_ticks must be an int in"),
+        ({"action_repeat": 0}, "action_repeat must be an int in"),
+        ({"action_repeat": 11}, "action_repeat must be an int in"),
     ],
 )
 def test_bad_constructor_arguments_raise(kwargs: dict[str, Any], match: str) -> None:
@@ -388,3 +390,36 @@ def test_stacked_scans_are_the_scans_of_earlier_ticks() -> None:
     assert SingleRobotNavEnv(lidar_frames=2).observation_space.shape == (58,)
     single_scan.close()
     stacked.close()
+
+
+def test_action_repeat_holds_each_action_for_its_ticks() -> None:
+    """``action_repeat=4``: one step is four ticks of the one-tick world with the same actions, rewards summed, and a
+    robot that ends inside a step reports the tick it ended (here, every robot of a team that collides)."""
+    held = MultiRobotNavEnv(n_robots=4, action_repeat=4, max_episode_steps=200)
+    ticked = MultiRobotNavEnv(n_robots=4, max_episode_steps=200)
+    held.reset(seed=3)
+    ticked.reset(seed=3)
+    rng = np.random.default_rng(1)
+    steps = 0
+    while held.agents:
+        actions = {agent: int(rng.integers(20)) for agent in held.agents}
+        obs, rewards, terminations, truncations, infos = held.step(actions)
+        expected_rewards = dict.fromkeys(actions, 0.0)
+        last: dict[str, tuple[Any, ...]] = {}
+        for _ in range(4):
+            if not ticked.agents:
+                break
+            tick = ticked.step({agent: actions[agent] for agent in ticked.agents})
+            for agent in tick[0]:
+                expected_rewards[agent] += tick[1][agent]
+                last[agent] = (tick[0][agent], tick[2][agent], tick[3][agent], tick[4][agent]["arrived"])
+        assert rewards == pytest.approx(expected_rewards) and set(last) == set(obs)
+        for agent, (observation, terminated, truncated, arrived) in last.items():
+            np.testing.assert_array_equal(obs[agent], observation)
+            assert (terminations[agent], truncations[agent], infos[agent]["arrived"]) == (terminated, truncated, arrived)
+        assert held.agents == ticked.agents
+        assert held._ticks == ticked._ticks and infos[next(iter(infos))]["team"] == ticked._team_info()
+        steps += 1
+    assert not ticked.agents and held._ticks > 4 * (steps - 1)
+    held.close()
+    ticked.close()

@@ -55,6 +55,7 @@ from envs.turtlebot3.world import NavWorld
 OBS_DIM = N_BEAMS + 2  # 28 ranges, target distance, target heading
 LIDAR_FRAMES_MAX = 4
 LIDAR_FRAME_TICKS_MAX = 20
+ACTION_REPEAT_MAX = 10
 STAND_STILL = 2  # the action (v, w) = (0, 0)
 
 
@@ -109,6 +110,11 @@ class MultiRobotNavEnv(ParallelEnv):
         policies stack the last three scans: Long et al., ICRA 2018, arXiv 1709.10082). An option beside the paper's
         world, measured in ``docs/results/many_robots.md``
     :param lidar_frame_ticks: ticks between two stacked scans (1-20; 5 = 0.25 s); read only with ``lidar_frames > 1``
+    :param action_repeat: ticks each action is held (1-10): 1 (the default) is the paper's decision at every tick
+        (20 Hz); ``k`` makes ``step`` advance ``k`` ticks (20 / k decisions a second) and return each robot's reward
+        summed over them; collisions, arrivals and the time limit are still resolved at every tick, and a robot that
+        ends inside a step returns its observation, reward and flags from the tick it ended. An option beside the
+        paper's world, measured in ``docs/results/many_robots.md``
     """
 
     metadata: dict[str, Any] = {
@@ -129,6 +135,7 @@ class MultiRobotNavEnv(ParallelEnv):
         placement_jitter: float = 0.0,
         lidar_frames: int = 1,
         lidar_frame_ticks: int = 5,
+        action_repeat: int = 1,
     ) -> None:
         self.layout: Layout = make_layout(scenario, n_robots)
         self.scenario = scenario
@@ -151,11 +158,13 @@ class MultiRobotNavEnv(ParallelEnv):
         for name, value, largest in (
             ("lidar_frames", lidar_frames, LIDAR_FRAMES_MAX),
             ("lidar_frame_ticks", lidar_frame_ticks, LIDAR_FRAME_TICKS_MAX),
+            ("action_repeat", action_repeat, ACTION_REPEAT_MAX),
         ):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 1 <= value <= largest:
                 raise ValueError(f"{name} must be an int in [1, {largest}], got {value!r}.")
         self.lidar_frames = int(lidar_frames)
         self.lidar_frame_ticks = int(lidar_frame_ticks)
+        self.action_repeat = int(action_repeat)
         self.max_episode_steps = int(max_episode_steps)
         self.render_mode = render_mode
         self.lidar_noise_std = float(lidar_noise_std)
@@ -343,8 +352,8 @@ class MultiRobotNavEnv(ParallelEnv):
         dict[str, bool],
         dict[str, dict[str, Any]],
     ]:
-        """Advance one tick (0.05 s): every live robot executes its action, then collisions, arrivals and
-        the time limit are resolved.
+        """Advance one tick (0.05 s), or ``action_repeat`` ticks: every live robot executes its action, then
+        collisions, arrivals and the time limit are resolved (at every tick).
 
         :param actions: an action in [0, 19] for every robot in ``self.agents`` (others are ignored)
         :return: observations, rewards, terminations, truncations and infos of the robots that acted
@@ -354,9 +363,39 @@ class MultiRobotNavEnv(ParallelEnv):
             return {}, {}, {}, {}, {}
         if self.world.client is None:
             raise RuntimeError("step() on a closed env: call reset() first.")
+        action_array = self._parse_actions(actions, acting)
+        if self.action_repeat == 1:
+            return self._tick(acting, action_array)
+        chosen = dict(zip(acting, action_array.tolist()))
+        observations, rewards, terminations, truncations, infos = self._tick(acting, action_array)
+        for _ in range(self.action_repeat - 1):
+            if not self.agents:
+                break
+            still = self.agents
+            tick = self._tick(still, np.array([chosen[agent] for agent in still], dtype=np.int64))
+            observations.update(tick[0])
+            for agent, reward in tick[1].items():
+                rewards[agent] += reward
+            terminations.update(tick[2])
+            truncations.update(tick[3])
+            infos.update(tick[4])
+        team = self._team_info()
+        for info in infos.values():
+            info["team"] = team
+        return observations, rewards, terminations, truncations, infos
+
+    def _tick(
+        self, acting: list[str], action_array: np.ndarray
+    ) -> tuple[
+        dict[str, np.ndarray],
+        dict[str, float],
+        dict[str, bool],
+        dict[str, bool],
+        dict[str, dict[str, Any]],
+    ]:
+        """One tick of the live robots ``acting`` with their checked actions (:meth:`step`)."""
         live = self._live_index
         rows = self.world.rows_of(live)
-        action_array = self._parse_actions(actions, acting)
         v, w = ACTION_LINEAR[action_array], ACTION_ANGULAR[action_array]
         if len(live) < self.n_robots:
             self._command.fill(STAND_STILL)  # parked robots stand still

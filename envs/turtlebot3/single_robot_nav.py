@@ -42,6 +42,7 @@ class SingleRobotNavEnv(gymnasium.Env):
     :param lidar_frames: scans in each observation, as in :class:`~envs.turtlebot3.MultiRobotNavEnv` (an EPS world
         for a model trained with stacked scans needs the same)
     :param lidar_frame_ticks: ticks between two stacked scans
+    :param action_repeat: ticks each action is held, as in :class:`~envs.turtlebot3.MultiRobotNavEnv`
     """
 
     metadata: dict[str, Any] = {
@@ -60,6 +61,7 @@ class SingleRobotNavEnv(gymnasium.Env):
         placement_jitter: float = 0.0,
         lidar_frames: int = 1,
         lidar_frame_ticks: int = 5,
+        action_repeat: int = 1,
     ) -> None:
         self.multi_env = MultiRobotNavEnv(
             n_robots=1,
@@ -71,6 +73,7 @@ class SingleRobotNavEnv(gymnasium.Env):
             placement_jitter=placement_jitter,
             lidar_frames=lidar_frames,
             lidar_frame_ticks=lidar_frame_ticks,
+            action_repeat=action_repeat,
         )
         self.observation_space = self.multi_env.observation_space(AGENT)
         self.action_space = self.multi_env.action_space(AGENT)

@@ -244,7 +244,8 @@ class MultiAgentVecEnv(VecEnv):
         team = world.terminal_team or {}
         episode = {
             "r": float(team.get("team_return", self._episode_returns[w])),
-            "l": self._n_steps - self._episode_start[w],
+            # the world's own tick count where it keeps one (a step of a world with action_repeat is several ticks)
+            "l": int(team.get("ticks", self._n_steps - self._episode_start[w])),
             "t": round(time.time() - self._t_start, 6),
         }
         episode.update((key, value) for key, value in team.items() if key not in _EPISODE_RENAMED_KEYS)
