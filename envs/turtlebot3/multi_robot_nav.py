@@ -57,6 +57,14 @@ LIDAR_FRAMES_MAX = 4
 LIDAR_FRAME_TICKS_MAX = 20
 ACTION_REPEAT_MAX = 10
 STAND_STILL = 2  # the action (v, w) = (0, 0)
+#: What ``step`` returns: observations, rewards, terminations, truncations and infos, keyed by robot.
+StepResult = tuple[
+    dict[str, np.ndarray],
+    dict[str, float],
+    dict[str, bool],
+    dict[str, bool],
+    dict[str, dict[str, Any]],
+]
 
 
 def observation_space(lidar_frames: int = 1) -> gymnasium.spaces.Box:
@@ -343,15 +351,7 @@ class MultiRobotNavEnv(ParallelEnv):
 
     # --- step --------------------------------------------------------------------------------------------
 
-    def step(
-        self, actions: dict[str, Any]
-    ) -> tuple[
-        dict[str, np.ndarray],
-        dict[str, float],
-        dict[str, bool],
-        dict[str, bool],
-        dict[str, dict[str, Any]],
-    ]:
+    def step(self, actions: dict[str, Any]) -> StepResult:
         """Advance one tick (0.05 s), or ``action_repeat`` ticks: every live robot executes its action, then
         collisions, arrivals and the time limit are resolved (at every tick).
 
@@ -384,15 +384,7 @@ class MultiRobotNavEnv(ParallelEnv):
             info["team"] = team
         return observations, rewards, terminations, truncations, infos
 
-    def _tick(
-        self, acting: list[str], action_array: np.ndarray
-    ) -> tuple[
-        dict[str, np.ndarray],
-        dict[str, float],
-        dict[str, bool],
-        dict[str, bool],
-        dict[str, dict[str, Any]],
-    ]:
+    def _tick(self, acting: list[str], action_array: np.ndarray) -> StepResult:
         """One tick of the live robots ``acting`` with their checked actions (:meth:`step`)."""
         live = self._live_index
         rows = self.world.rows_of(live)
