@@ -79,6 +79,7 @@ class SingleRobotNavEnv(gymnasium.Env):
         self.action_space = self.multi_env.action_space(AGENT)
         self.render_mode = render_mode
         self.max_episode_steps = self.multi_env.max_episode_steps
+        self.action_repeat = self.multi_env.action_repeat
         self._np_random = self.multi_env.np_random
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:

@@ -77,7 +77,8 @@ def rung_at(rungs: Sequence[Rung], ticks: int) -> int:
 
 def ladder_timesteps(rungs: Sequence[Rung]) -> int:
     """:return: the agent-steps of the whole ladder (each rung's ticks times its agents per world)."""
-    return sum(rung.ticks * int(find_multi_agent_env(rung.env).n_agents) for rung in rungs)
+    layouts = [(rung.ticks, find_multi_agent_env(rung.env)) for rung in rungs]
+    return sum(-(-ticks // int(getattr(env, "ticks_per_step", 1))) * int(env.n_agents) for ticks, env in layouts)
 
 
 def check_ladder(model: MultiAgentOffPolicyAlgorithm, rungs: Sequence[Rung]) -> None:
@@ -160,7 +161,7 @@ def learn_ladder(
         if remaining <= 0:  # the previous rung ended past this one's end (a rollout longer than the rung)
             continue
         model.learn(
-            remaining * model.n_agents,
+            model.timesteps_for_ticks(remaining),
             callback=callbacks,
             log_interval=log_interval,
             reset_num_timesteps=reset,

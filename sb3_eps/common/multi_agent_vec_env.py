@@ -22,7 +22,7 @@ from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 from supersuit import pettingzoo_env_to_vec_env_v1
 
-from sb3_eps.common.parallel_wrappers import FixedAgentSet, SingleAgentParallelEnv
+from sb3_eps.common.parallel_wrappers import FixedAgentSet, SingleAgentParallelEnv, ticks_per_step
 from sb3_eps.common.utils import check_seed
 
 # Keys of the env's ``info["team"]`` that the episode dict already carries as SB3's "r" and "l".
@@ -42,6 +42,8 @@ class MultiAgentVecEnv(VecEnv):
     :param env_id: the registered id the worlds were built from, for the record
     """
 
+    ticks_per_step = 1  # until __init__ reads the worlds' (and for vec envs pickled before it was kept)
+
     def __init__(self, env_fns: Sequence[Callable[[], ParallelEnv | gymnasium.Env]], env_id: str | None = None):
         self._worlds = [FixedAgentSet(_as_parallel_env(env_fn())) for env_fn in env_fns]
         first = self._worlds[0]
@@ -53,6 +55,10 @@ class MultiAgentVecEnv(VecEnv):
             if world.possible_agents != self.possible_agents:
                 raise ValueError("all worlds must have the same possible_agents")
         self.state_space: spaces.Box = first.state_space
+        #: world ticks per step (the worlds' ``action_repeat``; 1 for a world that decides at every tick)
+        self.ticks_per_step = ticks_per_step(first.env)
+        if any(ticks_per_step(world.env) != self.ticks_per_step for world in self._worlds[1:]):
+            raise ValueError("all worlds must advance the same ticks per step (action_repeat)")
         # SuperSuit: each world becomes a vector env of its agents (it checks that they share their spaces).
         self._agent_venvs = [pettingzoo_env_to_vec_env_v1(world) for world in self._worlds]
         self._slices = [slice(w * self.n_agents, (w + 1) * self.n_agents) for w in range(self.n_worlds)]
@@ -133,8 +139,8 @@ class MultiAgentVecEnv(VecEnv):
 
     @property
     def total_ticks(self) -> int:
-        """Ticks stepped through this vec env, all worlds together (SB3's ``num_timesteps // n_agents``)."""
-        return self._n_steps * self.n_worlds
+        """Ticks stepped through this vec env, all worlds together (steps x worlds x ``ticks_per_step``)."""
+        return self._n_steps * self.n_worlds * self.ticks_per_step
 
     def get_state(self) -> np.ndarray:
         """The current global state of each world, ``(n_worlds, state_dim)`` float32 (read-only); after an automatic

@@ -109,8 +109,9 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     # Narrower than SB3's BasePolicy: every algorithm here builds a MultiAgentQPolicy.
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": MultiAgentQPolicy}  # type: ignore[assignment]
     requires_fixed_n_agents: ClassVar[bool] = False  # joint modules sized by the number of agents
-    _tick_offset: int = 0  # ticks and agent-steps before the last change of team size
+    _tick_offset: int = 0  # ticks and agent-steps before the last change of team size or of ticks per step
     _step_offset: int = 0
+    ticks_per_step: int = 1  # world ticks per step of the env (its worlds' action_repeat)
     default_agent_target: ClassVar[bool] = True
     uses_global_state: ClassVar[bool] = False  # only state-conditioned mixers (QMIX) read and store it
     diagnostics_interval: ClassVar[int] = 250  # gradient steps between two diagnostic records under train/
@@ -215,15 +216,17 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         """Read the agents-per-world layout from the bridge; check it against a loaded model's."""
         multi_agent_env = find_multi_agent_env(env)
         n_agents = int(multi_agent_env.n_agents)
-        if self.n_agents and n_agents != self.n_agents:
-            if self._fixed_team_size():
-                raise ValueError(
-                    f"this {type(self).__name__} model was trained with {self.n_agents} agents per world and its "
-                    f"joint networks are sized for them; the env has {n_agents}. {self._team_size_advice()}"
-                )
-            # Another team size: the ticks so far stay counted (agent-steps per tick change with the team).
+        ticks_per_step = int(getattr(multi_agent_env, "ticks_per_step", 1))
+        if self.n_agents and n_agents != self.n_agents and self._fixed_team_size():
+            raise ValueError(
+                f"this {type(self).__name__} model was trained with {self.n_agents} agents per world and its "
+                f"joint networks are sized for them; the env has {n_agents}. {self._team_size_advice()}"
+            )
+        if self.n_agents and (n_agents, ticks_per_step) != (self.n_agents, self.ticks_per_step):
+            # Another team size or ticks per step: the ticks so far stay counted (agent-steps per tick change).
             self._tick_offset, self._step_offset = self.ticks, self.num_timesteps
         self.n_agents = n_agents
+        self.ticks_per_step = ticks_per_step
         self.n_worlds = int(multi_agent_env.n_worlds)
         state_space = getattr(multi_agent_env, "state_space", None)
         state_dim = int(np.prod(state_space.shape)) if state_space is not None else 0
@@ -238,10 +241,17 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             raise ValueError("the model has no env: pass env= to load() or call set_env()")
         return find_multi_agent_env(self.env)
 
+    def timesteps_for_ticks(self, ticks: int) -> int:
+        """:return: the agent-steps (SB3 timesteps, what ``learn`` counts) that advance ``ticks`` world ticks, all
+        worlds together, on the current env (rounded up to whole steps)."""
+        return -(-int(ticks) // self.ticks_per_step) * self.n_agents
+
     @property
     def ticks(self) -> int:
-        """Simulator steps of one world so far (agent-steps / agents per world), earlier team sizes included."""
-        return self._tick_offset + (self.num_timesteps - self._step_offset) // max(self.n_agents, 1)
+        """World ticks so far, all worlds together (agent-steps / agents per world x ticks per step: a world that holds
+        each decision for ``action_repeat`` ticks advances that many per step), earlier team sizes included."""
+        steps = (self.num_timesteps - self._step_offset) // max(self.n_agents, 1)
+        return self._tick_offset + steps * self.ticks_per_step
 
     def _fixed_team_size(self) -> bool:
         """Whether the joint modules read exactly ``n_agents`` agents (QMIX's mixer; GDQ's paper head)."""

@@ -15,6 +15,20 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 
+def ticks_per_step(env: Any) -> int:
+    """:return: the world ticks one ``step`` of ``env`` advances: its ``action_repeat`` (a TurtleBot3 world holding
+    each decision for several ticks), looked up through the wrappers' ``env``; 1 for any other world."""
+    for _ in range(16):
+        repeat = getattr(env, "action_repeat", None)
+        if isinstance(repeat, (int, np.integer)) and not isinstance(repeat, bool):
+            return int(repeat)
+        inner = getattr(env, "env", None)
+        if inner is None or inner is env:
+            return 1
+        env = inner
+    return 1
+
+
 class SingleAgentParallelEnv(ParallelEnv):
     """A gymnasium env seen as a PettingZoo ParallelEnv with one agent named ``agent``; its global state is the
     env's ``state()`` when it has one (with ``state_space``), else its observation."""

@@ -145,7 +145,7 @@ class _Worlds(Served):
 
     def hello(self) -> tuple[Any, ...]:
         venv = self.venv
-        return venv.possible_agents, venv.observation_space, venv.action_space, venv.state_space
+        return venv.possible_agents, venv.observation_space, venv.action_space, venv.state_space, venv.ticks_per_step
 
     def handle(self, command: str, data: Any) -> Any:
         venv = self.venv
@@ -280,7 +280,7 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
             raise
         if self._local is not None:
             layouts.insert(0, self._local.hello())
-        possible_agents, observation_space, action_space, state_space = layouts[0]
+        possible_agents, observation_space, action_space, state_space, self.ticks_per_step = layouts[0]
         if any(layout[0] != possible_agents for layout in layouts[1:]):
             self.close()
             raise ValueError("all worlds must have the same possible_agents")

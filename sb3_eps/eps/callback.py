@@ -303,6 +303,11 @@ class EvolutionCallback(BaseCallback):
 
     def _check_eval_env(self) -> None:
         """The evaluation world must speak the model's language: equal observation and action spaces."""
+        if int(getattr(self.model, "ticks_per_step", 1)) != 1:
+            raise ValueError(
+                f"the model's worlds hold each decision for {self.model.ticks_per_step} ticks (action_repeat); EPS "  # type: ignore[attr-defined]
+                "evaluates and counts one tick per decision: train this model without EvolutionCallback"
+            )
         try:
             env = make_eval_env(self.settings.eval_env_id, self.settings.eval_env_kwargs)
         except TypeError as error:

@@ -219,8 +219,8 @@ class PopulationTrainer:
                 learner = self.learners[self.next_learner]
                 remaining = share - learner.ticks
                 if remaining > 0:
-                    horizon = ScheduleHorizon(share * learner.n_agents)
-                    turn = min(self.settings["turn_ticks"], remaining) * learner.n_agents
+                    horizon = ScheduleHorizon(learner.timesteps_for_ticks(share))
+                    turn = learner.timesteps_for_ticks(min(self.settings["turn_ticks"], remaining))
                     turn_callback = horizon if callback is None else CallbackList([horizon, callback])
                     learner.learn(turn, callback=turn_callback, reset_num_timesteps=False)
                 self.next_learner = (self.next_learner + 1) % self.settings["k"]

@@ -323,7 +323,7 @@ def _train(
         )
     turn_callback = CallbackList([_LearnerEpisodes(monitor, trainer), *extra_callbacks])
     with stop_on_signals(stop):  # type: ignore[arg-type]
-        trainer.learn(total // model.n_agents, callback=turn_callback, after_turn=after_turn)
+        trainer.learn(total // model.n_agents * model.ticks_per_step, callback=turn_callback, after_turn=after_turn)
         monitor.close()
         if stop.stop_requested:
             print(

@@ -1,0 +1,68 @@
+"""Worlds that hold each decision for several ticks (``action_repeat``): every tick is counted on the x axis."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import envs  # noqa: F401
+from sb3_eps import GDQ, EvolutionCallback, learn_ladder, make_vec_env, train
+from sb3_eps.zoo.run_folder import read_monitor
+
+SMALL = {"learning_starts": 50, "batch_size": 8, "buffer_size": 500, "policy_kwargs": {"net_arch": [16]}}
+
+
+def test_ticks_count_world_ticks_when_a_decision_holds_four() -> None:
+    venv = make_vec_env("MultiRobotNav-2-v0", n_envs=2, seed=1, env_kwargs={"action_repeat": 4, "max_episode_steps": 40})
+    assert venv.ticks_per_step == 4
+    model = GDQ("MlpPolicy", venv, seed=1, **SMALL)
+    assert model.timesteps_for_ticks(800) == 200 * 2 and model.timesteps_for_ticks(801) == 201 * 2
+    model.learn(model.timesteps_for_ticks(800))
+    decisions = model.num_timesteps // 2  # both worlds together
+    assert model.ticks == 4 * decisions and 800 <= model.ticks < 800 + 4 * 2
+    assert venv.total_ticks == model.ticks
+    venv.close()
+
+
+def test_a_ladder_counts_the_ticks_of_a_rung_with_another_repeat() -> None:
+    every_tick = make_vec_env("MultiRobotNav-2-v0", n_envs=2, seed=2)
+    held = make_vec_env("MultiRobotNav-2-v0", n_envs=2, seed=3, env_kwargs={"action_repeat": 4})
+    model = GDQ("MlpPolicy", every_tick, seed=2, **SMALL)
+    learn_ladder(model, [(every_tick, 300), (held, 400)])
+    assert 700 <= model.ticks < 700 + 4 * 2
+    assert model.ticks_per_step == 4
+    for venv in (every_tick, held):
+        venv.close()
+
+
+def test_episode_lengths_are_world_ticks() -> None:
+    venv = make_vec_env("MultiRobotNav-2-v0", n_envs=1, seed=4, env_kwargs={"action_repeat": 3, "max_episode_steps": 30})
+    venv.reset()
+    lengths = []
+    while not lengths:
+        _, _, _, infos = venv.step(np.full(venv.num_envs, 2))  # stand still until the time limit
+        lengths += [info["episode"]["l"] for info in infos if "episode" in info]
+    assert lengths == [30]
+    venv.close()
+
+
+def test_eps_refuses_a_model_whose_decisions_hold_several_ticks() -> None:
+    venv = make_vec_env("MultiRobotNav-2-v0", n_envs=1, seed=5, env_kwargs={"action_repeat": 2})
+    model = GDQ("MlpPolicy", venv, seed=5, **SMALL)
+    with pytest.raises(ValueError, match=r"action_repeat.*without EvolutionCallback"):
+        model.learn(20, callback=EvolutionCallback(period=10, n_workers=0))
+    venv.close()
+
+
+def test_a_command_line_run_records_world_ticks(tmp_path) -> None:
+    argv = ["--algo", "gdq", "--env", "MultiRobotNav-2-v0", "-n", "400", "--seed", "0", "-f", str(tmp_path),
+            "--verbose", "0", "--eval-freq", "200", "--eval-episodes", "1", "--n-eval-envs", "1",
+            "--hyperparams", "learning_starts:50", "batch_size:8", "buffer_size:500", "n_envs:1",
+            "--env-kwargs", "action_repeat:4", "max_episode_steps:24"]  # fmt: skip
+    assert train.main(argv) == 0
+    (run,) = (tmp_path / "gdq").iterdir()
+    _, columns = read_monitor(run / "monitor.csv")
+    # The episodes here run to the 24-tick limit: 6 decisions of 4 ticks each, counted as 24 ticks.
+    assert list(columns["l"])[:3] == [24, 24, 24] and list(columns["ticks"])[:3] == [24, 48, 72]
+    npz = np.load(run / "evaluations.npz")
+    assert list(npz["timesteps"]) == [200, 400] and list(npz["ticks"]) == [400, 800]
