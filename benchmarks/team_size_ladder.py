@@ -17,7 +17,8 @@ The x axis counts the world ticks of every rung (``ticks``), with the agent-step
   are every learner's, the evaluated model is the fittest learner (``best``).
 
 ``--env-kwargs JSON`` builds every world with these arguments; with ``action_repeat = k`` a decision holds k ticks, and
-the rungs' ticks, ``--eval-every``, ``ticks`` and ``agent_steps`` stay world ticks (``decisions`` beside).
+the rungs' ticks, ``--eval-every`` and ``ticks`` stay world ticks (``model.ticks``), ``agent_steps`` robot-ticks,
+with ``decisions`` (per world, all worlds together) beside.
 
 Writes one JSON line per evaluation to ``<out>/<name>_seed<k>.jsonl`` and skips seeds whose file already holds the
 final evaluation (an unfinished seed restarts). Example::
@@ -79,8 +80,7 @@ class LadderEval(BaseCallback):
         return self.eps.eps_ticks if self.eps is not None else 0
 
     def total_ticks(self) -> int:
-        world_ticks = int(self.model.ticks) * repeat(self.args)  # type: ignore[attr-defined]
-        return self.ticks_before + world_ticks + self.eps_ticks()
+        return self.ticks_before + int(self.model.ticks) + self.eps_ticks()  # type: ignore[attr-defined]
 
     def _on_step(self) -> bool:
         if self.total_ticks() >= self.next_eval:
@@ -92,8 +92,8 @@ class LadderEval(BaseCallback):
     def evaluate(self) -> None:
         record: dict[str, Any] = {
             "ticks": self.total_ticks(),
-            "agent_steps": self.steps_before + int(self.model.num_timesteps) * repeat(self.args),
-            "decisions": int(self.model.ticks),
+            "agent_steps": self.steps_before + robot_ticks(self.model),
+            "decisions": int(self.model.num_timesteps) // max(int(self.model.n_agents), 1),
             "rung": self.rung if self.rungs is None else min(rung_at(self.rungs, self.model.ticks), len(self.rungs) - 1),
             "wall_s": round(time.time() - self.start, 1),
         }
@@ -102,10 +102,10 @@ class LadderEval(BaseCallback):
         write_evaluation(self.args, self.path, self.seed, self.model, record)
 
 
-def repeat(args: argparse.Namespace) -> int:
-    """World ticks per decision: the worlds' ``action_repeat`` (``--env-kwargs``); the model counts decisions, the
-    records and budgets count world ticks."""
-    return int((args.env_kwargs or {}).get("action_repeat", 1))
+def robot_ticks(model: Any) -> int:
+    """:return: the model's ticks times its robots (agent-steps at one decision per tick; a world with
+    ``action_repeat = k`` makes k of them per decision)."""
+    return int(model.num_timesteps) * int(getattr(model, "ticks_per_step", 1))
 
 
 def write_evaluation(args: argparse.Namespace, path: pathlib.Path, seed: int, model: Any, record: dict[str, Any]) -> None:
@@ -161,8 +161,6 @@ def main() -> None:
     rungs = [(spec.rsplit(":", 1)[0], int(spec.rsplit(":", 1)[1])) for spec in args.rungs]
     if (args.eps is not None or args.population is not None) and (len(rungs) > 1 or args.carry == "whole"):
         parser.error("--eps and --population train on one rung with --carry agent")
-    if repeat(args) > 1 and (args.eps is not None or args.population is not None):
-        parser.error("action_repeat is measured here on plain and ladder runs, not with --eps or --population")
     if args.eps is not None and args.population is not None:
         parser.error("give --eps or --population, not both")
     total = sum(ticks for _, ticks in rungs)
@@ -202,9 +200,9 @@ def main() -> None:
                     callback.eps = EvolutionCallback(**{**settings, **args.eps})
                     callback.total = ticks
                     callbacks.insert(0, callback.eps)
-                model.learn(ticks // repeat(args) * venv.n_agents, callback=callbacks, log_interval=10_000)
-                ticks_before += int(model.ticks) * repeat(args)
-                steps_before += int(model.num_timesteps) * repeat(args)
+                model.learn(model.timesteps_for_ticks(ticks), callback=callbacks, log_interval=10_000)
+                ticks_before += int(model.ticks)
+                steps_before += robot_ticks(model)
                 next_eval = callback.next_eval
                 previous = pathlib.Path(scratch) / f"rung{index}.zip"
                 model.save(previous)
@@ -227,9 +225,9 @@ def train_whole(
     venvs = [built[env_id] for env_id, _ in rungs]
     model = ALGORITHMS[args.algo]("MlpPolicy", venvs[0], seed=seed, **args.hyperparams)
     callback = LadderEval(args, path, seed, 0, 0, 0, args.eval_every, time.time())
-    callback.rungs = [Rung(venv, ticks // repeat(args)) for venv, (_, ticks) in zip(venvs, rungs)]
+    callback.rungs = [Rung(venv, ticks) for venv, (_, ticks) in zip(venvs, rungs)]
     learn_ladder(model, callback.rungs, callback=callback, log_interval=10_000)
-    if callback.next_eval - args.eval_every < model.ticks * repeat(args):
+    if callback.next_eval - args.eval_every < model.ticks:
         callback.evaluate()
     if args.save_models:
         model.save(save)
