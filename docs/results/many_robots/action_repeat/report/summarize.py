@@ -1,0 +1,36 @@
+"""The action-repeat lead on the report seeds: each run's curve (50 greedy episodes every 25k ticks) and its final
+model on 100 greedy episodes (evaluation seed 30000), as one table.
+
+    python docs/results/many_robots/action_repeat/report/summarize.py docs/results/many_robots/action_repeat/report
+"""
+
+import argparse
+import json
+import pathlib
+
+import numpy as np
+
+parser = argparse.ArgumentParser()
+parser.add_argument("folder", type=pathlib.Path, help="holds runs/gdq/<env>_seed<k>/ and final/seed<k>.json")
+args = parser.parse_args()
+runs = sorted((args.folder / "runs" / "gdq").glob("*_seed*"), key=lambda path: int(path.name.rsplit("seed", 1)[1]))
+marks = None
+finals = []
+for run in runs:
+    seed = int(run.name.rsplit("seed", 1)[1])
+    data = np.load(run / "evaluations.npz")
+    ticks, success = data["ticks"], 100 * data["successes"].mean(axis=1)
+    if marks is None:
+        marks = ticks
+        print("| seed | " + " | ".join(f"{t // 1000}k" for t in ticks) + " | final model, 100 episodes: success / collisions / time-outs |")
+        print("|---" * (len(ticks) + 2) + "|")
+    final = json.loads((args.folder / "final" / f"seed{seed}.json").read_text())
+    s, c = 100 * final["success_rate"], 100 * final["collision_rate"]
+    finals.append((s, c))
+    print(f"| {seed} | " + " | ".join(f"{v:.0f}" for v in success) + f" | **{s:.0f}** / {c:.0f} / {100 - s - c:.0f} % |")
+success = np.array([f[0] for f in finals])
+collision = np.array([f[1] for f in finals])
+print(
+    f"\nfinal models: success {success.mean():.1f} % (s.e. {success.std(ddof=1) / np.sqrt(len(success)):.1f}, "
+    f"lowest {success.min():.0f} %), collisions {collision.mean():.1f} %"
+)
