@@ -156,6 +156,11 @@ class PopulationModel:
         """Agents per world."""
         return int(self.trainer.learners[0].n_agents)
 
+    @property
+    def ticks_per_step(self) -> int:
+        """World ticks per step of the learners' worlds (their ``action_repeat``)."""
+        return int(self.trainer.learners[0].ticks_per_step)
+
     def get_env(self) -> None:
         """A population has no single training env."""
         return None
