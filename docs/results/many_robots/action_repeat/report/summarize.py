@@ -19,6 +19,7 @@ args = parser.parse_args()
 runs = sorted((args.folder / "runs" / "gdq").glob("*_seed*"), key=lambda path: int(path.name.rsplit("seed", 1)[1]))
 marks = None
 finals = []
+minutes = []
 for run in runs:
     seed = int(run.name.rsplit("seed", 1)[1])
     data = np.load(run / "evaluations.npz")
@@ -31,6 +32,8 @@ for run in runs:
             + " | final model, 100 episodes: success / collisions / time-outs |"
         )
         print("|---" * (len(ticks) + 2) + "|")
+    rows = [line.split(",") for line in (run / "monitor.csv").read_text().splitlines()[1:]]
+    minutes.append(float(rows[-1][rows[0].index("t")]) / 60)  # the last training episode's end
     final = json.loads((args.folder / "final" / f"seed{seed}.json").read_text())
     s, c = 100 * final["success_rate"], 100 * final["collision_rate"]
     finals.append((s, c))
@@ -43,5 +46,6 @@ success = np.array([f[0] for f in finals])
 collision = np.array([f[1] for f in finals])
 print(
     f"\nfinal models: success {success.mean():.1f} % (s.e. {success.std(ddof=1) / np.sqrt(len(success)):.1f}, "
-    f"lowest {success.min():.0f} %), collisions {collision.mean():.1f} %"
+    f"lowest {success.min():.0f} %), collisions {collision.mean():.1f} %; training {min(minutes):.0f}-{max(minutes):.0f} min "
+    "a run"
 )
