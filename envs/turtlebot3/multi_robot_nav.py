@@ -366,13 +366,16 @@ class MultiRobotNavEnv(ParallelEnv):
         action_array = self._parse_actions(actions, acting)
         if self.action_repeat == 1:
             return self._tick(acting, action_array)
+        # The ticks inside a step scan only the robots that end there (stacked scans need every tick's scan).
+        every_scan = self.lidar_frames > 1
         chosen = dict(zip(acting, action_array.tolist()))
-        observations, rewards, terminations, truncations, infos = self._tick(acting, action_array)
-        for _ in range(self.action_repeat - 1):
+        observations, rewards, terminations, truncations, infos = self._tick(acting, action_array, every_scan)
+        for sub_tick in range(1, self.action_repeat):
             if not self.agents:
                 break
             still = self.agents
-            tick = self._tick(still, np.array([chosen[agent] for agent in still], dtype=np.int64))
+            last = sub_tick == self.action_repeat - 1
+            tick = self._tick(still, np.array([chosen[agent] for agent in still], dtype=np.int64), every_scan or last)
             observations.update(tick[0])
             for agent, reward in tick[1].items():
                 rewards[agent] += reward
@@ -384,8 +387,9 @@ class MultiRobotNavEnv(ParallelEnv):
             info["team"] = team
         return observations, rewards, terminations, truncations, infos
 
-    def _tick(self, acting: list[str], action_array: np.ndarray) -> StepResult:
-        """One tick of the live robots ``acting`` with their checked actions (:meth:`step`)."""
+    def _tick(self, acting: list[str], action_array: np.ndarray, observe_all: bool = True) -> StepResult:
+        """One tick of the live robots ``acting`` with their checked actions (:meth:`step`); ``observe_all=False``
+        scans and returns the observations of the robots whose episode ends in this tick only."""
         live = self._live_index
         rows = self.world.rows_of(live)
         v, w = ACTION_LINEAR[action_array], ACTION_ANGULAR[action_array]
@@ -412,13 +416,18 @@ class MultiRobotNavEnv(ParallelEnv):
             terminated = np.ones(len(live), dtype=bool)
         else:
             terminated = arrived
-        obs = self._observe(live, offset, distance, bearing)
         ended = terminated
         if self._ticks >= self.max_episode_steps:
             truncated = ~terminated
             ended = np.ones(len(live), dtype=bool)
         else:
             truncated = np.zeros(len(live), dtype=bool)
+        observations: dict[str, np.ndarray] = {}
+        if observe_all:
+            observations = dict(zip(acting, self._observe(live, offset, distance, bearing)))
+        elif ended.any():
+            obs = self._observe(live[ended], offset[ended], distance[ended], bearing[ended])
+            observations = dict(zip((agent for agent, end in zip(acting, ended) if end), obs))
         arrived_list = arrived.tolist()
         if ended.any():
             self._arrived[live] |= arrived
@@ -431,7 +440,7 @@ class MultiRobotNavEnv(ParallelEnv):
             agent: {"arrived": a, "collided": c, "team": team} for agent, a, c in zip(acting, arrived_list, collided.tolist())
         }
         result = (
-            dict(zip(acting, obs)),
+            observations,
             dict(zip(acting, rewards.tolist())),
             dict(zip(acting, terminated.tolist())),
             dict(zip(acting, truncated.tolist())),

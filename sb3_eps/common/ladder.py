@@ -28,7 +28,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.type_aliases import MaybeCallback
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm, find_multi_agent_env
+from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm, find_multi_agent_env, timesteps_for_ticks
 
 SelfAlgorithm = TypeVar("SelfAlgorithm", bound=MultiAgentOffPolicyAlgorithm)
 
@@ -78,7 +78,7 @@ def rung_at(rungs: Sequence[Rung], ticks: int) -> int:
 def ladder_timesteps(rungs: Sequence[Rung]) -> int:
     """:return: the agent-steps of the whole ladder (each rung's ticks times its agents per world)."""
     layouts = [(rung.ticks, find_multi_agent_env(rung.env)) for rung in rungs]
-    return sum(-(-ticks // int(getattr(env, "ticks_per_step", 1))) * int(env.n_agents) for ticks, env in layouts)
+    return sum(timesteps_for_ticks(ticks, env.n_agents, getattr(env, "ticks_per_step", 1)) for ticks, env in layouts)
 
 
 def check_ladder(model: MultiAgentOffPolicyAlgorithm, rungs: Sequence[Rung]) -> None:

@@ -83,6 +83,12 @@ def find_multi_agent_env(env: VecEnv) -> Any:
     return current
 
 
+def timesteps_for_ticks(ticks: int, n_agents: int, ticks_per_step: int = 1) -> int:
+    """:return: the agent-steps that advance ``ticks`` world ticks in worlds of ``n_agents`` agents that advance
+    ``ticks_per_step`` ticks a step (rounded up to whole steps)."""
+    return -(-int(ticks) // int(ticks_per_step)) * int(n_agents)
+
+
 class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     """Base of the parameter-shared value-based multi-agent algorithms (IQL, GDQ, QMIX, VDN).
 
@@ -244,7 +250,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     def timesteps_for_ticks(self, ticks: int) -> int:
         """:return: the agent-steps (SB3 timesteps, what ``learn`` counts) that advance ``ticks`` world ticks, all
         worlds together, on the current env (rounded up to whole steps)."""
-        return -(-int(ticks) // self.ticks_per_step) * self.n_agents
+        return timesteps_for_ticks(ticks, self.n_agents, self.ticks_per_step)
 
     @property
     def ticks(self) -> int:
