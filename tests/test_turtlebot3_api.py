@@ -423,3 +423,30 @@ def test_action_repeat_holds_each_action_for_its_ticks() -> None:
     assert not ticked.agents and held._ticks > 4 * (steps - 1)
     held.close()
     ticked.close()
+
+
+def test_lidar_range_caps_and_rescales_the_scan_only() -> None:
+    """``lidar_range=1``: the policy sees every range capped at 1 m and divided by 1 m; the world (poses, rewards,
+    collisions) is the full-range world's, tick by tick, and out-of-range values are refused in one line."""
+    near = MultiRobotNavEnv(n_robots=4, lidar_range=1.0, max_episode_steps=100)
+    full = MultiRobotNavEnv(n_robots=4, max_episode_steps=100)
+    obs_near, _ = near.reset(seed=5)
+    obs_full, _ = full.reset(seed=5)
+    rng = np.random.default_rng(2)
+    seen_capped = False
+    while full.agents:
+        for agent in obs_full:
+            ranges = obs_full[agent][:28] * 3.5
+            np.testing.assert_allclose(obs_near[agent][:28], np.minimum(ranges, 1.0), atol=1e-5)
+            np.testing.assert_array_equal(obs_near[agent][28:], obs_full[agent][28:])
+            seen_capped |= bool((ranges > 1.0).any() and (obs_near[agent][:28] == 1.0).any())
+        actions = {agent: int(rng.integers(20)) for agent in full.agents}
+        obs_near, rewards_near, *_ = near.step(actions)
+        obs_full, rewards_full, *_ = full.step(actions)
+        assert rewards_near == rewards_full and near.agents == full.agents
+    assert seen_capped and near.observation_space("robot_0") == full.observation_space("robot_0")
+    for bad in (0.5, 4.0, True, "2"):
+        with pytest.raises(ValueError, match="lidar_range must be a number of metres in"):
+            MultiRobotNavEnv(n_robots=2, lidar_range=bad)
+    near.close()
+    full.close()

@@ -18,6 +18,7 @@ import gymnasium
 import numpy as np
 
 from envs.turtlebot3.multi_robot_nav import MultiRobotNavEnv
+from envs.turtlebot3.robot import RANGE_MAX
 
 AGENT = "robot_0"
 
@@ -43,6 +44,7 @@ class SingleRobotNavEnv(gymnasium.Env):
         for a model trained with stacked scans needs the same)
     :param lidar_frame_ticks: ticks between two stacked scans
     :param action_repeat: ticks each action is held, as in :class:`~envs.turtlebot3.MultiRobotNavEnv`
+    :param lidar_range: the ranges the policy sees [m], as in :class:`~envs.turtlebot3.MultiRobotNavEnv`
     """
 
     metadata: dict[str, Any] = {
@@ -62,6 +64,7 @@ class SingleRobotNavEnv(gymnasium.Env):
         lidar_frames: int = 1,
         lidar_frame_ticks: int = 5,
         action_repeat: int = 1,
+        lidar_range: float = RANGE_MAX,
     ) -> None:
         self.multi_env = MultiRobotNavEnv(
             n_robots=1,
@@ -74,6 +77,7 @@ class SingleRobotNavEnv(gymnasium.Env):
             lidar_frames=lidar_frames,
             lidar_frame_ticks=lidar_frame_ticks,
             action_repeat=action_repeat,
+            lidar_range=lidar_range,
         )
         self.observation_space = self.multi_env.observation_space(AGENT)
         self.action_space = self.multi_env.action_space(AGENT)
