@@ -50,6 +50,9 @@ _MULTI_AGENT_SPECS: dict[str, EnvSpec] = {
         "envs.turtlebot3:MultiRobotNavEnv",
         {"n_robots": 4, "scenario": "unseen", "placement_jitter": 0.3},
     ),
+    # A training world for rooms never seen in training: 12 robots among blocks drawn anew every episode, in the
+    # 12-robot arena (6 m, the unseen room's size); docs/results/many_robots.md, "A crowd among random blocks".
+    "MultiRobotNavBlocks-12-v0": EnvSpec("envs.turtlebot3:MultiRobotNavEnv", {"n_robots": 12, "scenario": "blocks"}),
     "CooperativeNavigation-v0": EnvSpec("envs.mpe.cooperative_navigation:CooperativeNavigationEnv"),
 }
 

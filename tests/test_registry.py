@@ -15,6 +15,7 @@ def test_ids_are_partitioned() -> None:
         "MultiRobotNav-12-v0",
         "MultiRobotNavUnseen-4-v0",
         "MultiRobotNavUnseen-4-varied-v0",
+        "MultiRobotNavBlocks-12-v0",
         "CooperativeNavigation-v0",
     }
     assert set(envs.SINGLE_AGENT_ENV_IDS) == {"SingleRobotNav-v0", "CooperativeNavigationSingle-v0"}

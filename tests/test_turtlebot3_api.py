@@ -24,6 +24,7 @@ MULTI_ROBOT_IDS: dict[str, dict[str, Any]] = {
     "MultiRobotNav-12-v0": {"n_robots": 12},
     "MultiRobotNavUnseen-4-v0": {"n_robots": 4, "scenario": "unseen"},
     "MultiRobotNavUnseen-4-varied-v0": {"n_robots": 4, "scenario": "unseen", "placement_jitter": 0.3},
+    "MultiRobotNavBlocks-12-v0": {"n_robots": 12, "scenario": "blocks"},
 }
 
 

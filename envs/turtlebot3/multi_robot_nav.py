@@ -173,7 +173,9 @@ class MultiRobotNavEnv(ParallelEnv):
             or not isinstance(lidar_range, (int, float, np.integer, np.floating))
             or not LIDAR_RANGE_MIN < lidar_range <= RANGE_MAX
         ):
-            raise ValueError(f"lidar_range must be a number of metres in ({LIDAR_RANGE_MIN}, {RANGE_MAX}], got {lidar_range!r}.")
+            raise ValueError(
+                f"lidar_range must be a number of metres in ({LIDAR_RANGE_MIN}, {RANGE_MAX}], got {lidar_range!r}."
+            )
         self.lidar_range = float(lidar_range)
         self.placement_jitter = self._check_placement_jitter(placement_jitter)
         for name, value, largest in (

@@ -59,6 +59,7 @@ DEFAULT_EVAL_ENV_KWARGS: dict[str, dict[str, Any]] = {
 EPS_WORLDS: dict[str, str] = {
     "MultiRobotNav": "SingleRobotNav-v0",
     "MultiRobotNavUnseen": "SingleRobotNav-v0",
+    "MultiRobotNavBlocks": "SingleRobotNav-v0",
     "CooperativeNavigation": "CooperativeNavigationSingle-v0",
 }
 
