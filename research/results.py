@@ -299,3 +299,18 @@ def format_table(rows: list[dict[str, Any]], columns: list[str] | None = None, p
     lines.append("  ".join("-" * width for width in widths))
     lines += ["  ".join(value.ljust(width) for value, width in zip(line, widths, strict=True)) for line in cells]
     return "\n".join(line.rstrip() for line in lines)
+
+
+def seeds_line(records: list[dict[str, Any]]) -> str:
+    """One line for a results page: the seeds' greedy success and collisions (``success_rate``, ``collision_rate``
+    of one evaluation record per seed), each seed then the mean, in percent, with the standard error over seeds.
+
+    :param records: one evaluation record per seed, in the order to print
+    """
+    success = [100 * record["success_rate"] for record in records]
+    collision = [100 * record["collision_rate"] for record in records]
+    spread = np.std(success, ddof=1) / np.sqrt(len(success)) if len(success) > 1 else float("nan")
+    return (
+        f"{' / '.join(f'{value:.0f}' for value in success)} -> {np.mean(success):.1f} % (s.e. {spread:.1f}),"
+        f" collisions {' / '.join(f'{value:.0f}' for value in collision)} -> {np.mean(collision):.1f} %"
+    )

@@ -8,7 +8,7 @@ import argparse
 import json
 import pathlib
 
-import numpy as np
+from research.results import seeds_line
 
 HERE = pathlib.Path(__file__).resolve().parent
 WORLDS = ("MultiRobotNavUnseen-4-varied-v0", "MultiRobotNavUnseen-4-v0", "MultiRobotNav-12-v0")
@@ -25,13 +25,7 @@ for label, seeds in (("screen", (220, 221)), ("report", (0, 1, 2, 3, 4))):
         rows = [finals[(seed, env_id)] for seed in seeds if (seed, env_id) in finals]
         if not rows:
             continue
-        success = [100 * r["success_rate"] for r in rows]
-        collision = [100 * r["collision_rate"] for r in rows]
-        spread = np.std(success, ddof=1) / np.sqrt(len(success)) if len(success) > 1 else float("nan")
-        print(
-            f"  {env_id}: {' / '.join(f'{s:.0f}' for s in success)} -> {np.mean(success):.1f} % (s.e. {spread:.1f}),"
-            f" collisions {' / '.join(f'{c:.0f}' for c in collision)} -> {np.mean(collision):.1f} %"
-        )
+        print(f"  {env_id}: {seeds_line(rows)}")
     walls = [finals[(s, WORLDS[0])].get("train_wall_s") for s in seeds if (s, WORLDS[0]) in finals]
     print(f"  training minutes: {' / '.join(f'{w / 60:.1f}' for w in walls if w)}")
 if args.write:

@@ -8,7 +8,7 @@ import argparse
 import json
 import pathlib
 
-import numpy as np
+from research.results import seeds_line
 
 HERE = pathlib.Path(__file__).resolve().parent
 ROOMS = ("MultiRobotNavUnseen-4-varied-v0", "MultiRobotNavUnseen-4-v0", "MultiRobotNav-4-v0")
@@ -26,14 +26,7 @@ for arm in sorted({r["arm"] for r in records}):
             rows = [finals[(arm, seed, room)] for seed in seeds if (arm, seed, room) in finals]
             if not rows:
                 continue
-            success = [100 * r["success_rate"] for r in rows]
-            collision = [100 * r["collision_rate"] for r in rows]
-            spread = np.std(success, ddof=1) / np.sqrt(len(success)) if len(success) > 1 else float("nan")
-            print(
-                f"{arm} {label} {room}: {' / '.join(f'{s:.0f}' for s in success)} -> {np.mean(success):.1f} %"
-                f" (s.e. {spread:.1f}), collisions {' / '.join(f'{c:.0f}' for c in collision)}"
-                f" -> {np.mean(collision):.1f} %"
-            )
+            print(f"{arm} {label} {room}: {seeds_line(rows)}")
 if args.write:
     (HERE / "report").mkdir(exist_ok=True)
     for (arm, seed, room), record in finals.items():
