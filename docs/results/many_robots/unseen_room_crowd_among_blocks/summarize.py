@@ -7,6 +7,9 @@ world (``report/seed<k>_<env id>.jsonl``, one line: the final model's 100 greedy
 import argparse
 import json
 import pathlib
+import sys
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[4]))  # research/ sits beside the package
 
 from research.results import seeds_line
 

@@ -7,6 +7,9 @@ per world (``report/seed<k>_<room>.jsonl``, one line: the final model's 100 gree
 import argparse
 import json
 import pathlib
+import sys
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[4]))  # research/ sits beside the package
 
 from research.results import seeds_line
 
