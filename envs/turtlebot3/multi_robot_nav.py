@@ -126,8 +126,10 @@ class MultiRobotNavEnv(ParallelEnv):
         paper's world, measured in ``docs/results/many_robots.md``
     :param lidar_range: the ranges the policy sees [m], in (0.5, 3.5]: every range is capped at ``lidar_range`` and
         divided by it (3.5, the default, is the LDS-01's reach and the paper's observation). A shorter view hides the
-        far walls and corridors, which differ from room to room, and keeps what is near; an option for rooms never
-        seen in training, measured in ``docs/results/many_robots.md``. Collisions and rewards do not depend on it
+        far walls and corridors, which differ from room to room, and the robots far away, and keeps what is near. An
+        option beside the paper's world; with ``action_repeat=4`` it is the setting of the 8- and 12-robot GDQ zoo
+        entries and of the arena-only models that solve the unseen room (``docs/results/many_robots.md``).
+        Collisions and rewards do not depend on it
     """
 
     metadata: dict[str, Any] = {
