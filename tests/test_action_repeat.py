@@ -46,11 +46,34 @@ def test_episode_lengths_are_world_ticks() -> None:
     venv.close()
 
 
-def test_eps_refuses_a_model_whose_decisions_hold_several_ticks() -> None:
-    venv = make_vec_env("MultiRobotNav-2-v0", n_envs=1, seed=5, env_kwargs={"action_repeat": 2})
+def test_eps_evaluates_in_the_training_worlds_decision_rate_and_view_and_counts_world_ticks() -> None:
+    kwargs = {"action_repeat": 2, "lidar_range": 1.0}
+    venv = make_vec_env("MultiRobotNav-2-v0", n_envs=1, seed=5, env_kwargs=kwargs)
     model = GDQ("MlpPolicy", venv, seed=5, **SMALL)
-    with pytest.raises(ValueError, match=r"action_repeat.*without EvolutionCallback"):
-        model.learn(20, callback=EvolutionCallback(period=10, n_workers=0))
+    callback = EvolutionCallback(
+        period=40, n_workers=0, max_eps_share=None, population_size=1, n_eval_episodes=1,
+        n_reevaluation_episodes=0, eval_env_kwargs={"scenario": "arena", "max_episode_steps": 30},
+    )  # fmt: skip
+    model.learn(model.timesteps_for_ticks(200), callback=callback)
+    # The single-robot world took the training worlds' options; its episodes (30-tick limit) count world ticks.
+    assert callback.settings.eval_env_kwargs == {"scenario": "arena", "max_episode_steps": 30, **kwargs}
+    assert callback.n_rounds >= 1
+    lengths = np.concatenate([np.ravel(record["episode_lengths"]) for record in callback.history])
+    assert lengths.max() <= 30 and (lengths % 2 == 0).all() and lengths.max() > 15
+    assert callback.eps_ticks == int(lengths.sum())
+    venv.close()
+
+
+@pytest.mark.parametrize(
+    ("eval_env_kwargs", "message"),
+    [({"action_repeat": 1}, r"action_repeat=1 but the model's worlds have action_repeat=2"),
+     ({"lidar_range": 3.5}, r"lidar_range=3.5 but the model's worlds have lidar_range=1.0")],
+)  # fmt: skip
+def test_eps_refuses_an_evaluation_world_other_than_the_training_worlds(eval_env_kwargs, message) -> None:
+    venv = make_vec_env("MultiRobotNav-2-v0", n_envs=1, seed=5, env_kwargs={"action_repeat": 2, "lidar_range": 1.0})
+    model = GDQ("MlpPolicy", venv, seed=5, **SMALL)
+    with pytest.raises(ValueError, match=message):
+        model.learn(20, callback=EvolutionCallback(period=10, n_workers=0, eval_env_kwargs=eval_env_kwargs))
     venv.close()
 
 

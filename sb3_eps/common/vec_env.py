@@ -98,6 +98,9 @@ def make_vec_env(
         venv = SubprocMultiAgentVecEnv([env_fn] * int(n_envs), env_id=recorded_id, **vec_kwargs)
     else:
         venv = MultiAgentVecEnv([env_fn] * int(n_envs), env_id=recorded_id)
+    # The options the worlds were made with beyond their registration (EvolutionCallback's world takes the view
+    # and the decision rate from them; records store them).
+    venv.env_kwargs = dict(env_kwargs or {})
     if seed is not None:
         venv.seed(seed)
     return venv

@@ -15,6 +15,7 @@ import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 from torch import nn
 
+from sb3_eps.common.parallel_wrappers import ticks_per_step
 from sb3_eps.eps.budget import RoundBudget, model_ticks
 from sb3_eps.eps.evaluation import (
     EnvPool,
@@ -32,6 +33,9 @@ from sb3_eps.eps.sharing import record_mode, sharing_problem
 
 __all__ = ["PAPER_SETTINGS", "EvolutionCallback", "sample_visited_observations"]
 
+#: World options EPS's evaluation world takes from the training worlds (the vec env's ``env_kwargs``) when
+#: ``eval_env_kwargs`` does not set them: what a robot sees must be the same in both (``docs/modules/eps.md``).
+SHARED_WORLD_OPTIONS = ("lidar_range", "lidar_frames", "lidar_frame_ticks", "lidar_noise_std")
 #: The dueling network's state-value stream: greedy actions (hence fitness) never see it, GDQ feeds it to V_G'.
 VALUE_STREAM = "value_stream"
 
@@ -301,19 +305,47 @@ class EvolutionCallback(BaseCallback):
             raise ValueError("per_robot=True needs a multi-agent model (model.n_agents); set per_robot=False")
         return q_net
 
+    def _match_training_world(self) -> int:
+        """Give the evaluation world the training worlds' decision rate and view: ``action_repeat`` (the model's
+        ``ticks_per_step``) and the options of :data:`SHARED_WORLD_OPTIONS` the training vec env was made with,
+        unless ``eval_env_kwargs`` sets them (a different value is an error: the mutants would be judged on another
+        robot). :return: the ticks each decision is held"""
+        ticks = int(getattr(self.model, "ticks_per_step", 1))
+        training = dict(getattr(self.model.get_env(), "env_kwargs", None) or {})
+        wanted = {key: training[key] for key in SHARED_WORLD_OPTIONS if key in training}
+        if ticks != 1:
+            wanted["action_repeat"] = ticks
+            if self.settings.n_team_check_episodes > 0:
+                raise ValueError(
+                    f"the model's worlds hold each decision for {ticks} ticks and the team check replays the training "
+                    "env id with its default options: set n_team_check_episodes=0"
+                )
+        kwargs = self.settings.eval_env_kwargs
+        assert kwargs is not None  # EPSSettings fills it in
+        for key, value in wanted.items():
+            if key in kwargs and kwargs[key] != value:
+                raise ValueError(
+                    f"eval_env_kwargs {key}={kwargs[key]!r} but the model's worlds have {key}={value!r}: EPS must "
+                    f"evaluate the robots as they train; drop {key} from eval_env_kwargs or set it to {value!r}"
+                )
+            kwargs.setdefault(key, value)
+        return ticks
+
     def _check_eval_env(self) -> None:
         """The evaluation world must speak the model's language: equal observation and action spaces."""
-        if int(getattr(self.model, "ticks_per_step", 1)) != 1:
-            raise ValueError(
-                f"the model's worlds hold each decision for {self.model.ticks_per_step} ticks (action_repeat); EPS "  # type: ignore[attr-defined]
-                "evaluates and counts one tick per decision: train this model without EvolutionCallback"
-            )
+        ticks = self._match_training_world()
         try:
             env = make_eval_env(self.settings.eval_env_id, self.settings.eval_env_kwargs)
         except TypeError as error:
             raise ValueError(
                 f"eval_env_kwargs {self.settings.eval_env_kwargs} do not fit {self.settings.eval_env_id!r}: {error}"
             ) from None
+        if ticks_per_step(env) != ticks:
+            env.close()
+            raise ValueError(
+                f"the model's worlds hold each decision for {ticks} ticks but eval_env_id "
+                f"{self.settings.eval_env_id!r} holds it for {ticks_per_step(env)}: give it action_repeat={ticks}"
+            )
         spec_limit = env.spec.max_episode_steps if env.spec is not None else None
         limit = getattr(env, "max_episode_steps", None) or getattr(env, "max_cycles", None) or spec_limit
         self.budget.episode_limit = int(limit or 0)

@@ -18,7 +18,7 @@ import torch as th
 from torch import nn
 from torch.func import functional_call, vmap
 
-from sb3_eps.common.parallel_wrappers import TeamAsGymnasium, TeamTick
+from sb3_eps.common.parallel_wrappers import TeamAsGymnasium, TeamTick, ticks_per_step
 from sb3_eps.common.workers import Served, WorkerError, WorkerPool
 from sb3_eps.eps.mutations import Parameters, finite_individuals
 
@@ -135,7 +135,8 @@ class _Block(Served):
     """The envs of a block of individuals and the forward pass that drives them (in a worker or in process);
     env ``p * n_episodes + j`` plays episode ``j`` of individual ``p``. ``record``: None, ``"ticks"`` (every tick of
     a team world) or ``"ticks+states"`` (also its global states). A worker's block answers ``evaluate`` with the
-    numpy weights of its individuals."""
+    numpy weights of its individuals. Episode lengths count world ticks: a world that holds each decision for
+    ``action_repeat`` ticks adds that many per step (the last decision of an episode counted whole)."""
 
     def __init__(
         self,
@@ -149,6 +150,7 @@ class _Block(Served):
         self.n_individuals, self.n_episodes = n_individuals, n_episodes
         self.envs = [make_eval_env(env_id, env_kwargs) for _ in range(n_individuals * n_episodes)]
         self.team_size = int(getattr(self.envs[0], "team_size", 0))  # 0: a single-agent env
+        self.ticks_per_step = ticks_per_step(self.envs[0])
         self.record = record
         self.forward = PopulationForward(network)
 
@@ -184,7 +186,7 @@ class _Block(Served):
                     recorders[int(index)].add(np.asarray(action), next_obs)
                 obs[index] = next_obs
                 returns.flat[index] += float(reward)
-                lengths.flat[index] += 1
+                lengths.flat[index] += self.ticks_per_step
                 active[index] = not (terminated or truncated)
                 if terminated or truncated:
                     outcomes.flat[index] = episode_outcome(bool(terminated), info)
