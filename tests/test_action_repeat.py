@@ -89,3 +89,18 @@ def test_a_command_line_run_records_world_ticks(tmp_path) -> None:
     assert list(columns["l"])[:3] == [24, 24, 24] and list(columns["ticks"])[:3] == [24, 48, 72]
     npz = np.load(run / "evaluations.npz")
     assert list(npz["timesteps"]) == [200, 400] and list(npz["ticks"]) == [400, 800]
+
+
+def test_eps_does_not_warn_of_no_round_when_held_decisions_make_the_ticks_enough(recwarn) -> None:
+    """The no-round warning counts the run's end in world ticks: 400 timesteps of 2 robots holding 4 ticks = 800."""
+    venv = make_vec_env("MultiRobotNav-2-v0", n_envs=1, seed=6, env_kwargs={"action_repeat": 4, "max_episode_steps": 40})
+    model = GDQ("MlpPolicy", venv, seed=6, **SMALL)
+    callback = EvolutionCallback(
+        period=100, n_workers=0, max_eps_share=0.1, population_size=1, n_eval_episodes=1, n_reevaluation_episodes=0,
+        eval_env_kwargs={"scenario": "arena", "max_episode_steps": 100},
+    )  # fmt: skip
+    # A round is expected to cost half of (2 individuals x 1 episode x 100 ticks) = 100 ticks <= 0.1 x 1600 ticks,
+    # but more than 0.1 x 400 (the end counted in decisions).
+    model.learn(800, callback=callback)
+    assert not [warning for warning in recwarn if "no EPS round" in str(warning.message)]
+    venv.close()

@@ -197,8 +197,9 @@ class EvolutionCallback(BaseCallback):
         total_timesteps = self.locals.get("total_timesteps")
         if total_timesteps is None or self._warned_no_round:
             return
-        ticks_per_timestep = int(getattr(self.model, "n_agents", 1))  # a tick steps every agent of a world
-        start, end = model_ticks(self.model), int(total_timesteps) // ticks_per_timestep
+        # A step moves every agent of a world and advances it ticks_per_step ticks (its action_repeat).
+        agents, ticks = int(getattr(self.model, "n_agents", 1)), int(getattr(self.model, "ticks_per_step", 1))
+        start, end = model_ticks(self.model), int(total_timesteps) // agents * ticks
         reason = self.budget.why_no_round(self.eps_ticks, start, end, self.history)
         if reason is not None:
             self._warned_no_round = True
