@@ -22,7 +22,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 import envs  # noqa: F401
 from sb3_eps import GDQ, make_vec_env
-from sb3_eps.common.evaluation import evaluate_team
+from sb3_eps.common.evaluation import evaluate_team, world_record
 from sb3_eps.common.policies import weight_average_rate
 from sb3_eps.common.utils import polyak_update_tensors_
 
@@ -72,6 +72,7 @@ def main() -> None:
         venv.close()
 
         row = {"env": args.env, "seed": seed, "ticks": args.ticks, "n_updates": model._n_updates, "tau": args.tau}
+        row |= world_record(args.env, None, args.episodes)  # every success below: greedy episodes of this world
         row["online"] = success(model, args.env, args.episodes, seed)
         with th.no_grad():
             for eta, average in callback.averages.items():

@@ -24,7 +24,7 @@ from stable_baselines3.common.utils import LinearSchedule
 
 import envs  # noqa: F401
 from sb3_eps import GDQ, make_vec_env
-from sb3_eps.common.evaluation import evaluate_team
+from sb3_eps.common.evaluation import evaluate_team, world_of
 
 SPACES = ("wide", "focused")
 
@@ -88,6 +88,7 @@ def objective(trial: optuna.Trial, args: argparse.Namespace) -> float:
         "team_return": evaluations[-1][2],
         "evaluations": evaluations,
         "wall_s": round(time.time() - start),
+        **world_of(summary),
     }
     with open(args.out, "a") as file:
         file.write(json.dumps(record) + "\n")

@@ -33,7 +33,7 @@ from stable_baselines3.common.utils import LinearSchedule
 
 import envs  # noqa: F401
 from sb3_eps import GDQ, IQL, QMIX, VDN, make_vec_env
-from sb3_eps.common.evaluation import evaluate_team
+from sb3_eps.common.evaluation import evaluate_team, world_of
 from sb3_eps.common.subproc_vec_env import overlap_layout
 
 ALGORITHMS = {"iql": IQL, "gdq": GDQ, "qmix": QMIX, "vdn": VDN}
@@ -81,6 +81,7 @@ class StopAtLevel(BaseCallback):
             "train_s": round(time.perf_counter() - self.start - self.eval_s, 2),
             "success_rate": summary["success_rate"],
             "collision_rate": summary["collision_rate"],
+            **world_of(summary),
         }
         with self.path.open("a") as file:
             file.write(json.dumps(record) + "\n")

@@ -15,7 +15,7 @@ from research import benchmark
 from sb3_eps import evaluate, plot, train
 from sb3_eps.zoo.config import load_config_entries
 from sb3_eps.zoo.errors import ConfigError
-from sb3_eps.zoo.run_folder import read_monitor
+from sb3_eps.zoo.run_folder import read_evaluation_world, read_monitor
 
 ENV_ID = "CooperativeNavigation-v0"
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -60,6 +60,9 @@ def test_run_folder_follows_the_zoo_layout(run_dir) -> None:
     evaluations = np.load(run_dir / "evaluations.npz")
     assert list(evaluations["timesteps"][:3]) == [504, 1002, 1500]
     assert evaluations["results"].shape[1] == 2 and "successes" in evaluations and "ticks" in evaluations
+    # The world the evaluations were measured on.
+    world = {"env_id": ENV_ID, "env_kwargs": {}, "level_set": None, "n_episodes": 2}
+    assert read_evaluation_world(run_dir) == world
     header, columns = read_monitor(run_dir / "monitor.csv")
     assert header["env_id"] == ENV_ID and header["n_agents"] == 3
     assert np.all(columns["l"] == 25) and np.all(np.diff(columns["ticks"]) >= 0)  # one row per world episode
@@ -167,6 +170,7 @@ def test_evaluate_prints_and_saves_the_team_metrics(run_dir, tmp_path, capsys) -
     assert "success" in printed and "team return" in printed and "+/-" in printed
     summary = json.loads(output.read_text())
     assert summary["n_episodes"] == 4 and len(summary["episodes"]) == 4
+    assert (summary["env_id"], summary["env_kwargs"], summary["level_set"]) == (ENV_ID, {}, None)  # its world
     for key in ("success_rate", "collision_rate", "team_return_mean", "team_return_std", "length_mean"):
         assert key in summary
     # RL Zoo's lookup by algo / env / folder, the best model, a GIF, another compatible world.
@@ -206,6 +210,8 @@ def test_benchmark_writes_a_table(run_dir, tmp_path) -> None:
     assert benchmark.main(argv) == 0
     table = output.read_text()
     assert "| GDQ | CooperativeNavigation-v0 | CooperativeNavigation-v0 | 1 |" in table
+    (result,) = json.loads(output.with_suffix(".json").read_text())
+    assert (result["env_id"], result["env_kwargs"], result["n_episodes"]) == (ENV_ID, {}, 2)
 
 
 def test_single_agent_pretraining_warm_starts_a_multi_agent_model(tmp_path) -> None:
@@ -294,5 +300,9 @@ def test_a_run_on_stacked_scans_is_evaluated_on_worlds_that_stack_them(tmp_path)
     assert json.loads(output.read_text())["n_episodes"] == 2
     room = ["--run", str(run), "--eval-env", "MultiRobotNavUnseen-4-v0", "-n", "1", "--n-envs", "1"]
     assert evaluate.main([*room, "--output", str(tmp_path / "room.json"), "--env-kwargs", "max_episode_steps:20"]) == 0
+    # The JSON names the world: the run's own options updated by --env-kwargs.
+    room_summary = json.loads((tmp_path / "room.json").read_text())
+    assert room_summary["env_id"] == "MultiRobotNavUnseen-4-v0" and room_summary["n_episodes"] == 1
+    assert room_summary["env_kwargs"] == {"lidar_frames": 2, "max_episode_steps": 20}
     with pytest.raises(ConfigError, match=r"observation_space .*58"):
         evaluate.main(["--run", str(run), "-n", "1", "--env-kwargs", "lidar_frames:1"])

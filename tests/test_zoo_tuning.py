@@ -144,6 +144,7 @@ def test_a_trial_can_train_several_seeds_and_scores_their_mean(tmp_path) -> None
         first, second = trial.user_attrs["seed_scores"]
         assert trial.value == pytest.approx((first + second) / 2)
         assert trial.intermediate_values[2] == pytest.approx(first) and trial.intermediate_values[4] == pytest.approx(second)
+        assert trial.user_attrs["world"] == {"env_id": ENV_ID, "env_kwargs": {}, "level_set": None, "n_episodes": 2}
     assert "seeds 5-6" in load_config_entries(folder / "best_params.yml", "gdq")[ENV_ID]["notes"]
     with pytest.raises(ConfigError, match="--n-seeds-per-trial must be an int >= 1, got 0"):
         train.main([*argv, "--n-seeds-per-trial", "0"])

@@ -36,7 +36,8 @@ def evaluate_team(
     :param model: anything with ``predict(obs, deterministic=...)`` over a batch of agent observations
     :param env: an env id (``n_envs`` worlds built with ``env_kwargs``, closed at the end) or a vec env
     :param seed: seed of the evaluation worlds (world ``w`` gets ``seed + w``)
-    :return: the episode dicts and their summary (:func:`summarize_episodes`)
+    :return: the episode dicts and their summary (:func:`summarize_episodes`), with the world they were played in
+        (:func:`world_record`) when it is known: an env id, or a vec env made by :func:`~sb3_eps.make_vec_env`
     """
     if n_eval_episodes < 1:
         raise ValueError(f"n_eval_episodes must be >= 1, got {n_eval_episodes}")
@@ -55,7 +56,43 @@ def evaluate_team(
                 if episode is not None and counts[world] < quotas[world]:
                     counts[world] += 1
                     episodes.append(dict(episode))
-    return summarize_episodes(episodes)
+        played_in = vec_env_world(venv, len(episodes))
+    return summarize_episodes(episodes) | (played_in or {})
+
+
+#: What an evaluation record says of its world (:func:`world_record`).
+WORLD_KEYS = ("env_id", "env_kwargs", "level_set", "n_episodes")
+
+
+def world_record(env_id: str, env_kwargs: dict[str, Any] | None, n_episodes: int, level_set: Any = None) -> dict[str, Any]:
+    """The world an evaluation was measured on, as every evaluation record stores it (:data:`WORLD_KEYS`).
+
+    :param env_id: the registered env id
+    :param env_kwargs: the world options the worlds were built with (None: none, recorded as ``{}``)
+    :param n_episodes: world (team) episodes played
+    :param level_set: the set of levels the worlds drew theirs from (None: the ``level_set`` option of
+        ``env_kwargs``, None for a world without level sets)
+    :return: ``{"env_id", "env_kwargs", "level_set", "n_episodes"}``
+    """
+    options = dict(env_kwargs or {})
+    if level_set is None:
+        level_set = options.get("level_set")
+    return {"env_id": env_id, "env_kwargs": options, "level_set": level_set, "n_episodes": int(n_episodes)}
+
+
+def vec_env_world(venv: MultiAgentVecEnv, n_episodes: int) -> dict[str, Any] | None:
+    """:func:`world_record` of a vec env made by :func:`~sb3_eps.make_vec_env` from an env id (which keeps the id,
+    the world options and the level set); None for other vec envs (a world without an id, options not known)."""
+    env_id, env_kwargs = getattr(venv, "env_id", None), getattr(venv, "env_kwargs", None)
+    if env_id is None or env_kwargs is None:
+        return None
+    return world_record(env_id, env_kwargs, n_episodes, venv.level_set)
+
+
+def world_of(summary: dict[str, Any]) -> dict[str, Any]:
+    """:return: the :data:`WORLD_KEYS` that an evaluation summary (:func:`evaluate_team`) has, for a record that
+    keeps only some of its metrics."""
+    return {key: summary[key] for key in WORLD_KEYS if key in summary}
 
 
 @contextlib.contextmanager

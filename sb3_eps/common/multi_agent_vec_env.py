@@ -45,6 +45,8 @@ class MultiAgentVecEnv(VecEnv):
     ticks_per_step = 1  # until __init__ reads the worlds' (and for vec envs pickled before it was kept)
     #: The world options given to :func:`~sb3_eps.make_vec_env` beyond the registration's (None: not known).
     env_kwargs: dict[str, Any] | None = None
+    #: The worlds' ``level_set`` option, given or fixed by the env id (None: a world without level sets), for records.
+    level_set: Any = None
 
     def __init__(self, env_fns: Sequence[Callable[[], ParallelEnv | gymnasium.Env]], env_id: str | None = None):
         self._worlds = [FixedAgentSet(_as_parallel_env(env_fn())) for env_fn in env_fns]

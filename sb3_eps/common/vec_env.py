@@ -62,6 +62,8 @@ def make_vec_env(
     :param vec_env_cls: ``DummyVecEnv`` (None: every world in this process) or ``SubprocVecEnv`` (worlds in worker
         processes, :class:`~sb3_eps.common.subproc_vec_env.SubprocMultiAgentVecEnv`, whose arguments
         ``vec_env_kwargs`` are); also ``"dummy"`` / ``"subproc"``. Both give the same results for the same seed
+    :return: the vec env; it keeps ``env_id`` (None for a callable), ``env_kwargs`` (as given) and ``level_set``
+        (the worlds' ``level_set`` option, None without one), which evaluations record
     """
     if not isinstance(env_id, str) and not callable(env_id):
         raise ValueError(
@@ -101,6 +103,7 @@ def make_vec_env(
     # The options the worlds were made with beyond their registration (EvolutionCallback's world takes the view
     # and the decision rate from them; records store them).
     venv.env_kwargs = dict(env_kwargs or {})
+    venv.level_set = kwargs.get("level_set")  # the set of levels a generated world draws from, for the records
     if seed is not None:
         venv.seed(seed)
     return venv

@@ -23,7 +23,7 @@ import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import CSVOutputFormat, HumanOutputFormat, KVWriter, Logger, TensorBoardOutputFormat
 
-from sb3_eps.common.evaluation import evaluate_team
+from sb3_eps.common.evaluation import evaluate_team, vec_env_world
 from sb3_eps.common.snapshots import set_rng_states
 from sb3_eps.common.vec_env import MultiAgentVecEnv
 from sb3_eps.eps import EvolutionCallback
@@ -264,8 +264,12 @@ class TeamEvalCallback(BaseCallback):
 
     def _write_records(self) -> None:
         if self.folder is not None and self.records["timesteps"]:
+            arrays = {key: np.array(value) for key, value in self.records.items()}
+            world = vec_env_world(self.eval_env, self.n_eval_episodes)
+            if world is not None:  # as JSON text: np.load reads it without pickles
+                arrays[run_folder.EVALUATIONS_WORLD_KEY] = np.array(json.dumps(world))
             buffer = io.BytesIO()
-            np.savez(buffer, **{key: np.array(value) for key, value in self.records.items()})  # type: ignore[arg-type]
+            np.savez(buffer, **arrays)  # type: ignore[arg-type]
             write_bytes_atomic(self.folder / run_folder.EVALUATIONS_NAME, buffer.getvalue())
 
     def _log(self, summary: dict[str, Any]) -> None:

@@ -23,6 +23,9 @@ COMMAND_NAME = "command.txt"
 PROGRESS_NAME = "progress.csv"
 MONITOR_NAME = "monitor.csv"
 EVALUATIONS_NAME = "evaluations.npz"
+#: The array of ``evaluations.npz`` that holds the evaluation world (``sb3_eps.common.evaluation.world_record``) as
+#: JSON text (:func:`read_evaluation_world`).
+EVALUATIONS_WORLD_KEY = "world"
 BEST_MODEL_NAME = "best_model.zip"
 FINAL_REPORT_NAME = "final_vs_best.txt"
 #: RL Zoo's (SB3 ``CheckpointCallback``'s) name of the model snapshots: ``rl_model_<timesteps>_steps.zip``.
@@ -163,3 +166,12 @@ def read_monitor(path: str | Path) -> tuple[dict[str, Any], dict[str, np.ndarray
             except ValueError:
                 continue
     return header, columns
+
+
+def read_evaluation_world(path: str | Path) -> dict[str, Any] | None:
+    """:return: the world a run's periodic evaluations were measured on (``env_id``, ``env_kwargs``, ``level_set``,
+    ``n_episodes``) from its ``evaluations.npz`` (``path``: the file or its run folder); None for a file written
+    before it was kept."""
+    path = Path(path)
+    with np.load(path / EVALUATIONS_NAME if path.is_dir() else path) as data:
+        return json.loads(str(data[EVALUATIONS_WORLD_KEY])) if EVALUATIONS_WORLD_KEY in data else None

@@ -17,6 +17,7 @@ import yaml
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.logger import Logger
 
+from sb3_eps.common.evaluation import world_of
 from sb3_eps.gdq import GDQ
 from sb3_eps.zoo.callbacks import EVAL_SEED_OFFSET, TeamEvalCallback, TickBudgetCallback
 from sb3_eps.zoo.checkpoint import write_text_atomic
@@ -280,6 +281,7 @@ class _Objective:
                 trial.set_user_attr(key, float(sum(float(summary[key]) for summary in summaries) / len(summaries)))
         if len(scores) > 1:
             trial.set_user_attr("seed_scores", scores)
+        trial.set_user_attr("world", world_of(summaries[0]))  # what the scores were measured on
         return float(sum(scores) / len(scores))
 
     def _run_seed(self, trial: Any, config: ResolvedConfig, seed: int, first_step: int) -> dict[str, Any]:
