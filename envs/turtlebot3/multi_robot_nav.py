@@ -20,6 +20,7 @@ from gymnasium.utils import seeding
 from pettingzoo import ParallelEnv
 
 from envs.seeding import check_seed
+from envs.turtlebot3.deployment import deployment_description
 from envs.turtlebot3.layouts import (
     PLACEMENT_JITTER_MAX,
     Layout,
@@ -263,6 +264,13 @@ class MultiRobotNavEnv(ParallelEnv):
         """The action space of ``agent`` (the same object for every robot and every call)."""
         self._check_agent(agent)
         return self._action_space
+
+    def deployment_description(self) -> dict[str, Any]:
+        """What a real robot needs to run a policy of this world (lidar beams, observation, action table, decision
+        period), JSON-ready: ``sb3_eps.export_policy`` writes it into the exported policy's JSON."""
+        return deployment_description(
+            self.lidar_range, self.action_repeat, self.lidar_frames, self.lidar_frame_ticks, self.lidar_noise_std
+        )
 
     def _check_agent(self, agent: str) -> None:
         if agent not in self._agent_index:

@@ -116,6 +116,10 @@ class SingleRobotNavEnv(gymnasium.Env):
             self._info(infos[AGENT]),
         )
 
+    def deployment_description(self) -> dict[str, Any]:
+        """What a real robot needs to run a policy of this world, as :meth:`MultiRobotNavEnv.deployment_description`."""
+        return self.multi_env.deployment_description()
+
     @staticmethod
     def _info(info: dict[str, Any]) -> dict[str, Any]:
         return {**info, "is_success": info["arrived"]}
