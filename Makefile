@@ -18,7 +18,7 @@ $(VENV)/.installed: setup.cfg pyproject.toml
 	touch $@
 
 run: install
-	$(PY) -m sb3_eps.run_main
+	$(PY) examples/main_job.py
 
 test: install
 	$(VENV)/bin/lint-imports
@@ -33,11 +33,11 @@ test-slow: install
 	$(PY) -m pytest -m slow --durations=15 $(PYTEST_ARGS)
 
 lint: install
-	$(VENV)/bin/ruff check sb3_eps envs research tests benchmarks
+	$(VENV)/bin/ruff check sb3_eps envs research tests benchmarks examples
 
 format: install
-	$(VENV)/bin/ruff format sb3_eps envs research tests benchmarks
-	$(VENV)/bin/ruff check --fix sb3_eps envs research tests benchmarks
+	$(VENV)/bin/ruff format sb3_eps envs research tests benchmarks examples
+	$(VENV)/bin/ruff check --fix sb3_eps envs research tests benchmarks examples
 
 type: install
 	$(VENV)/bin/mypy sb3_eps envs

@@ -41,7 +41,7 @@ FINAL_EPISODES = 100
 #: Evaluation worlds' seed, apart from the training worlds' (seed 0 onwards) and the in-training evaluations'.
 FINAL_EVAL_SEED = 10_000
 #: The committed greedy evaluations of GDQ's 8-robot entry, seeds 0-4 (docs/results/many_robots.md).
-REFERENCE = Path("docs/results/many_robots/short_lidar_crowds_5hz_more_seeds/report/runs/gdq")
+REFERENCE = Path(__file__).resolve().parents[1] / "docs/results/many_robots/short_lidar_crowds_5hz_more_seeds/report/runs/gdq"
 REFERENCE_LABEL = "GDQ, 8-robot entry, seeds 0-4"
 
 

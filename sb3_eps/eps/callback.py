@@ -316,11 +316,11 @@ class EvolutionCallback(BaseCallback):
         wanted = {key: training[key] for key in SHARED_WORLD_OPTIONS if key in training}
         if ticks != 1:
             wanted["action_repeat"] = ticks
-            if self.settings.n_team_check_episodes > 0:
-                raise ValueError(
-                    f"the model's worlds hold each decision for {ticks} ticks and the team check replays the training "
-                    "env id with its default options: set n_team_check_episodes=0"
-                )
+        if wanted and self.settings.n_team_check_episodes > 0:
+            raise ValueError(
+                f"the model's worlds have options {wanted} and the team check replays the training env id with its "
+                "default options: set n_team_check_episodes=0"
+            )
         kwargs = self.settings.eval_env_kwargs
         assert kwargs is not None  # EPSSettings fills it in
         for key, value in wanted.items():
