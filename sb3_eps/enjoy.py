@@ -125,7 +125,10 @@ def play(
     try:
         venv = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=kwargs)
     except (TypeError, ValueError) as error:
-        raise ConfigError(f"{env_id} with {kwargs}: {error}") from None
+        raise ConfigError(
+            f"{env_id} does not take the world options {kwargs} (the model's and --env-kwargs): {error}; pick a world "
+            "of the model's kind"
+        ) from None
     episodes: list[dict[str, Any]] = []
     frames: list[np.ndarray] = []
     try:
