@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import importlib
+import importlib.util
 from collections.abc import Callable
 from typing import Any
 
@@ -112,6 +113,8 @@ def run_population_distill() -> Any:
     conf = folder / "population.yml"
     conf.write_text(ZOO_POPULATION)
     flags = ["--eval-freq", "1000", "--eval-episodes", "1", "--n-eval-envs", "1", "--verbose", "0"]
+    if importlib.util.find_spec("research.population") is not None:  # the key's plug-in since issue 56
+        flags += ["--gym-packages", "research.population"]
     argv = ["--algo", "gdq", "--env", ENV_ID, "-conf", str(conf), "--seed", "0", "-f", str(folder / "logs"), *flags]
     try:
         if train.main(argv) != 0:

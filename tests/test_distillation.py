@@ -8,7 +8,7 @@ import pytest
 import torch as th
 from torch import nn
 
-from sb3_eps.eps.distillation import q_filter, q_filtered_distillation
+from research.population.distillation import q_filter, q_filtered_distillation
 from sb3_eps.eps.mutations import network_parameters, polyak_crossover_
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import pathlib
 import signal
 import subprocess
 import sys
@@ -15,8 +16,8 @@ import torch as th
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
 import envs  # noqa: F401  # registers the worlds
+from research.population import PopulationTrainer
 from sb3_eps import GDQ, make_vec_env
-from sb3_eps.eps.population import PopulationTrainer
 
 ENV_ID = "CooperativeNavigation-v0"  # 3 agents, 25-tick episodes: fast
 SMALL = {
@@ -175,7 +176,7 @@ def test_save_and_load_round_trip(tmp_path) -> None:
 SCRIPT = """
 import sys
 from sb3_eps import GDQ
-from sb3_eps.eps.population import PopulationTrainer
+from research.population import PopulationTrainer
 population = PopulationTrainer(GDQ, {env!r}, log_path=sys.argv[1], **{settings!r})
 population.learn({total}, checkpoint_path=sys.argv[2])
 print("interrupted" if population.interrupted else "finished")
@@ -187,10 +188,12 @@ TOTAL = 1_000
 def test_a_run_stopped_by_sigterm_resumes_exactly(tmp_path) -> None:
     expected = PopulationTrainer(GDQ, ENV_ID, log_path=str(tmp_path / "expected.jsonl"), **RESUMED).learn(TOTAL)
 
-    script = tmp_path / "run.py"
-    script.write_text(textwrap.dedent(SCRIPT.format(env=ENV_ID, settings=RESUMED, total=TOTAL)))
+    script = textwrap.dedent(SCRIPT.format(env=ENV_ID, settings=RESUMED, total=TOTAL))
     log, checkpoint = tmp_path / "selections.jsonl", tmp_path / "checkpoint.zip"
-    process = subprocess.Popen([sys.executable, str(script), str(log), str(checkpoint)], stdout=subprocess.PIPE, text=True)
+    # run from the repository's root, where research/ is importable
+    root = pathlib.Path(__file__).resolve().parents[1]
+    arguments = [sys.executable, "-c", script, str(log), str(checkpoint)]
+    process = subprocess.Popen(arguments, stdout=subprocess.PIPE, text=True, cwd=root)
     deadline = time.time() + 120
     while not (log.exists() and log.read_text().count("\n") >= 1):  # a selection happened: stop it mid-run
         assert process.poll() is None and time.time() < deadline, "the run ended before it could be stopped"

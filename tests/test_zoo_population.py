@@ -14,16 +14,17 @@ import pytest
 import torch as th
 
 import envs  # noqa: F401
+from research.population import PopulationTrainer
+from research.population.zoo import check_population_run, population_kwargs
 from sb3_eps import GDQ, evaluate, make_vec_env, train
-from sb3_eps.eps.population import PopulationTrainer
 from sb3_eps.zoo.checkpoint import verify_checkpoint
 from sb3_eps.zoo.cli import TrainOptions
 from sb3_eps.zoo.config import resolve_config
 from sb3_eps.zoo.errors import run_command
-from sb3_eps.zoo.population import check_population_run, population_kwargs
 from tests.test_zoo_resume import assert_equal_runs, stop_at_checkpoint
 
-CONFIGS = Path(__file__).resolve().parents[1] / "zoo_configs"
+ROOT = Path(__file__).resolve().parents[1]
+CONFIGS = ROOT / "zoo_configs"
 ENV_ID = "MultiRobotNav-2-v0"
 # 2 learners of 2 robots, 30-tick episodes: a selection every 100 ticks of both from the second on (each learner
 # needs 2 finished training episodes); fitness by team return (a tie of 0 % successes would skip every selection).
@@ -47,7 +48,21 @@ TINY = f"""\
     crossover: distill
     distillation_steps: 20
 """
-FLAGS = ["--eval-freq", "500", "--eval-episodes", "2", "--n-eval-envs", "1", "--save-freq", "400", "--verbose", "0"]
+# The population key is research/population's plug-in: the run names it, and --resume imports it again from args.yml.
+FLAGS = [
+    "--gym-packages",
+    "research.population",
+    "--eval-freq",
+    "500",
+    "--eval-episodes",
+    "2",
+    "--n-eval-envs",
+    "1",
+    "--save-freq",
+    "400",
+    "--verbose",
+    "0",
+]
 
 
 def the_run(folder: Path) -> Path:
@@ -132,7 +147,7 @@ def test_a_population_run_fills_the_run_folder_and_its_model_evaluates(uninterru
 
 def test_a_population_stopped_by_sigterm_resumes_to_the_uninterrupted_run(uninterrupted, tmp_path) -> None:
     folder = tmp_path / "logs"
-    process = subprocess.Popen([sys.executable, "-m", "sb3_eps.train", *argv(tmp_path, folder, "--keep-checkpoint")])
+    process = subprocess.Popen([sys.executable, "-m", "sb3_eps.train", *argv(tmp_path, folder, "--keep-checkpoint")], cwd=ROOT)
     # the second periodic checkpoint: after a copy and an evaluation, before the end
     stop_at_checkpoint(process, folder, lambda meta: meta.get("num_timesteps", 0) >= 800, 300, "it could be stopped")
     run = the_run(folder)
@@ -186,3 +201,21 @@ def test_bad_population_settings_give_one_line_and_no_run_folder(case, lines, fl
     assert exit_info.value.code == 2 and len(errors) == 1, errors
     assert all(word in errors[0] for word in words), errors[0]
     assert not (tmp_path / "logs").exists() or not list((tmp_path / "logs").rglob("*.*"))
+
+
+def test_the_key_belongs_to_its_plug_in(monkeypatch, tmp_path, capsys) -> None:
+    """Without ``research.population`` imported the key is unknown, and the line says how a plug-in's key is named;
+    the zoo's trainer registry refuses keys of its own and keys taken by another trainer."""
+    from sb3_eps.zoo import register_trainer
+    from sb3_eps.zoo.schema import TRAINERS
+
+    monkeypatch.delitem(TRAINERS, "population")
+    arguments = [flag for flag in argv(tmp_path, tmp_path / "logs") if flag not in ("--gym-packages", "research.population")]
+    with pytest.raises(SystemExit):
+        run_command(train.PROG, lambda: train.main(arguments))
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "unknown key 'population'" in line and "--gym-packages MODULE" in line
+    monkeypatch.undo()
+    for key, words in (("Population", "lower case"), ("ladder", "a key of every entry"), ("population", "is taken")):
+        with pytest.raises(ValueError, match=words):
+            register_trainer(key, {}, lambda config, options: None, lambda *args: None)

@@ -107,7 +107,7 @@ def check_ladder(model: MultiAgentOffPolicyAlgorithm, rungs: Sequence[Rung]) -> 
 class ScheduleHorizon(BaseCallback):
     """Points SB3's progress (``_total_timesteps``, which ``_current_progress_remaining`` counts down to) at
     ``total_timesteps`` instead of the ``learn`` call's own end, so the schedules (learning rate, exploration, PER)
-    run once over a run made of several calls: a ladder's rungs, a population learner's turns."""
+    run once over a run made of several calls: a ladder's rungs, a learner's turns in a plug-in trainer."""
 
     def __init__(self, total_timesteps: int) -> None:
         super().__init__()

@@ -1,8 +1,6 @@
-"""Evolutionary Policy Search (Marchesini & Farinelli, ICRA 2022) as an SB3 callback, and its math; a population
-of learners (PopulationTrainer) and a distillation crossover for networks that differ."""
+"""Evolutionary Policy Search (Marchesini & Farinelli, ICRA 2022) as an SB3 callback, and its math."""
 
 from sb3_eps.eps.callback import EvolutionCallback
-from sb3_eps.eps.distillation import DistillationResult, q_filter, q_filtered_distillation
 from sb3_eps.eps.evaluation import (
     EvaluationFailed,
     InProcessEnvPool,
@@ -21,7 +19,6 @@ from sb3_eps.eps.mutations import (
     safe_mutation_step,
     select_best,
 )
-from sb3_eps.eps.population import PopulationTrainer
 from sb3_eps.eps.round import sample_visited_observations
 from sb3_eps.eps.round_log import RoundLog, read_round_log
 from sb3_eps.eps.settings import EPS_WORLDS, PAPER_SETTINGS, EPSSettings, eps_env_id_for
@@ -29,14 +26,12 @@ from sb3_eps.eps.settings import EPS_WORLDS, PAPER_SETTINGS, EPSSettings, eps_en
 __all__ = [
     "EPS_WORLDS",
     "PAPER_SETTINGS",
-    "DistillationResult",
     "EPSSettings",
     "EvaluationFailed",
     "EvolutionCallback",
     "InProcessEnvPool",
     "PopulationForward",
     "PopulationResult",
-    "PopulationTrainer",
     "RoundLog",
     "SubprocessEnvPool",
     "calibrate_scale",
@@ -47,8 +42,6 @@ __all__ = [
     "policy_change",
     "polyak_crossover_",
     "population_fitness",
-    "q_filter",
-    "q_filtered_distillation",
     "read_round_log",
     "safe_mutation_step",
     "sample_visited_observations",

@@ -128,7 +128,7 @@ def write_checkpoint(path: str | Path, members: dict[str, bytes], start: Callabl
     kept as ``checkpoint.prev.zip``).
 
     :param members: member name -> content
-    :param start: writes an archive of its own to the temporary file first (a population's), ``members`` are added
+    :param start: writes an archive of its own to the temporary file first (a plug-in trainer's), ``members`` are added
     """
     path = Path(path)
     with atomic_path(path) as temporary:

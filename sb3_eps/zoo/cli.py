@@ -140,7 +140,8 @@ def positive_int(text: str) -> int:
 
 GYM_PACKAGES_HELP = (
     "modules to import first (RL Zoo's flag): they register their own worlds (envs.register or pettingzoo.register), "
-    "algorithms (sb3_eps.zoo.register_algorithm) and callbacks (sb3_eps.zoo.register_callback)"
+    "algorithms (sb3_eps.zoo.register_algorithm), callbacks (sb3_eps.zoo.register_callback) and trainers "
+    "(sb3_eps.zoo.register_trainer)"
 )
 
 

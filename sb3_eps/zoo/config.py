@@ -4,7 +4,7 @@ A file maps env ids (and ``default``) to entries (schema: :mod:`sb3_eps.zoo.sche
 the constructors' defaults (:func:`~sb3_eps.zoo.schema.package_defaults`), then its ``default`` entry updated key by
 key (a shallow merge) with the env id's own entry, then with the command line's
 ``--hyperparams key:value`` overrides (``policy_kwargs.net_arch:[64]``, ``env_kwargs.<arg>:...``,
-``population.<setting>:...`` and ``callback.<arg>:...`` update one item of a mapping) and ``-n``. YAML is read
+``<trainer key>.<setting>:...`` and ``callback.<arg>:...`` update one item of a mapping) and ``-n``. YAML is read
 with a safe loader that also refuses duplicate keys; nothing is executed.
 """
 
@@ -29,6 +29,7 @@ from sb3_eps.zoo.cli import TrainOptions
 from sb3_eps.zoo.errors import ConfigError, allowed
 from sb3_eps.zoo.schema import (
     CALLBACK_KEY,
+    TRAINERS,
     AlgorithmSpec,
     algorithm_spec,
     check_complete,
@@ -40,7 +41,7 @@ from sb3_eps.zoo.schema import (
 DEFAULT_KEY = "default"
 #: Environment variable naming a folder of config files to use instead of the shipped ``zoo_configs/``.
 CONFIG_DIR_VARIABLE = "SB3_EPS_CONFIG_DIR"
-_MAPPING_KEYS = ("policy_kwargs", "env_kwargs", "population")
+_MAPPING_KEYS = ("policy_kwargs", "env_kwargs")
 
 
 @dataclass
@@ -208,9 +209,10 @@ def parse_hyperparams(items: Sequence[str]) -> list[tuple[tuple[str, ...], Any]]
         except yaml.YAMLError:
             raise ConfigError(f"--hyperparams: the value of {key!r} is not valid YAML: {text!r}") from None
         path = tuple(part.strip() for part in key.split("."))
-        if len(path) > 2 or (len(path) == 2 and path[0] not in (*_MAPPING_KEYS, CALLBACK_KEY)):
+        mappings = (*_MAPPING_KEYS, *TRAINERS)
+        if len(path) > 2 or (len(path) == 2 and path[0] not in (*mappings, CALLBACK_KEY)):
             raise ConfigError(
-                f"--hyperparams: {key!r}: only {allowed(_MAPPING_KEYS)} and callback take a dotted key "
+                f"--hyperparams: {key!r}: only {allowed(mappings)} and callback take a dotted key "
                 "(e.g. policy_kwargs.net_arch:[64])"
             )
         overrides.append((path, value))

@@ -62,14 +62,7 @@ from sb3_eps.zoo.config import (
 from sb3_eps.zoo.errors import ConfigError, RunFailed
 from sb3_eps.zoo.evaluation import check_spaces
 from sb3_eps.zoo.ladder import LADDER_KEY, build_rungs, check_ladder_run, check_rungs, ladder_progress
-from sb3_eps.zoo.population import check_population_run, run_population
-from sb3_eps.zoo.schema import (
-    POPULATION_KEY,
-    algorithm_kwargs,
-    algorithm_spec,
-    build_callbacks,
-    check_complete,
-)
+from sb3_eps.zoo.schema import algorithm_kwargs, algorithm_spec, build_callbacks, check_complete, entry_trainer
 
 
 # ---------------------------------------------------------------------------------------------- building
@@ -160,8 +153,9 @@ def prepare_run(options: TrainOptions, config: ResolvedConfig | None = None, bui
         config = resolve_config(options.algo, options.env, options.conf_file, hyperparams, options.n_timesteps)
         if LADDER_KEY in config.entry:
             check_ladder_run(config.entry, config.env_id, options.n_timesteps, options.algo, config.source)
-        if POPULATION_KEY in config.entry:
-            check_population_run(config, options)
+        trainer = entry_trainer(config.entry)
+        if trainer is not None:
+            trainer.check(config, options)
     eval_env_id = options.eval_env or config.env_id
     check_env_id(eval_env_id, "--eval-env")
     if options.seed is None:
@@ -219,8 +213,9 @@ def train(options: TrainOptions, extra_callbacks: Sequence[BaseCallback] = ()) -
         header = f"resolved from {prepared.config.source}\nrerun: python -m sb3_eps.train --algo {options.algo} -conf <this file> ..."
         write_text_atomic(params / run_folder.CONFIG_NAME, entry_yaml(env_id, prepared.config.entry, header))
         write_text_atomic(params / run_folder.COMMAND_NAME, (options.command or run_folder.command_line()) + "\n")
-        if POPULATION_KEY in prepared.config.entry:
-            return run_population(prepared, run_dir, None, extra_callbacks)
+        trainer = entry_trainer(prepared.config.entry)
+        if trainer is not None:
+            return trainer.run(prepared, run_dir, None, extra_callbacks)
         return _run(prepared, run_dir, restore=None, extra_callbacks=extra_callbacks)
     finally:
         prepared.close()
@@ -278,8 +273,9 @@ def resume(run_dir: str | Path, progress: bool | None = None, verbose: int | Non
         )
     prepared = prepare_run(options, config, build_model_now=False)
     try:
-        if POPULATION_KEY in entry:
-            return run_population(prepared, run_dir, checkpoint_path)
+        trainer = entry_trainer(entry)
+        if trainer is not None:
+            return trainer.run(prepared, run_dir, checkpoint_path, ())
         checkpoint = load_checkpoint(checkpoint_path)
         # The training worlds come back from the checkpoint, mid-episode (a ladder's: those of its rung).
         rung = resumed_rung(prepared, checkpoint.meta, checkpoint_path)

@@ -1,8 +1,9 @@
 """The schema of a config entry: which keys exist, what each may hold, and how an entry becomes objects.
 
 An entry (one env id of a ``zoo_configs/<algo>.yml`` file, ``docs/usage.md``) holds run keys (:data:`RUN_PARAMS`,
-``callback``, ``ladder``: :mod:`sb3_eps.zoo.ladder`, ``population``: :mod:`sb3_eps.zoo.population`) and the algorithm's constructor arguments, ``policy_kwargs``
-among them, read from the signatures; an unknown key is an error that lists the allowed ones. :func:`normalize_entry` returns an entry in canonical form
+``callback``, ``ladder``: :mod:`sb3_eps.zoo.ladder`, and the keys of plug-in trainers, :func:`register_trainer`) and
+the algorithm's constructor arguments, ``policy_kwargs`` among them, read from the signatures; an unknown key is an
+error that lists the allowed ones. :func:`normalize_entry` returns an entry in canonical form
 (plain YAML data, what ``config.yml`` holds); :func:`algorithm_kwargs` and :func:`build_callbacks` make objects
 of it.
 """
@@ -30,7 +31,6 @@ from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.common.utils import INVALID, PLAIN_HINTS, Leaf, conform, describe_hint, hint_members, is_number, leaf
 from sb3_eps.eps import EvolutionCallback, eps_env_id_for
-from sb3_eps.eps.population import PopulationTrainer
 from sb3_eps.gdq import GDQ
 from sb3_eps.iql import IQL
 from sb3_eps.qmix import QMIX, VDN
@@ -148,7 +148,6 @@ RUN_PARAMS: dict[str, Any] = {
 }
 CALLBACK_KEY = "callback"
 POLICY_KWARGS_KEY = "policy_kwargs"
-POPULATION_KEY = "population"
 #: Constructor arguments that come from the command line, never from a config.
 COMMAND_LINE_ARGUMENTS = (
     "policy",
@@ -195,15 +194,6 @@ ALGORITHM_PARAMS: dict[str, Any] = params_from_signature(
 ALGORITHM_PARAMS["train_freq"] = int | tuple[int, Literal[tuple(unit.value for unit in TrainFrequencyUnit)]]  # type: ignore[misc]
 #: ``policy_kwargs`` keys of every algorithm, read from the shared policy's signature.
 COMMON_POLICY_PARAMS: dict[str, Any] = params_from_signature(MultiAgentQPolicy.__init__, _POLICY_INTERNALS)
-
-
-#: The ``PopulationTrainer`` settings an entry's ``population`` may set, read from its signature; the run sets the
-#: others (the algorithm, worlds and ``n_envs`` from the entry, seed, records file, verbosity).
-POPULATION_PARAMS: dict[str, Any] = params_from_signature(
-    PopulationTrainer.__init__,
-    ("algorithm_class", "env", "n_envs", "env_kwargs", "log_path", "seed", "verbose"),
-    every=True,
-)
 
 
 # ---------------------------------------------------------------------------------------------- algorithms
@@ -278,6 +268,59 @@ def algorithm_spec(name: str) -> AlgorithmSpec:
     return ALGORITHMS[name]
 
 
+# ---------------------------------------------------------------------------------------------- trainers
+@dataclass(frozen=True)
+class EntryTrainer:
+    """A config key whose runs a trainer of its own trains instead of one model's ``learn`` (a plug-in's:
+    :func:`register_trainer`).
+
+    :param key: the entry key; it holds the trainer's settings (a mapping)
+    :param params: ``{setting: type hint}``: what the key may hold, checked as constructor arguments are
+    :param check: ``check(config, options)``: the run's own checks, before anything is written (raises ``ConfigError``)
+    :param run: ``run(prepared, run_dir, checkpoint_path, extra_callbacks) -> TrainResult``: train the prepared run
+        (:class:`~sb3_eps.zoo.config.PreparedRun`) in its folder; ``checkpoint_path`` continues that checkpoint of
+        the run (``--resume``), None starts it
+    """
+
+    key: str
+    params: dict[str, Any]
+    check: Callable[..., None]
+    run: Callable[..., Any]
+
+
+#: The plug-in trainers by their entry key (:func:`register_trainer`).
+TRAINERS: dict[str, EntryTrainer] = {}
+
+
+def register_trainer(key: str, params: Mapping[str, Any], check: Callable[..., None], run: Callable[..., Any]) -> EntryTrainer:
+    """Make ``key`` an entry key whose runs ``run`` trains (``python -m sb3_eps.train`` and ``--resume``); a module
+    that ``--gym-packages`` imports calls it (a population of learners' ``population``, for one). ``-optimize``
+    refuses such an entry. Arguments: :class:`EntryTrainer`.
+
+    :return: the trainer
+    :raises ValueError: for a bad key, a key of the schema's own or one taken by another trainer
+    """
+    if not isinstance(key, str) or not re.fullmatch(r"[a-z][a-z0-9_]*", key):
+        raise ValueError(f"a trainer's key is lower case letters, digits and _, got {key!r}")
+    if key in (*RUN_PARAMS, *ALGORITHM_PARAMS, POLICY_KWARGS_KEY, CALLBACK_KEY, LADDER_KEY):
+        raise ValueError(f"{key!r} is a key of every entry already; pick another")
+    known = TRAINERS.get(key)
+    if known is not None and (known.check, known.run) != (check, run):
+        raise ValueError(f"entry key {key!r} is taken by the trainer of {known.run.__module__}; pick another")
+    TRAINERS[key] = EntryTrainer(key, dict(params), check, run)
+    return TRAINERS[key]
+
+
+def entry_trainer(entry: Mapping[str, Any]) -> EntryTrainer | None:
+    """:return: the plug-in trainer of a canonical entry, or None when one model's ``learn`` trains it."""
+    return next((trainer for key, trainer in TRAINERS.items() if key in entry), None)
+
+
+def entry_keys(spec: AlgorithmSpec) -> list[str]:
+    """:return: every key an entry of ``spec`` may hold, in schema order."""
+    return [*RUN_PARAMS, *spec.params, POLICY_KWARGS_KEY, CALLBACK_KEY, LADDER_KEY, *TRAINERS]
+
+
 # ---------------------------------------------------------------------------------------------- callbacks
 #: Callbacks a config may name: canonical name -> class. Nothing else is ever built from a config.
 CALLBACKS: dict[str, type[BaseCallback]] = {}
@@ -337,10 +380,13 @@ def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, An
     """
     if not isinstance(entry, Mapping):
         raise ConfigError(f"{where}: an entry must be a mapping of keys to values, got {type(entry).__name__}")
-    keys = [*RUN_PARAMS, *spec.params, POLICY_KWARGS_KEY, CALLBACK_KEY, LADDER_KEY, POPULATION_KEY]
+    keys = entry_keys(spec)
     for key in entry:
         if key not in keys:
-            raise ConfigError(f"{where}: unknown key {key!r}; allowed keys: {allowed(keys)}")
+            raise ConfigError(
+                f"{where}: unknown key {key!r}; allowed keys: {allowed(keys)} (a plug-in's key needs its module: "
+                "--gym-packages MODULE)"
+            )
     result: dict[str, Any] = {}
     for key in keys:
         if key not in entry:
@@ -355,8 +401,8 @@ def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, An
             result[key] = normalize_arguments(value, spec.policy_params, f"{where}: policy_kwargs", NAME_SPELLINGS)
         elif key == LADDER_KEY:
             result[key] = normalize_ladder(value, f"{where}: ladder")
-        elif key == POPULATION_KEY:
-            result[key] = normalize_arguments(value, POPULATION_PARAMS, f"{where}: population")
+        elif key in TRAINERS:
+            result[key] = normalize_arguments(value, TRAINERS[key].params, f"{where}: {key}")
         else:
             hint = RUN_PARAMS[key] if key in RUN_PARAMS else spec.params[key]
             result[key] = normalize_value(value, hint, f"{where}: {key}", key)
@@ -461,8 +507,7 @@ def with_package_defaults(entry: Mapping[str, Any], spec: AlgorithmSpec) -> dict
     defaults = package_defaults(spec)
     merged = {**defaults, **entry}
     merged[POLICY_KWARGS_KEY] = {**defaults[POLICY_KWARGS_KEY], **entry.get(POLICY_KWARGS_KEY, {})}
-    order = [*RUN_PARAMS, *spec.params, POLICY_KWARGS_KEY, CALLBACK_KEY, LADDER_KEY, POPULATION_KEY]
-    return {key: merged[key] for key in order if key in merged}
+    return {key: merged[key] for key in entry_keys(spec) if key in merged}
 
 
 def _constructor_defaults(cls: type) -> dict[str, Any]:

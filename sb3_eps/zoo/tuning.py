@@ -30,10 +30,10 @@ from sb3_eps.zoo.schema import (
     CALLBACK_KEY,
     EVOLUTION_CALLBACK,
     POLICY_KWARGS_KEY,
-    POPULATION_KEY,
     AlgorithmSpec,
     build_callbacks,
     check_complete,
+    entry_trainer,
 )
 
 BEST_PARAMS_NAME = "best_params.yml"
@@ -349,8 +349,9 @@ def tune(options: TrainOptions, tuning: TuningOptions) -> Path:
     config = resolve_config(options.algo, options.env, options.conf_file, hyperparams, options.n_timesteps)
     if "ladder" in config.entry:
         raise ConfigError(f"-optimize tunes on one world; {config.source} has a ladder: tune its last rung's world")
-    if POPULATION_KEY in config.entry:
-        raise ConfigError(f"-optimize tunes one model; {config.source} has a population: tune without it, then add it")
+    trainer = entry_trainer(config.entry)
+    if trainer is not None:
+        raise ConfigError(f"-optimize tunes one model; {config.source} has a {trainer.key}: tune without it, then add it")
     if tuning.eps_only and not config.spec.eps:
         raise ConfigError(f"--eps-only searches the EPS arguments: {options.algo} has none; use eps_{options.algo}")
     if options.eval_freq <= 0:

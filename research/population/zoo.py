@@ -1,18 +1,19 @@
 """The ``population`` key of a config entry: ``k`` learners of the entry's algorithm trained as one run by
-:class:`~sb3_eps.eps.population.PopulationTrainer`, in the run folder of any run.
+:class:`~research.population.trainer.PopulationTrainer`, in the run folder of any run. Importing this module (as
+``--gym-packages research.population`` does) registers the key with the zoo (:func:`sb3_eps.zoo.register_trainer`).
 
 An entry's ``population`` holds the trainer's settings (``k``, ``interval``, ``share_buffer``, ``crossover``,
-``mutation``, ``fitness``...: :data:`~sb3_eps.zoo.schema.POPULATION_PARAMS`); the entry's other keys configure every
+``mutation``, ``fitness``...: :data:`POPULATION_PARAMS`); the entry's other keys configure every
 learner (its hyper-parameters are the learners' constructor arguments, ``n_envs`` the worlds of each learner,
 ``env_kwargs`` their worlds' arguments). ``n_timesteps`` (and ``-n``, ``--eval-freq``, ``--save-freq``) count
 agent-steps of all learners together: the run's world ticks are ``n_timesteps / n_agents``, ``total_ticks`` of
-:meth:`PopulationTrainer.learn <sb3_eps.eps.population.PopulationTrainer.learn>`, each learner getting ``1 / k``.
+:meth:`PopulationTrainer.learn <research.population.trainer.PopulationTrainer.learn>`, each learner getting ``1 / k``.
 Learner ``i`` is seeded ``seed + i`` and its worlds ``seed + i * n_envs``, as the trainer seeds them.
 
 The run folder is that of any run (:mod:`sb3_eps.zoo.run_folder`): the monitor holds every learner's training
 episodes (its ``ticks`` are all learners' together, its ``learner`` column says whose); the evaluations, the best and
 the final model are those of the fittest learner at the time (:attr:`PopulationTrainer.best
-<sb3_eps.eps.population.PopulationTrainer.best>`), a model of the entry's algorithm; ``population_selections.jsonl``
+<research.population.trainer.PopulationTrainer.best>`), a model of the entry's algorithm; ``population_selections.jsonl``
 holds the selection records and ``population.zip`` the whole population at the end (``PopulationTrainer.load``).
 Checkpoints are taken between two turns, where every learner can be restored exactly; ``--resume`` continues one
 to the result of the uninterrupted run.
@@ -33,9 +34,9 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.logger import Logger
 
+from research.population.trainer import PopulationTrainer
 from sb3_eps.common.snapshots import snapshot_dumps
 from sb3_eps.common.vec_env import MultiAgentVecEnv
-from sb3_eps.eps.population import PopulationTrainer
 from sb3_eps.zoo import run_folder
 from sb3_eps.zoo.callbacks import (
     EVAL_SEED_OFFSET,
@@ -56,8 +57,16 @@ from sb3_eps.zoo.cli import TrainOptions, TrainResult
 from sb3_eps.zoo.config import PreparedRun, ResolvedConfig, build_env, close_envs
 from sb3_eps.zoo.errors import ConfigError
 from sb3_eps.zoo.ladder import LADDER_KEY
-from sb3_eps.zoo.schema import CALLBACK_KEY, POPULATION_KEY, algorithm_kwargs
+from sb3_eps.zoo.schema import CALLBACK_KEY, algorithm_kwargs, params_from_signature, register_trainer
 
+POPULATION_KEY = "population"
+#: The ``PopulationTrainer`` settings an entry's ``population`` may set, read from its signature; the run sets the
+#: others (the algorithm, worlds and ``n_envs`` from the entry, seed, records file, verbosity).
+POPULATION_PARAMS: dict[str, Any] = params_from_signature(
+    PopulationTrainer.__init__,
+    ("algorithm_class", "env", "n_envs", "env_kwargs", "log_path", "seed", "verbose"),
+    every=True,
+)
 #: The selection records of a population run (one JSON line per selection, ``PopulationTrainer.history``).
 SELECTIONS_NAME = "population_selections.jsonl"
 #: The whole population at the end of a run (``PopulationTrainer.load``).
@@ -65,7 +74,7 @@ POPULATION_NAME = "population.zip"
 
 
 def population_kwargs(config: ResolvedConfig, device: str = "auto") -> dict[str, Any]:
-    """:return: the :class:`~sb3_eps.eps.population.PopulationTrainer` keyword arguments of a config entry (its
+    """:return: the :class:`~research.population.trainer.PopulationTrainer` keyword arguments of a config entry (its
     ``population`` settings, ``n_envs``, ``env_kwargs`` and the learners' constructor arguments), without the env,
     seed, records file and verbosity that the run gives."""
     entry = config.entry
@@ -356,3 +365,6 @@ def _train(
             flush=True,
         )
     return TrainResult(run_dir, "complete", model.num_timesteps)
+
+
+register_trainer(POPULATION_KEY, POPULATION_PARAMS, check_population_run, run_population)

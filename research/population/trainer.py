@@ -28,11 +28,11 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.utils import FloatSchedule, LinearSchedule
 from stable_baselines3.common.vec_env import VecEnv
 
+from research.population.distillation import q_filtered_distillation
 from sb3_eps.common.ladder import ScheduleHorizon
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.snapshots import rng_states, set_rng_states, snapshot_dumps
 from sb3_eps.eps.callback import VALUE_STREAM
-from sb3_eps.eps.distillation import q_filtered_distillation
 from sb3_eps.eps.mutations import (
     calibrate_scale,
     evolved_parameter_names,
@@ -93,7 +93,7 @@ class PopulationTrainer:
         ``fitness_episodes`` finished training episodes; a learner with fewer since its last change sits a selection out
     :param fitness_episodes: episodes (worlds' episodes) per fitness
     :param crossover: ``"copy"`` (PBT's exploit) or ``"distill"``: the weakest becomes the Q-filtered distillation
-        of the fittest and the second fittest (:func:`~sb3_eps.eps.distillation.q_filtered_distillation`), started
+        of the fittest and the second fittest (:func:`~research.population.distillation.q_filtered_distillation`), started
         from a copy of the fittest
     :param mutation: ``"safe"``: after the copy, a safe mutation (EPS Eq. 6) of the agent network, calibrated to
         change ``target_flip_share`` of its greedy actions on visited states; None: none
