@@ -11,6 +11,7 @@ import os
 import pathlib
 import warnings
 from collections import defaultdict
+from collections.abc import Callable
 from typing import Any, ClassVar, NamedTuple, TypeVar, cast
 
 import numpy as np
@@ -120,7 +121,11 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     ticks_per_step: int = 1  # world ticks per step of the env (its worlds' action_repeat)
     default_agent_target: ClassVar[bool] = True
     uses_global_state: ClassVar[bool] = False  # only state-conditioned mixers (QMIX) read and store it
-    diagnostics_interval: ClassVar[int] = 250  # gradient steps between two diagnostic records under train/
+    #: A probe of the learning, ``diagnostics(model, batch) -> {name: value}``, logged under ``train/`` every
+    #: ``diagnostics_interval`` gradient steps from the batch of that step, before the step (research instrumentation
+    #: plugs in here; never saved with the model). None: none.
+    diagnostics: Callable[[Any, JointReplayBufferSamples], dict[str, float]] | None = None
+    diagnostics_interval: int = 250
     #: The intervals the constructor checks its numbers against (:func:`~sb3_eps.common.utils.check_arguments`).
     argument_ranges: ClassVar[dict[str, str]] = {
         "learning_rate": "(0, inf)", "buffer_size": "[1, inf)", "learning_starts": "[0, inf)",
@@ -494,6 +499,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         for _ in range(gradient_steps):
             batch = self.replay_buffer.sample(batch_size, beta)
             loss, td_errors, info = self._compute_loss(batch)
+            if self.diagnostics is not None and self._n_updates % self.diagnostics_interval == 0:
+                info = {**info, **self.diagnostics(self, batch)}
             self.policy.optimizer.zero_grad()
             loss.backward()
             grad_norm = th.nn.utils.clip_grad_norm_(parameters, self.max_grad_norm)
@@ -558,6 +565,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             "_collector",
             "_last_state",
             "_trained_ahead",
+            "diagnostics",
         ]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:

@@ -208,11 +208,3 @@ def epsilon_greedy(
     explore = np.asarray(draw_uniform(greedy_actions.shape[0]) < epsilon)
     random_actions = draw_integers(0, n_actions, size=greedy_actions.shape[0])
     return np.where(explore, random_actions, greedy_actions), explore
-
-
-def input_gain(head: Callable[..., th.Tensor], inputs: th.Tensor, *args: Any) -> th.Tensor:
-    """``d head(inputs, *args).sum() / d inputs`` without touching any gradient of the head's parameters: the
-    gain of a joint head (GDQ's ``V_G``, QMIX's mixer) with respect to each agent's value, per row."""
-    probe = inputs.detach().clone().requires_grad_(True)
-    with th.enable_grad():
-        return th.autograd.grad(head(probe, *args).sum(), probe)[0]

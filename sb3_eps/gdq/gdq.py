@@ -11,9 +11,9 @@ from stable_baselines3.common.utils import LinearSchedule
 
 from sb3_eps.common.buffers import JointReplayBuffer, JointReplayBufferSamples, TeamRewardMode
 from sb3_eps.common.losses import masked_huber, row_priority, weighted_huber
-from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm, TDTerms
+from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import base_arguments, check_arguments, input_gain, td_target
+from sb3_eps.common.utils import base_arguments, check_arguments, td_target
 from sb3_eps.gdq.policies import DEFAULT_GLOBAL_HEAD, GDQPolicy, MlpPolicy
 
 #: Where ``v`` and ``v'`` (the inputs of ``V_G`` and ``V_G'``) come from (``GDQ(global_values=...)``).
@@ -130,25 +130,6 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         self.global_bootstrap = float(global_bootstrap)
         super().__init__(**base_arguments(MultiAgentOffPolicyAlgorithm.__init__, locals()))
 
-    def _diagnostics(self, inputs: th.Tensor, terms: TDTerms, batch: JointReplayBufferSamples) -> dict[str, float]:
-        """What explains GDQ's learning (docs/results/gdq_target.md): the gain ``g_i = dV_G/dv_i`` of the
-        global head, the greedy action's margin ``A(s, a*) - A(s, a_2nd)``, and the spread of the agents' values."""
-        gain = input_gain(self.policy.global_value_net, inputs)
-        alive = batch.alive.bool()
-        with th.no_grad():
-            obs = batch.observations.reshape(-1, batch.observations.shape[-1])
-            top2 = self.policy.q_net.advantage(obs).topk(2, dim=1).values
-            margin = (top2[:, 0] - top2[:, 1]).reshape(alive.shape)[alive]
-        values = terms.values.detach()[alive]
-        return {
-            "global_gain": float(gain[alive].mean()),
-            "global_gain_sum": float(gain.sum(dim=1).mean()),
-            "action_margin": float(margin.mean()),
-            "action_margin_small": float((margin < 0.01).float().mean()),
-            "agent_value_mean": float(values.mean()),
-            "agent_value_std": float(values.std()),
-        }
-
     def _fixed_team_size(self) -> bool:
         return self.policy_kwargs.get("global_head", DEFAULT_GLOBAL_HEAD) != "pooled"
 
@@ -199,6 +180,4 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
             "global_value_loss": global_loss.item(),
             "global_value_mean": float(global_values.detach().mean()),
         }
-        if self._n_updates % self.diagnostics_interval == 0:
-            logs.update(self._diagnostics(agent_values * batch.alive, terms, batch))
         return agent_loss + global_loss, priorities.cpu().numpy(), logs

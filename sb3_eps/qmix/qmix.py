@@ -13,7 +13,7 @@ from sb3_eps.common.buffers import JointReplayBuffer, JointReplayBufferSamples, 
 from sb3_eps.common.losses import weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import base_arguments, check_arguments, input_gain, td_target
+from sb3_eps.common.utils import base_arguments, check_arguments, td_target
 from sb3_eps.qmix.policies import QMIXPolicy, VDNPolicy, apply_lr_scales
 
 #: QMIX's and VDN's default learning rate: 3e-4 decaying linearly to 0 over the budget (docs/results/qmix_vdn.md).
@@ -106,8 +106,6 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
             "q_total_max": float(q_total_detached.max()),
             "target_mean": float(targets.mean()),
         }
-        if self._n_updates % self.diagnostics_interval == 0:
-            logs.update(self._diagnostics(terms.q_taken * batch.alive, next_q, next_total, batch))
         return loss, priorities.cpu().numpy(), logs
 
     def _team_action_gap(self, batch: JointReplayBufferSamples) -> th.Tensor:
@@ -125,22 +123,6 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
         taken = q_values.gather(1, batch.actions.reshape(-1, 1)).reshape(shape) * batch.alive
         mixer = self.policy.mixer_target
         return mixer(best, batch.states) - mixer(taken, batch.states)
-
-    def _diagnostics(
-        self, agent_qs: th.Tensor, next_q: th.Tensor, next_total: th.Tensor, batch: JointReplayBufferSamples
-    ) -> dict[str, float]:
-        """The mixer's gain ``dQ_tot/dQ_i`` (sum over agents, spread across agents and rows), the agents' Q, and
-        ``zero_input_gap``: ``mixer'(0; s') - mixer'(Q'; s')``, how far the target mixer moves with every agent at 0."""
-        gain = input_gain(self.policy.mixer, agent_qs, batch.states)
-        with th.no_grad():
-            zero_total = self.policy.mixer_target(th.zeros_like(next_q), batch.next_states)
-        return {
-            "mixer_gain_sum": float(gain.sum(dim=1).mean()),
-            "mixer_gain_std": float(gain[batch.alive > 0].std()),
-            "agent_q_mean": float(agent_qs.detach().sum() / batch.alive.sum().clamp(min=1)),
-            "agent_q_max": float(agent_qs.detach().abs().max()),
-            "zero_input_gap": float((zero_total - next_total).mean()),
-        }
 
 
 class VDN(QMIX):
