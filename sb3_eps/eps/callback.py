@@ -51,8 +51,8 @@ class EvolutionCallback(BaseCallback):
     single-agent worlds; pick the best (Eq. 4) and move the agent network (and its target network, if any) toward it
     by Polyak averaging (Eq. 5). When the unmutated copy 0 wins nothing changes. See ``docs/modules/eps.md``.
 
-    Where it was measured (2 to 12 robots and the unseen room, with GDQ and IQL), EPS has not been found to help:
-    ``docs/results/eps.md`` holds every variant in its status table.
+    Where it was measured (2 to 12 robots and the unseen room, with GDQ and IQL), EPS has not been found to help
+    (``docs/modules/eps.md``, "Where EPS was tested, and what it did").
 
     Rounds come only while the tick budget (``max_eps_share``) allows them, the first near 80k training ticks; a
     shorter run plays none and warns once, saying what to change (``docs/modules/eps.md``, "Getting rounds in a short
