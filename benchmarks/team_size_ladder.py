@@ -40,10 +40,10 @@ import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 
 import envs  # noqa: F401
+from research.population import PopulationTrainer
 from sb3_eps import GDQ, IQL, QMIX, VDN, learn_ladder, make_vec_env
 from sb3_eps.common.evaluation import evaluate_team
 from sb3_eps.common.ladder import Rung, rung_at
-from research.population import PopulationTrainer
 from sb3_eps.eps import EvolutionCallback
 from sb3_eps.zoo.exp_manager import load_agent_weights
 

@@ -29,31 +29,37 @@ from pettingzoo import ParallelEnv
 
 @dataclass(frozen=True)
 class EnvSpec:
-    """How one env id is built.
+    """How one env id is built, and what the library needs to know of its world beyond the id.
 
     :param entry_point: ``"module:callable"`` of the constructor
     :param fixed_kwargs: constructor arguments that the id itself fixes (a caller may not change them)
+    :param eps_world: for a multi-agent id, the single-agent id in which EPS evaluates the policies trained on it
+        (``sb3_eps.eps.eps_env_id_for``); None: none
+    :param eps_kwargs: for a single-agent id, the options it takes as EPS's evaluation world when the settings give
+        none (``EPSSettings.eval_env_kwargs=None``)
     """
 
     entry_point: str | Callable[..., Any]
     fixed_kwargs: dict[str, Any] = field(default_factory=dict)
+    eps_world: str | None = None
+    eps_kwargs: dict[str, Any] = field(default_factory=dict)
 
 
+_ROBOTS = "envs.turtlebot3:MultiRobotNavEnv"
+_ROBOT_ALONE = "SingleRobotNav-v0"  # every TurtleBot3 team world's robot, evaluated alone by EPS
 _MULTI_AGENT_SPECS: dict[str, EnvSpec] = {
-    **{
-        f"MultiRobotNav-{n}-v0": EnvSpec("envs.turtlebot3:MultiRobotNavEnv", {"n_robots": n, "scenario": "arena"})
-        for n in (2, 4, 8, 12)
-    },
-    "MultiRobotNavUnseen-4-v0": EnvSpec("envs.turtlebot3:MultiRobotNavEnv", {"n_robots": 4, "scenario": "unseen"}),
+    **{f"MultiRobotNav-{n}-v0": EnvSpec(_ROBOTS, {"n_robots": n, "scenario": "arena"}, _ROBOT_ALONE) for n in (2, 4, 8, 12)},
+    "MultiRobotNavUnseen-4-v0": EnvSpec(_ROBOTS, {"n_robots": 4, "scenario": "unseen"}, _ROBOT_ALONE),
     # The same room, every start and target moved by a seeded offset of up to 0.3 m: 100 episodes, 100 problems.
     "MultiRobotNavUnseen-4-varied-v0": EnvSpec(
-        "envs.turtlebot3:MultiRobotNavEnv",
-        {"n_robots": 4, "scenario": "unseen", "placement_jitter": 0.3},
+        _ROBOTS, {"n_robots": 4, "scenario": "unseen", "placement_jitter": 0.3}, _ROBOT_ALONE
     ),
     # A training world for rooms never seen in training: 12 robots among blocks drawn anew every episode, in the
     # 12-robot arena (6 m, the unseen room's size); docs/results/many_robots.md, "A crowd among random blocks".
-    "MultiRobotNavBlocks-12-v0": EnvSpec("envs.turtlebot3:MultiRobotNavEnv", {"n_robots": 12, "scenario": "blocks"}),
-    "CooperativeNavigation-v0": EnvSpec("envs.mpe.cooperative_navigation:CooperativeNavigationEnv"),
+    "MultiRobotNavBlocks-12-v0": EnvSpec(_ROBOTS, {"n_robots": 12, "scenario": "blocks"}, _ROBOT_ALONE),
+    "CooperativeNavigation-v0": EnvSpec(
+        "envs.mpe.cooperative_navigation:CooperativeNavigationEnv", eps_world="CooperativeNavigationSingle-v0"
+    ),
 }
 
 _DEBUG_SPECS: dict[str, EnvSpec] = {
@@ -61,7 +67,11 @@ _DEBUG_SPECS: dict[str, EnvSpec] = {
 }
 
 _SINGLE_AGENT_SPECS: dict[str, EnvSpec] = {
-    "SingleRobotNav-v0": EnvSpec("envs.turtlebot3:SingleRobotNavEnv"),
+    # As EPS's world by default: the training arena's 4 m room with three robot-sized pillars instead of the thin bars
+    # the training worlds never show, 400 ticks (docs/results/eps_probes.md).
+    "SingleRobotNav-v0": EnvSpec(
+        "envs.turtlebot3:SingleRobotNavEnv", eps_kwargs={"scenario": "eps_pillars", "max_episode_steps": 400}
+    ),
     "CooperativeNavigationSingle-v0": EnvSpec("envs.mpe.cooperative_navigation_single:CooperativeNavigationSingleEnv"),
 }
 
@@ -89,6 +99,8 @@ def register(
     *,
     multi_agent: bool = True,
     fixed_kwargs: dict[str, Any] | None = None,
+    eps_world: str | None = None,
+    eps_kwargs: dict[str, Any] | None = None,
 ) -> None:
     """Register a world of one's own under an env id, for ``make_vec_env``, the configs and the command lines.
 
@@ -100,9 +112,11 @@ def register(
         ``multi_agent``, else a gymnasium env)
     :param multi_agent: whether the id builds a PettingZoo ParallelEnv
     :param fixed_kwargs: constructor arguments the id fixes
+    :param eps_world: a multi-agent id's single-agent world for EPS (:class:`EnvSpec`)
+    :param eps_kwargs: a single-agent id's options as EPS's world (:class:`EnvSpec`)
     :raises ValueError: when the id is taken by another world
     """
-    spec = EnvSpec(entry_point, dict(fixed_kwargs or {}))
+    spec = EnvSpec(entry_point, dict(fixed_kwargs or {}), eps_world, dict(eps_kwargs or {}))
     table = _MULTI_AGENT_SPECS if multi_agent else _SINGLE_AGENT_SPECS
     known = _PARALLEL_SPECS.get(env_id) or _SINGLE_AGENT_SPECS.get(env_id)
     if known is not None and (known != spec or env_id not in table):
@@ -122,6 +136,14 @@ def is_registered(env_id: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+def spec(env_id: str) -> EnvSpec:
+    """:return: the registration of ``env_id`` (an id of ``pettingzoo.register`` alone has an empty one).
+
+    :raises ValueError: when the id is unknown
+    """
+    return _spec(env_id)
 
 
 def is_multi_agent(env_id: str) -> bool:
@@ -224,4 +246,5 @@ __all__ = [
     "make_parallel_env",
     "make_single_env",
     "register",
+    "spec",
 ]

@@ -78,9 +78,9 @@ def render_mode(args: argparse.Namespace) -> str | None:
         return "rgb_array"
     if args.no_render:
         return None
-    from envs.turtlebot3.world import display_available
+    from sb3_eps import worlds
 
-    return "human" if display_available() else "rgb_array"
+    return "human" if worlds.display_available() else "rgb_array"
 
 
 def episode_line(number: int, total: int, episode: dict[str, Any], n_agents: int) -> str:

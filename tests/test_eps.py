@@ -6,7 +6,9 @@ import os
 import signal
 import time
 
+import gymnasium
 import numpy as np
+import pettingzoo
 import pytest
 import torch as th
 from stable_baselines3 import DQN, PPO
@@ -86,6 +88,26 @@ def test_eps_evaluates_in_the_single_agent_world_of_the_training_world(monkeypat
         eps_env_id_for("Nope-v0")
     monkeypatch.setitem(EPS_WORLDS, "Corridor-2-v0", "SingleRobotNav-v0")  # a plug-in names its world
     assert eps_env_id_for("Corridor-2-v0") == "SingleRobotNav-v0"
+
+
+def test_a_registration_names_its_eps_world_and_options(monkeypatch) -> None:
+    """The worlds' knowledge lives in their registrations (envs.EnvSpec's eps_world and eps_kwargs), read by id."""
+    from sb3_eps.eps.settings import default_eval_env_kwargs
+
+    assert envs.spec("MultiRobotNav-8-v0").eps_world == "SingleRobotNav-v0"
+    assert default_eval_env_kwargs("SingleRobotNav-v0") == {"scenario": "eps_pillars", "max_episode_steps": 400}
+    assert default_eval_env_kwargs("CooperativeNavigationSingle-v0") == {}
+    monkeypatch.setattr(envs, "_MULTI_AGENT_SPECS", dict(envs._MULTI_AGENT_SPECS))
+    monkeypatch.setattr(envs, "_SINGLE_AGENT_SPECS", dict(envs._SINGLE_AGENT_SPECS))
+    monkeypatch.setattr(envs, "_PARALLEL_SPECS", dict(envs._PARALLEL_SPECS))
+    try:
+        envs.register("LineWorld-2-v0", "envs.debug:CorridorEnv", fixed_kwargs={"n_agents": 2}, eps_world="LineSolo-v0")
+        envs.register("LineSolo-v0", "envs.debug:CorridorEnv", multi_agent=False, eps_kwargs={"length": 3})
+        assert eps_env_id_for("LineWorld-2-v0") == "LineSolo-v0"
+        assert default_eval_env_kwargs("LineSolo-v0") == {"length": 3}
+    finally:  # out of PettingZoo's and gymnasium's registries again
+        pettingzoo.parallel_registry.pop("LineWorld-2-v0", None)
+        gymnasium.registry.pop("LineSolo-v0", None)
 
 
 def test_sensitivity_equals_a_per_sample_autograd_loop() -> None:

@@ -76,26 +76,26 @@ class EvaluationFailed(WorkerError):
 
 def check_eval_env_id(env_id: str) -> None:
     """Raise ``ValueError`` unless ``env_id`` names an EPS world: a single-agent env or one of our team worlds."""
-    import envs  # registers our ids with gymnasium
+    from sb3_eps import worlds  # registers the project's ids
 
-    if env_id in envs.SINGLE_AGENT_ENV_IDS or env_id in envs.MULTI_AGENT_ENV_IDS:
+    if env_id in worlds.single_agent_ids() or env_id in worlds.multi_agent_ids():
         return
     if env_id not in gymnasium.registry:
         raise ValueError(
-            f"unknown eval_env_id {env_id!r}; use one of {list(envs.SINGLE_AGENT_ENV_IDS)} (single-agent), "
-            f"{list(envs.MULTI_AGENT_ENV_IDS)} (team worlds) or a registered gymnasium id"
+            f"unknown eval_env_id {env_id!r}; use one of {list(worlds.single_agent_ids())} (single-agent), "
+            f"{list(worlds.multi_agent_ids())} (team worlds) or a registered gymnasium id"
         )
 
 
 def make_eval_env(env_id: str, env_kwargs: dict[str, Any] | None = None) -> gymnasium.Env:
     """Build one evaluation env; a multi-agent id gives its world played by a team
     (:class:`~sb3_eps.common.parallel_wrappers.TeamAsGymnasium`)."""
-    import envs
+    from sb3_eps import worlds
 
-    if env_id in envs.SINGLE_AGENT_ENV_IDS:
-        return envs.make_single_env(env_id, **(env_kwargs or {}))
-    if env_id in envs.MULTI_AGENT_ENV_IDS:
-        return TeamAsGymnasium(envs.make_parallel_env(env_id, **(env_kwargs or {})))
+    if env_id in worlds.single_agent_ids():
+        return worlds.make_single_env(env_id, **(env_kwargs or {}))
+    if env_id in worlds.multi_agent_ids():
+        return TeamAsGymnasium(worlds.make_parallel_env(env_id, **(env_kwargs or {})))
     return gymnasium.make(env_id, **(env_kwargs or {}))
 
 

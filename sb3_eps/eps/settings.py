@@ -47,39 +47,40 @@ PAPER_SETTINGS: dict[str, Any] = {
     "rounds_until": None,
     "eval_env_kwargs": {},
 }
-#: The evaluation world's options when ``eval_env_kwargs`` is None, by evaluation env id: the default EPS world
-#: drops the thin bars the training worlds never show and puts three robot-sized pillars in the 4-robot arena's
-#: room, with a 400-tick limit (docs/results/eps_probes.md). Other ids: their own defaults.
-DEFAULT_EVAL_ENV_KWARGS: dict[str, dict[str, Any]] = {
-    "SingleRobotNav-v0": {"scenario": "eps_pillars", "max_episode_steps": 400},
-}
-
-#: The single-agent world EPS evaluates in, by training env id or by its family (the id up to its first "-"). A
-#: plug-in's world adds its own entry (``EPS_WORLDS["LineWorld-2-v0"] = "LineWorldSingle-v0"``).
-EPS_WORLDS: dict[str, str] = {
-    "MultiRobotNav": "SingleRobotNav-v0",
-    "MultiRobotNavUnseen": "SingleRobotNav-v0",
-    "MultiRobotNavBlocks": "SingleRobotNav-v0",
-    "CooperativeNavigation": "CooperativeNavigationSingle-v0",
-}
+#: The single-agent world EPS evaluates in, for a world registered without one (by ``pettingzoo.register`` alone),
+#: by training env id or by its family (the id up to its first "-"): ``EPS_WORLDS["LineWorld-2-v0"] =
+#: "LineWorldSingle-v0"``. A world registered with ``envs.register(..., eps_world=...)`` names its own; the
+#: project's worlds do so in their registrations (``envs/__init__.py``).
+EPS_WORLDS: dict[str, str] = {}
 
 
 def eps_env_id_for(env_id: str) -> str:
-    """The single-agent id in which EPS evaluates the policies trained on ``env_id`` (:data:`EPS_WORLDS`).
+    """The single-agent id in which EPS evaluates the policies trained on ``env_id``: :data:`EPS_WORLDS`, else the
+    ``eps_world`` of its registration.
 
     :param env_id: a registered id; a single-agent id maps to itself
     :raises ValueError: when the id is unknown or EPS has no world for it
     """
-    import envs
+    from sb3_eps import worlds
 
-    if not envs.is_multi_agent(env_id):
+    if not worlds.is_multi_agent(env_id):
         return env_id
-    eps_env_id = EPS_WORLDS.get(env_id) or EPS_WORLDS.get(env_id.split("-")[0])
+    eps_env_id = EPS_WORLDS.get(env_id) or EPS_WORLDS.get(env_id.split("-")[0]) or worlds.eps_world(env_id)
     if eps_env_id is None:
         raise ValueError(
-            f"EPS has no single-agent world for {env_id!r}: pass eval_env_id, or name one in sb3_eps.eps.settings.EPS_WORLDS"
+            f"EPS has no single-agent world for {env_id!r}: pass eval_env_id, or name one (envs.register(..., "
+            "eps_world=...) or sb3_eps.eps.settings.EPS_WORLDS)"
         )
     return eps_env_id
+
+
+def default_eval_env_kwargs(eval_env_id: str) -> dict[str, Any]:
+    """The evaluation world's options when ``eval_env_kwargs`` is None: the ``eps_kwargs`` of its registration
+    (``SingleRobotNav-v0``: the 4-robot arena's room with three robot-sized pillars, 400 ticks); other ids: ``{}``,
+    their own defaults."""
+    from sb3_eps import worlds
+
+    return worlds.eps_kwargs(eval_env_id)
 
 
 @dataclass
@@ -131,7 +132,7 @@ class EPSSettings:
         skipped, the workers restarted)
     :param per_robot: normalise mutant ``i`` by robot ``i % n_agents``'s own sensitivity (paper III-B); needs
         ``mutation="safe"``
-    :param eval_env_kwargs: constructor arguments of the evaluation env; None: :data:`DEFAULT_EVAL_ENV_KWARGS`;
+    :param eval_env_kwargs: constructor arguments of the evaluation env; None: :func:`default_eval_env_kwargs`;
         ``{}``: the env's own defaults (the bars world, paper)
     :param seed: seed of the noise, the buffer sampling and the evaluation episodes; None: from the model's seed
     :param share_experience: write every tick of every evaluation episode into the model's replay buffer
@@ -176,7 +177,7 @@ class EPSSettings:
         if self.frozen_groups is not None:
             self.frozen_groups = list(self.frozen_groups)
         if self.eval_env_kwargs is None:
-            self.eval_env_kwargs = DEFAULT_EVAL_ENV_KWARGS.get(self.eval_env_id, {})
+            self.eval_env_kwargs = default_eval_env_kwargs(self.eval_env_id)
         self.eval_env_kwargs = copy.deepcopy(dict(self.eval_env_kwargs))
 
     @classmethod

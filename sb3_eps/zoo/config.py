@@ -20,7 +20,7 @@ from typing import Any
 import yaml
 from stable_baselines3.common.callbacks import BaseCallback
 
-import envs
+from sb3_eps import worlds
 from sb3_eps.common.ladder import Rung
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.subproc_vec_env import overlap_layout
@@ -134,8 +134,8 @@ def load_config_entries(path: str | Path, algo: str) -> dict[str, dict[str, Any]
         raise ConfigError(f"{path}: the file must map env ids (and 'default') to entries, got {type(data).__name__}")
     entries: dict[str, dict[str, Any]] = {}
     for env_id, entry in data.items():
-        if env_id != DEFAULT_KEY and not (isinstance(env_id, str) and envs.is_registered(env_id)):
-            keys = [DEFAULT_KEY, *envs.ENV_IDS]
+        if env_id != DEFAULT_KEY and not (isinstance(env_id, str) and worlds.is_registered(env_id)):
+            keys = [DEFAULT_KEY, *worlds.env_ids()]
             raise ConfigError(
                 f"{path}: unknown env id {env_id!r}; allowed keys: {allowed(keys)} (or an id that a --gym-packages "
                 "module registers)"
@@ -186,9 +186,9 @@ def resolve_config(
 
 def check_env_id(env_id: str, flag: str = "--env") -> None:
     """:raises ConfigError: when ``env_id`` is not registered (listing the ids)."""
-    if not envs.is_registered(env_id):
+    if not worlds.is_registered(env_id):
         raise ConfigError(
-            f"{flag}: unknown env id {env_id!r}; allowed: {allowed(envs.ENV_IDS)} (or an id that a --gym-packages "
+            f"{flag}: unknown env id {env_id!r}; allowed: {allowed(worlds.env_ids())} (or an id that a --gym-packages "
             "module registers)"
         )
 

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_eps import worlds
 from sb3_eps.common.evaluation import evaluate_team, record_frames
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.utils import describe_space
@@ -174,8 +175,6 @@ def record_gif(
 
     :return: the GIF's path
     """
-    from envs.turtlebot3 import save_gif
-
     env_id = env_id or run.env_id
     kwargs = {**run.env_kwargs, **(env_kwargs or {}), "render_mode": "rgb_array"}
     venv = make_vec_env(env_id, n_envs=1, seed=seed, env_kwargs=kwargs)
@@ -184,4 +183,4 @@ def record_gif(
         frames, _ = record_frames(run.model, venv, n_episodes, max_frames=3_000)
     finally:
         venv.close()
-    return save_gif(frames, path, fps=20)
+    return worlds.save_gif(frames, path, fps=20)

@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any
 
-import envs
+from sb3_eps import worlds
 from sb3_eps.common.ladder import Rung, check_ladder, ladder_timesteps, rung_at, rung_ends
 from sb3_eps.common.vec_env import MultiAgentVecEnv
 from sb3_eps.zoo.errors import ConfigError, allowed
@@ -40,9 +40,9 @@ def normalize_ladder(value: Any, where: str) -> list[dict[str, Any]]:
         if not isinstance(rung, Mapping) or set(rung) != set(_RUNG_KEYS):
             raise ConfigError(f"{here}: a rung is a mapping with exactly the keys {allowed(_RUNG_KEYS)}, got {rung!r}")
         env_id, ticks = rung["env"], rung["ticks"]
-        if not (isinstance(env_id, str) and envs.is_registered(env_id)):
+        if not (isinstance(env_id, str) and worlds.is_registered(env_id)):
             raise ConfigError(
-                f"{here}: unknown env id {env_id!r}; allowed: {allowed(envs.ENV_IDS)} (or an id that a "
+                f"{here}: unknown env id {env_id!r}; allowed: {allowed(worlds.env_ids())} (or an id that a "
                 "--gym-packages module registers)"
             )
         if isinstance(ticks, bool) or not isinstance(ticks, int) or ticks < 1:
