@@ -294,3 +294,14 @@ def test_a_run_on_stacked_scans_is_evaluated_on_worlds_that_stack_them(tmp_path)
     assert room_summary["env_kwargs"] == {"lidar_frames": 2, "max_episode_steps": 20}
     with pytest.raises(ConfigError, match=r"observation_space .*58"):
         evaluate.main(["--run", str(run), "-n", "1", "--env-kwargs", "lidar_frames:1"])
+
+
+def test_learning_curves_put_team_sizes_in_numeric_order() -> None:
+    """Fig. 4's panels read 2, 4, 8, 12 robots, as the paper's, not 12, 2, 4, 8 as text sorts them."""
+    from sb3_eps.zoo.plotting import RunCurve, draw_learning_curves
+
+    curves = [RunCurve(pathlib.Path(f"r{n}"), "gdq", f"MultiRobotNav-{n}-v0", np.arange(3.0), {"r": np.ones(3)})
+              for n in (12, 2, 8, 4)]  # fmt: skip
+    figure = draw_learning_curves(curves, window=1)
+    titles = [axis.get_title() for axis in figure.axes]
+    assert titles == [f"MultiRobotNav-{n}-v0" for n in (2, 4, 8, 12)]

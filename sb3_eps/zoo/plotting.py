@@ -117,7 +117,7 @@ def draw_learning_curves(curves: list[RunCurve], window: int = 100, title: str |
     :param title: prefix of each column's title
     :return: the figure
     """
-    env_ids = sorted({curve.env_id for curve in curves})
+    env_ids = sorted({curve.env_id for curve in curves}, key=natural_key)  # 2, 4, 8, 12 robots, not 12, 2, 4, 8
     keys = [key for key in PANELS if any(key in curve.values for curve in curves)]
     figure = Figure(figsize=(5.5 * len(env_ids), 3.4 * len(keys)))
     axes = figure.subplots(len(keys), len(env_ids), squeeze=False)
@@ -140,6 +140,11 @@ def draw_learning_curves(curves: list[RunCurve], window: int = 100, title: str |
             axis.legend(fontsize="small")
     figure.tight_layout()
     return figure
+
+
+def natural_key(text: str) -> list[Any]:
+    """:return: a sort key that orders the numbers inside ``text`` by value (``"Nav-2-v0"`` before ``"Nav-12-v0"``)."""
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", text)]
 
 
 def plot_learning_curves(curves: list[RunCurve], output: str | Path, window: int = 100, title: str | None = None) -> Path:
