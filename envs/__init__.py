@@ -37,18 +37,32 @@ class EnvSpec:
         (``sb3_eps.eps.eps_env_id_for``); None: none
     :param eps_kwargs: for a single-agent id, the options it takes as EPS's evaluation world when the settings give
         none (``EPSSettings.eval_env_kwargs=None``)
+    :param default_kwargs: constructor arguments that the id sets unless the caller gives others (PettingZoo's registry
+        holds them as the id's kwargs, so records of the id's worlds name them)
     """
 
     entry_point: str | Callable[..., Any]
     fixed_kwargs: dict[str, Any] = field(default_factory=dict)
     eps_world: str | None = None
     eps_kwargs: dict[str, Any] = field(default_factory=dict)
+    default_kwargs: dict[str, Any] = field(default_factory=dict)
 
 
 _ROBOTS = "envs.turtlebot3:MultiRobotNavEnv"
 _ROBOT_ALONE = "SingleRobotNav-v0"  # every TurtleBot3 team world's robot, evaluated alone by EPS
 _MULTI_AGENT_SPECS: dict[str, EnvSpec] = {
-    **{f"MultiRobotNav-{n}-v0": EnvSpec(_ROBOTS, {"n_robots": n, "scenario": "arena"}, _ROBOT_ALONE) for n in (2, 4, 8, 12)},
+    **{
+        f"MultiRobotNav-{n}-v0": EnvSpec(_ROBOTS, {"n_robots": n, "scenario": "arena"}, _ROBOT_ALONE)
+        for n in (2, 4, 8, 12, 24)
+    },
+    # Rooms generated from level seeds (envs/turtlebot3/rooms.py): the training levels unless env_kwargs
+    # {"level_set": "validation"} or {"level_set": "test"} asks for the held-out ones (docs/envs.md, "Generated rooms").
+    **{
+        f"MultiRobotNavRooms-{n}-v0": EnvSpec(
+            _ROBOTS, {"n_robots": n, "scenario": "rooms"}, _ROBOT_ALONE, default_kwargs={"level_set": "train"}
+        )
+        for n in (4, 8, 12, 24)
+    },
     "MultiRobotNavUnseen-4-v0": EnvSpec(_ROBOTS, {"n_robots": 4, "scenario": "unseen"}, _ROBOT_ALONE),
     # The same room, every start and target moved by a seeded offset of up to 0.3 m: 100 episodes, 100 problems.
     "MultiRobotNavUnseen-4-varied-v0": EnvSpec(
@@ -214,7 +228,7 @@ def _build(env_id: str, kwargs: dict[str, Any]) -> Any:
     for name, value in spec.fixed_kwargs.items():
         if name in kwargs and kwargs[name] != value:
             raise ValueError(f"{env_id!r} fixes {name}={value!r}; got {name}={kwargs[name]!r}. Pick another id instead")
-    return _load(spec.entry_point)(**{**kwargs, **spec.fixed_kwargs})
+    return _load(spec.entry_point)(**{**spec.default_kwargs, **kwargs, **spec.fixed_kwargs})
 
 
 def _register_with_gymnasium() -> None:
@@ -227,9 +241,10 @@ def _register_with_gymnasium() -> None:
 def _register_with_pettingzoo() -> None:
     # PettingZoo 1.27's registry (``pettingzoo.register``); it warns when an id is registered twice. The entry point
     # is make_parallel_env, so an id's fixed arguments hold there too.
-    for env_id in _PARALLEL_SPECS:
+    for env_id, spec in _PARALLEL_SPECS.items():
         if env_id not in pettingzoo.parallel_registry:
-            pettingzoo.register("parallel", env_id, entry_point=functools.partial(make_parallel_env, env_id))
+            entry_point = functools.partial(make_parallel_env, env_id)
+            pettingzoo.register("parallel", env_id, entry_point=entry_point, kwargs=dict(spec.default_kwargs))
 
 
 _register_with_gymnasium()

@@ -188,8 +188,8 @@ def test_bad_seed_raises(seed: Any) -> None:
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
-        ({"n_robots": 0}, "allowed 1 to 16"),
-        ({"n_robots": 17}, "allowed 1 to 16"),
+        ({"n_robots": 0}, "allowed 1 to 24"),
+        ({"n_robots": 25}, "allowed 1 to 24"),
         ({"n_robots": 5, "scenario": "unseen"}, "allowed 1 to 4"),
         ({"n_robots": 2.0}, "n_robots must be an int"),
         ({"scenario": "maze"}, "Unknown scenario"),

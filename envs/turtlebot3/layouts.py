@@ -12,6 +12,8 @@ Scenarios (see ``docs/envs.md`` for the pictures):
   pillars standing for the other three robots (no thin bars, which the training worlds never show).
 - ``"blocks"``: the multi-robot arena with rectangular blocks drawn anew at every reset (:func:`sample_blocks`): a
   training option for rooms never seen in training (the unseen room's blocks and corridors), not the paper's world.
+- ``"rooms"``: rooms generated from level seeds (:mod:`envs.turtlebot3.rooms`), a new room at every reset drawn from
+  a training, validation or test set of levels; here only the empty bounds of the largest room a team size gets.
 - ``"unseen"``: the 4-robot evaluation room (paper Fig. 5 analogue): a 6 m room whose four inner blocks
   leave a central cross and a ring corridor; fixed start poses and a fixed sequence of target sets. With a
   placement jitter (:func:`jitter_starts`, :func:`jitter_targets`) every episode moves those poses by a seeded
@@ -32,15 +34,17 @@ TARGET_CLEARANCE = 0.3  # [m] target to any wall/obstacle surface: a robot parke
 TARGET_SPACING = 0.5  # [m] between targets (paper Sec. IV-B)
 TARGET_START_SPACING = 0.5  # [m] target to every robot's start: "not on the initial positions"
 TICKS_PER_METRE = 150  # default time limit per metre of the room's longer side (see default_time_limit)
+ROOM_DETOUR = 1.5  # generated rooms: the time limit's allowance for the detours of inner walls and corridors
 PLACEMENT_JITTER_MAX = 0.5  # [m] largest offset of a fixed start or target (keeps each problem recognisable)
 HEADING_JITTER = np.pi / 6  # [rad] largest turn of a fixed start heading when the placement is jittered
 MIN_START_TARGET = 2.0  # [m] a jittered target to its own robot's start (the fixed sets' shortest is 2.6 m)
-SCENARIOS = ("arena", "blocks", "eps", "eps_pillars", "unseen")
-MAX_ROBOTS = {"arena": 16, "blocks": 12, "eps": 4, "eps_pillars": 4, "unseen": 4}
+SCENARIOS = ("arena", "blocks", "eps", "eps_pillars", "rooms", "unseen")
+MAX_ROBOTS = {"arena": 24, "blocks": 12, "eps": 4, "eps_pillars": 4, "rooms": 24, "unseen": 4}
 BLOCK_HALF_STEP = 0.05  # [m] a block's half extents are whole multiples of this (a bounded set of shapes to build)
 BLOCK_HALF_SIZES = (0.05, 0.6)  # [m] range of a block's half extents, each axis drawn alone: bars to 1.2 m blocks
 BLOCK_GAP = 0.5  # [m] least free gap between two blocks and between a block and a wall (robot diameter 0.21 m)
 BLOCK_AREA = 4.0  # [m^2] of room per block: 4 blocks in the 4-robot arena, 6 with 8 robots, 9 with 12
+ROOM_SCALE = (1.0, 1.3)  # a generated room's sides, each drawn alone, as multiples of the arena's side for its team
 
 
 @dataclass(frozen=True)
@@ -54,6 +58,7 @@ class Layout:
     :param obstacles: boxes ``(m, 4)`` inside the room (inner walls, bars)
     :param starts: fixed start poses ``(n, 3)`` as (x, y, heading), or None for random starts
     :param target_sets: fixed targets ``(s, n, 2)``, one set per episode in sequence, or None for random
+    :param time_limit: the default ``max_episode_steps``, or None for :attr:`default_time_limit`'s rule
     """
 
     name: str
@@ -63,6 +68,7 @@ class Layout:
     obstacles: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     starts: np.ndarray | None = None
     target_sets: np.ndarray | None = None
+    time_limit: int | None = None
 
     @property
     def boxes(self) -> np.ndarray:
@@ -79,8 +85,10 @@ class Layout:
         """Default ``max_episode_steps``: 150 ticks per metre of the longer side.
 
         At 0.21 m/s a tick covers 0.0105 m, so 150 ticks drive 1.58 m per metre of side: more than the
-        room's diagonal (1.41 m per metre of side) plus the turns.
+        room's diagonal (1.41 m per metre of side) plus the turns. A layout may set its own (``time_limit``).
         """
+        if self.time_limit is not None:
+            return self.time_limit
         return round(TICKS_PER_METRE * max(self.width, self.height))
 
 
@@ -219,21 +227,55 @@ def sample_blocks(rng: np.random.Generator, side: float, n_blocks: int | None = 
     """
     if n_blocks is None:
         n_blocks = round(side * side / BLOCK_AREA)
-    half = side / 2.0
-    low, high = (round(size / BLOCK_HALF_STEP) for size in BLOCK_HALF_SIZES)
-    blocks: list[np.ndarray] = []
-    for _ in range(20 * n_blocks):
-        if len(blocks) == n_blocks:
+    return drop_boxes(rng, np.array([side, side]) / 2.0, n_blocks, BLOCK_HALF_SIZES)
+
+
+def drop_boxes(
+    rng: np.random.Generator,
+    half_extent: np.ndarray,
+    n_boxes: int,
+    half_sizes: tuple[float, float],
+    others: np.ndarray | None = None,
+    gap: float = BLOCK_GAP,
+) -> np.ndarray:
+    """Random axis-aligned boxes in the room ``[-half_extent, half_extent]``: each half extent a multiple of
+    :data:`BLOCK_HALF_STEP` in ``half_sizes``, drawn per axis, the centre uniform, at least ``gap`` from the walls,
+    from the boxes already placed and from ``others``; a box that does not fit after ``20 * n_boxes`` draws in all is
+    left out (:func:`sample_blocks` and the generated rooms of :mod:`envs.turtlebot3.rooms`).
+
+    :param rng: the generator
+    :param half_extent: ``(2,)`` half the room's interior size [m]
+    :param n_boxes: how many to place at most
+    :param half_sizes: range of a half extent [m]
+    :param others: boxes ``(m, 4)`` already in the room (not the outer walls) that the new ones keep ``gap`` from
+    :param gap: least free gap [m]
+    :return: boxes ``(k, 4)``, ``k <= n_boxes``
+    """
+    low, high = (round(size / BLOCK_HALF_STEP) for size in half_sizes)
+    n_others = 0 if others is None else len(others)
+    placed = np.empty((n_others + n_boxes, 4))
+    placed[:n_others] = np.zeros((0, 4)) if others is None else others
+    count = n_others
+    for _ in range(20 * n_boxes):
+        if count - n_others == n_boxes:
             break
         extent = rng.integers(low, high + 1, size=2) * BLOCK_HALF_STEP
-        bound = half - BLOCK_GAP - extent
+        bound = half_extent - gap - extent
         if np.any(bound <= 0):
             continue
         centre = rng.uniform(-bound, bound)
         box = np.concatenate([centre, extent])
-        if all(np.any(np.abs(box[:2] - other[:2]) >= box[2:] + other[2:] + BLOCK_GAP) for other in blocks):
-            blocks.append(box)
-    return np.array(blocks).reshape(-1, 4)
+        if keeps_gap(box, placed[:count], gap):
+            placed[count] = box
+            count += 1
+    return placed[n_others:count].copy()
+
+
+def keeps_gap(box: np.ndarray, others: np.ndarray, gap: float) -> bool:
+    """Whether the axis-aligned ``box`` leaves at least ``gap`` of free space to each of the boxes ``others``
+    ``(m, 4)`` (along x or y)."""
+    apart = np.abs(box[:2] - others[:, :2]) >= box[2:] + others[:, 2:] + gap
+    return bool(apart.any(axis=1).all())
 
 
 def blocks_layout(n_robots: int, rng: np.random.Generator | None = None) -> Layout:
@@ -271,7 +313,22 @@ def make_layout(scenario: str, n_robots: int) -> Layout:
         return eps_layout()
     if scenario == "eps_pillars":
         return eps_pillars_layout()
+    if scenario == "rooms":
+        return rooms_bounds(int(n_robots))
     return unseen_layout()
+
+
+def rooms_bounds(n_robots: int) -> Layout:
+    """The largest room :mod:`envs.turtlebot3.rooms` generates for ``n_robots``, empty: every side
+    :data:`ROOM_SCALE` ``[1]`` times the arena's; its time limit (150 ticks per metre of that side, times 1.5 for the
+    detours through doorways and around corridors) is the rooms' default ``max_episode_steps``.
+
+    :param n_robots: number of robots
+    :return: the layout (no obstacles, no fixed poses)
+    """
+    side = round(ROOM_SCALE[1] * arena_side(n_robots), 1)
+    limit = round(ROOM_DETOUR * TICKS_PER_METRE * side)
+    return Layout("rooms", side, side, walls_around(side, side), time_limit=limit)
 
 
 def clearance(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:
@@ -345,15 +402,26 @@ def sample_starts(rng: np.random.Generator, layout: Layout, n_robots: int) -> np
     return np.concatenate([xy, heading[:, None]], axis=1)
 
 
-def sample_targets(rng: np.random.Generator, layout: Layout, starts_xy: np.ndarray) -> np.ndarray:
+def sample_targets(
+    rng: np.random.Generator, layout: Layout, starts_xy: np.ndarray, max_distance: float | None = None
+) -> np.ndarray:
     """Random targets: obstacle-free with clearance, apart from each other and from every start.
 
     :param rng: the env's generator
     :param layout: the room
     :param starts_xy: ``(n, 2)`` start positions of all robots
+    :param max_distance: if given, the whole set is drawn again until every target lies within it of its own robot's
+        start (the observation's distance scale); a room whose diagonal is shorter never draws again, so its targets
+        are those drawn without it
     :return: ``(n, 2)`` targets
     """
-    return _pick_spaced(rng, layout, len(starts_xy), TARGET_CLEARANCE, TARGET_SPACING, starts_xy, TARGET_START_SPACING)
+    for _ in range(100):
+        targets = _pick_spaced(rng, layout, len(starts_xy), TARGET_CLEARANCE, TARGET_SPACING, starts_xy, TARGET_START_SPACING)
+        if max_distance is None or (np.hypot(*(targets - starts_xy).T) <= max_distance).all():
+            return targets
+    raise RuntimeError(
+        f"Could not place targets within {max_distance} m of their robots' starts in the {layout.name!r} layout."
+    )
 
 
 def jitter_starts(rng: np.random.Generator, layout: Layout, starts: np.ndarray, radius: float) -> np.ndarray:

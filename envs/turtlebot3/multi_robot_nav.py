@@ -6,12 +6,14 @@ reward is the paper's Eq. 7. The full reference (constants, layouts, pictures) i
 
 Version history (``metadata["name"]``; bump the suffix on any change of behaviour):
 
-- ``multi_robot_nav_v0``: first version.
+- ``multi_robot_nav_v0``: first version. Later options (``scenario="blocks"``, ``scenario="rooms"``, up to 24 robots in
+  the arena) leave the earlier worlds, their seeds and their physics unchanged, so the suffix stays.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium
@@ -51,6 +53,7 @@ from envs.turtlebot3.robot import (
     TARGET_RADIUS,
     wrap_angle,
 )
+from envs.turtlebot3.rooms import generate_room, select_levels
 from envs.turtlebot3.world import NavWorld
 
 OBS_DIM = N_BEAMS + 2  # 28 ranges, target distance, target heading
@@ -58,6 +61,7 @@ LIDAR_FRAMES_MAX = 4
 LIDAR_RANGE_MIN = 0.5  # [m] exclusive: a shorter view than the robot's own clearance (RAY_START) tells too little
 LIDAR_FRAME_TICKS_MAX = 20
 ACTION_REPEAT_MAX = 10
+MAP_SHAPES_MAX = 100  # "rooms": room meshes a world keeps (about 0.15 MB each with 24 robots) before it starts afresh
 STAND_STILL = 2  # the action (v, w) = (0, 0)
 #: What ``step`` returns: observations, rewards, terminations, truncations and infos, keyed by robot.
 StepResult = tuple[
@@ -98,12 +102,14 @@ class MultiRobotNavEnv(ParallelEnv):
     - infos: per robot ``{"arrived", "collided", "team": {"success", "collision", "n_arrived",
       "team_return", "distance_travelled", "ticks"}}`` (running team values; final at the episode's end).
     - ``reset(options=...)`` places robots deterministically: ``"start_poses"`` ``(n, 3)`` (x, y, heading),
-      ``"targets"`` ``(n, 2)``, and in the unseen world ``"target_set"`` (index into its fixed sequence);
-      other keys are ignored.
+      ``"targets"`` ``(n, 2)``, in the unseen world ``"target_set"`` (index into its fixed sequence), in the rooms
+      ``"level"`` (one of the world's levels, for this episode); other keys are ignored.
 
-    :param n_robots: number of robots (1-16 in ``"arena"``, 1-12 in ``"blocks"``, 1-4 in the ``"eps*"`` worlds and ``"unseen"``)
+    :param n_robots: number of robots (1-24 in ``"arena"`` and ``"rooms"``, 1-12 in ``"blocks"``, 1-4 in the ``"eps*"``
+        worlds and ``"unseen"``)
     :param scenario: ``"arena"`` (walls only, side 3 m + 0.25 m per robot), ``"blocks"`` (the same arena with
-        rectangular blocks drawn anew at every reset, a training option for unseen rooms), ``"eps"`` (the single-robot EPS
+        rectangular blocks drawn anew at every reset, a training option for unseen rooms), ``"rooms"`` (a room
+        generated from a level seed at every reset: :mod:`envs.turtlebot3.rooms`), ``"eps"`` (the single-robot EPS
         world with bars), ``"eps_pillars"`` (the 4 m arena with three robot-sized pillars) or
         ``"unseen"`` (the evaluation room: fixed starts, fixed cycling target sequence)
     :param max_episode_steps: time limit in ticks; None = 150 ticks per metre of the room's side
@@ -131,6 +137,11 @@ class MultiRobotNavEnv(ParallelEnv):
         option beside the paper's world; with ``action_repeat=4`` it is the setting of the 8- and 12-robot GDQ zoo
         entries and of the arena-only models that solve the unseen room (``docs/results/many_robots.md``).
         Collisions and rewards do not depend on it
+    :param level_set: ``"rooms"`` only: the levels every reset draws from, ``"train"`` (the default), ``"validation"``
+        (make every choice there) or ``"test"`` (report there only); a world never plays a level of another set
+    :param levels: ``"rooms"`` only: None (the whole set), a count ``k`` (the set's ``k`` lowest levels) or level ids of
+        the set
+    :param level: ``"rooms"`` only: the one level of the set this world plays (not with ``levels``)
     """
 
     metadata: dict[str, Any] = {
@@ -153,10 +164,17 @@ class MultiRobotNavEnv(ParallelEnv):
         lidar_frame_ticks: int = 5,
         action_repeat: int = 1,
         lidar_range: float = RANGE_MAX,
+        level_set: str | None = None,
+        levels: int | Sequence[int] | None = None,
+        level: int | None = None,
     ) -> None:
         self.layout: Layout = make_layout(scenario, n_robots)
         self.scenario = scenario
         self.n_robots = int(n_robots)
+        self.level_set, self.levels = self._check_levels(level_set, levels, level)
+        self.level: int | None = None  # the level of the current episode ("rooms")
+        # Every room of a "rooms" world is drawn on the canvas of its largest one, so all pictures share one size.
+        self._canvas = self.layout.half_extent if scenario == "rooms" else None
         if max_episode_steps is None:
             max_episode_steps = self.layout.default_time_limit
         if isinstance(max_episode_steps, bool) or not isinstance(max_episode_steps, (int, np.integer)):
@@ -237,6 +255,19 @@ class MultiRobotNavEnv(ParallelEnv):
         world.set_blocks(self.layout.obstacles)
         return world
 
+    def _check_levels(
+        self, level_set: str | None, levels: int | Sequence[int] | None, level: int | None
+    ) -> tuple[str | None, np.ndarray | None]:
+        if self.scenario != "rooms":
+            given = [
+                name for name, value in (("level_set", level_set), ("levels", levels), ("level", level)) if value is not None
+            ]
+            if given:
+                raise ValueError(f"{', '.join(given)}: an option of scenario='rooms' only, not of {self.scenario!r}.")
+            return None, None
+        level_set = "train" if level_set is None else level_set
+        return level_set, select_levels(level_set, levels, level)
+
     def _check_placement_jitter(self, placement_jitter: float) -> float:
         if (
             isinstance(placement_jitter, bool)
@@ -292,7 +323,8 @@ class MultiRobotNavEnv(ParallelEnv):
         """Start an episode: new start poses and targets (random, fixed or from ``options``).
 
         :param seed: re-seeds ``self.np_random`` (and restarts the unseen world's target sequence)
-        :param options: ``"start_poses"`` ``(n, 3)``, ``"targets"`` ``(n, 2)``, ``"target_set"`` (unseen)
+        :param options: ``"start_poses"`` ``(n, 3)``, ``"targets"`` ``(n, 2)``, ``"target_set"`` (unseen), ``"level"``
+            (rooms: one of the world's levels; else the level is drawn from them)
         :return: observations and infos of every robot
         """
         check_seed(seed)
@@ -306,6 +338,15 @@ class MultiRobotNavEnv(ParallelEnv):
         if self.scenario == "blocks":  # new blocks every episode
             self.layout = blocks_layout(self.n_robots, self.np_random)
             self.world.set_blocks(self.layout.obstacles)
+            self._rasteriser = None
+        elif self.scenario == "rooms":  # a level of the world's set every episode: its room, starts and targets
+            self.level = self._draw_level(options)
+            self.layout = generate_room(self.level, self.n_robots).layout
+            if self.world.n_map_shapes < MAP_SHAPES_MAX:
+                self.world.set_map(self.layout)
+            else:  # free the earlier rooms' meshes with their client
+                self.world.close()
+                self.world = self._new_world()
             self._rasteriser = None
         starts = self._start_poses(options)
         self.world.set_poses(starts)
@@ -331,6 +372,17 @@ class MultiRobotNavEnv(ParallelEnv):
         observations = dict(zip(self.agents, obs))
         infos = {agent: {"arrived": False, "collided": False, "team": team} for agent in self.agents}
         return observations, infos
+
+    def _draw_level(self, options: dict[str, Any]) -> int:
+        """The episode's level: ``options["level"]`` if it is one of the world's levels, else one drawn uniformly from
+        them with ``np_random`` (so ``reset(seed=...)`` replays the same levels)."""
+        assert self.levels is not None
+        if "level" in options:
+            chosen = select_levels(str(self.level_set), level=options["level"])[0]
+            if chosen not in self.levels:
+                raise ValueError(f"options['level']={chosen} is not one of this world's {len(self.levels)} levels.")
+            return int(chosen)
+        return int(self.levels[self.np_random.integers(len(self.levels))])
 
     def _start_poses(self, options: dict[str, Any]) -> np.ndarray:
         n = self.n_robots
@@ -362,7 +414,7 @@ class MultiRobotNavEnv(ParallelEnv):
             if self.placement_jitter > 0:
                 return jitter_targets(self.np_random, self.layout, targets, starts_xy, self.placement_jitter)
             return targets
-        return sample_targets(self.np_random, self.layout, starts_xy)
+        return sample_targets(self.np_random, self.layout, starts_xy, DISTANCE_SCALE)
 
     @staticmethod
     def _option_array(options: dict[str, Any], key: str, shape: tuple[int, int]) -> np.ndarray:
@@ -541,7 +593,7 @@ class MultiRobotNavEnv(ParallelEnv):
 
     def _team_info(self) -> dict[str, Any]:
         n_arrived = int(self._arrived.sum())
-        return {
+        team = {
             "success": n_arrived == self.n_robots,
             "collision": self._collision,
             "n_arrived": n_arrived,
@@ -549,6 +601,9 @@ class MultiRobotNavEnv(ParallelEnv):
             "distance_travelled": self._distance_travelled,
             "ticks": self._ticks,
         }
+        if self.scenario == "rooms":
+            team["level"] = self.level
+        return team
 
     def state(self) -> np.ndarray:
         """Global state for centralised critics: 9 floats per robot (see the class docstring).
@@ -586,7 +641,7 @@ class MultiRobotNavEnv(ParallelEnv):
             self._last_render_time = time.perf_counter()
             return None
         if self._rasteriser is None:
-            self._rasteriser = Rasteriser(self.layout)
+            self._rasteriser = Rasteriser(self.layout, half_extent=self._canvas)
         beams = self._beams() if self.render_lidar else None
         parked = self._arrived & ~self._live
         return self._rasteriser.draw(self.world.xy, self.world.theta, self._targets, parked, beams)

@@ -18,6 +18,7 @@ from envs.turtlebot3.robot import ROBOT_RADIUS, TARGET_RADIUS
 from envs.turtlebot3.world import MAP_COLOUR, ROBOT_COLOURS
 
 FLOOR_COLOUR = (245, 245, 240)
+OUTSIDE_COLOUR = (255, 255, 255)  # the canvas beyond a room smaller than the picture
 GRID_COLOUR = (215, 215, 210)  # one line per metre
 OUTLINE_COLOUR = (20, 20, 20)
 MARGIN = 0.05  # [m] of floor drawn beyond the outer walls
@@ -28,10 +29,14 @@ class Rasteriser:
 
     :param layout: the room
     :param max_side_px: size in pixels of the picture's longer side
+    :param half_extent: the interior half size the picture covers, at least the room's (a world whose rooms change
+        draws them all on the canvas of its largest); None: the room's own
     """
 
-    def __init__(self, layout: Layout, max_side_px: int = 480) -> None:
-        self.extent = layout.half_extent + WALL_THICKNESS + MARGIN
+    def __init__(self, layout: Layout, max_side_px: int = 480, half_extent: np.ndarray | None = None) -> None:
+        canvas = layout.half_extent if half_extent is None else np.maximum(half_extent, layout.half_extent)
+        self.extent = canvas + WALL_THICKNESS + MARGIN
+        self._smaller_room = bool(np.any(canvas > layout.half_extent))
         self.scale = max_side_px / (2.0 * self.extent.max())  # pixels per metre
         self.width = round(2.0 * self.extent[0] * self.scale)
         self.height = round(2.0 * self.extent[1] * self.scale)
@@ -53,6 +58,11 @@ class Rasteriser:
                 image[:, int(col)] = GRID_COLOUR
             if 0 <= row < self.height:
                 image[int(row), :] = GRID_COLOUR
+        if self._smaller_room:  # nothing beyond the outer walls
+            corners = np.array([[-1.0, 1.0], [1.0, -1.0]]) * (layout.half_extent + WALL_THICKNESS)
+            (c0, r0), (c1, r1) = np.round(self.to_pixels(corners)).astype(int)
+            image[:, :c0] = image[:, c1:] = OUTSIDE_COLOUR
+            image[:r0] = image[r1:] = OUTSIDE_COLOUR
         for cx, cy, hx, hy in layout.boxes:
             (c0, r0), (c1, r1) = self.to_pixels(np.array([[cx - hx, cy + hy], [cx + hx, cy - hy]]))
             image[max(round(r0), 0) : round(r1), max(round(c0), 0) : round(c1)] = MAP_COLOUR

@@ -149,9 +149,8 @@ class NavWorld:
             p.configureDebugVisualizer(p.COV_ENABLE_GUI, 0, physicsClientId=cid)
             extent = max(layout.width, layout.height)
             p.resetDebugVisualizerCamera(extent * 1.1, 0.0, -89.9, [0.0, 0.0, 0.0], physicsClientId=cid)
-        vertices, indices = box_mesh(layout.boxes, WALL_HEIGHT)
-        mesh = p.createCollisionShape(p.GEOM_MESH, vertices=vertices.tolist(), indices=indices.tolist(), physicsClientId=cid)
-        self.map_id = p.createMultiBody(0.0, mesh, -1, [0.0, 0.0, 0.0], physicsClientId=cid)
+        self._map_shapes: dict[bytes, int] = {}  # mesh shapes of set_map by their boxes: kept, as for set_blocks
+        self.map_id = self._map_body(layout)
         self._block_ids: list[int] = []  # bodies of set_blocks, beside the map
         self._block_shapes: dict[tuple[int, int], int] = {}  # their collision shapes by half extents in 5 mm
         self._map_visual_ids: list[int] = []
@@ -174,6 +173,36 @@ class NavWorld:
         self.xy = np.zeros((n_robots, 2))
         self.theta = np.zeros(n_robots)
         self._rays = np.full((2, n_robots, N_BEAMS, 3), LIDAR_HEIGHT)
+
+    def _map_body(self, layout: Layout) -> int:
+        """The static body of the room's walls and obstacles, one triangle mesh; the mesh shape of the same boxes is
+        built once per world and kept (PyBullet frees no shape that a body has used)."""
+        cid = self.client
+        key = np.asarray(layout.boxes, dtype=float).tobytes()
+        if key not in self._map_shapes:
+            vertices, indices = box_mesh(layout.boxes, WALL_HEIGHT)
+            self._map_shapes[key] = p.createCollisionShape(
+                p.GEOM_MESH, vertices=vertices.tolist(), indices=indices.tolist(), physicsClientId=cid
+            )
+        return p.createMultiBody(0.0, self._map_shapes[key], -1, [0.0, 0.0, 0.0], physicsClientId=cid)
+
+    @property
+    def n_map_shapes(self) -> int:
+        """How many map meshes this world holds: one per room it has shown (:meth:`set_map`); PyBullet frees a used
+        shape only with its client, so a world that shows many rooms is replaced now and then (``"rooms"``)."""
+        return len(self._map_shapes)
+
+    def set_map(self, layout: Layout) -> None:
+        """Replace the map by the walls and obstacles of ``layout``, one mesh as at construction (a scenario whose room
+        changes between episodes: ``"rooms"``; a mesh casts rays faster than bodies of its boxes). The robots stay.
+
+        :param layout: the new room
+        """
+        p.removeBody(self.map_id, physicsClientId=self.client)
+        self.layout = layout
+        self.map_id = self._map_body(layout)
+        if self.gui:
+            self._add_map_visuals()
 
     def set_blocks(self, blocks: np.ndarray) -> None:
         """Put ``blocks`` (boxes ``(k, 4)``, half extents whole multiples of 5 mm) in the room as static bodies beside
