@@ -15,6 +15,10 @@ divides by mpe2's throughput through the same path. Results: ``docs/benchmarks.m
 Usage::
 
     python benchmarks/env_throughput.py [--seconds 3] [--bridge auto|sb3_eps|supersuit] [--robots 2 4 8 12]
+        [--rooms 4 12 24]
+
+``--robots`` measures the open arenas ``MultiRobotNav-{n}-v0`` (n = 2, 4, 8, 12, 24), ``--rooms`` the generated rooms
+``MultiRobotNavRooms-{n}-v0`` (n = 4, 8, 12, 24; training levels, a new room at every reset).
 """
 
 from __future__ import annotations
@@ -89,9 +93,9 @@ class KeepAllAgents(ParallelEnv):
         self.env.close()
 
 
-def padded_robots(n_robots: int) -> ParallelEnv:
-    """An n-robot arena wrapped for plain SuperSuit."""
-    return KeepAllAgents(MultiRobotNavEnv(n_robots=n_robots))
+def padded_robots(n_robots: int, scenario: str = "arena") -> ParallelEnv:
+    """An n-robot world (the arena, or ``scenario``) wrapped for plain SuperSuit."""
+    return KeepAllAgents(MultiRobotNavEnv(n_robots=n_robots, scenario=scenario))
 
 
 def mpe_env() -> ParallelEnv:
@@ -181,7 +185,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=float, default=3.0, help="measuring time per env and path")
     parser.add_argument("--bridge", choices=["auto", "sb3_eps", "supersuit"], default="auto")
-    parser.add_argument("--robots", type=int, nargs="+", default=[2, 4, 8, 12])
+    parser.add_argument("--robots", type=int, nargs="+", default=[2, 4, 8, 12], help="arenas: MultiRobotNav-{n}-v0")
+    parser.add_argument("--rooms", type=int, nargs="*", default=[], help="generated rooms: MultiRobotNavRooms-{n}-v0")
     parser.add_argument(
         "--clock",
         choices=list(CLOCKS),
@@ -209,14 +214,15 @@ def main() -> None:
     print(header)
     print("-" * len(header))
     print(f"{'mpe2 simple_spread_v3':<28}{3:>7}{mpe_raw:>13,.0f}{mpe_vec:>13,.0f}{1.0:>11.2f}{1.0:>11.2f}")
-    for n in args.robots:
-        env = MultiRobotNavEnv(n_robots=n)
+    worlds = [(f"MultiRobotNav-{n}-v0", n, "arena") for n in args.robots]
+    worlds += [(f"MultiRobotNavRooms-{n}-v0", n, "rooms") for n in args.rooms]
+    for name, n, scenario in worlds:
+        env = MultiRobotNavEnv(n_robots=n, scenario=scenario)
         raw = time_raw(env, args.seconds, clock)
         env.close()
-        venv = vec_of(f"MultiRobotNav-{n}-v0", partial(padded_robots, n))
+        venv = vec_of(name, partial(padded_robots, n, scenario))
         vec = time_vec(venv, n, args.seconds, clock)
         venv.close()
-        name = f"MultiRobotNav-{n}-v0"
         print(f"{name:<28}{n:>7}{raw:>13,.0f}{vec:>13,.0f}{raw / mpe_raw:>11.2f}{vec / mpe_vec:>11.2f}")
 
 

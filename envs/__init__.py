@@ -55,13 +55,18 @@ _MULTI_AGENT_SPECS: dict[str, EnvSpec] = {
         f"MultiRobotNav-{n}-v0": EnvSpec(_ROBOTS, {"n_robots": n, "scenario": "arena"}, _ROBOT_ALONE)
         for n in (2, 4, 8, 12, 24)
     },
-    # Rooms generated from level seeds (envs/turtlebot3/rooms.py): the training levels unless env_kwargs
-    # {"level_set": "validation"} or {"level_set": "test"} asks for the held-out ones (docs/envs.md, "Generated rooms").
+    # Rooms generated from level seeds (envs/turtlebot3/rooms.py), one id per team size and level set: the plain id plays
+    # the training levels unless env_kwargs {"level_set": ...} says otherwise, the -validation and -test ids fix their
+    # set (an --eval-env of the command lines); docs/envs.md, "Generated rooms and their split".
     **{
-        f"MultiRobotNavRooms-{n}-v0": EnvSpec(
-            _ROBOTS, {"n_robots": n, "scenario": "rooms"}, _ROBOT_ALONE, default_kwargs={"level_set": "train"}
+        f"MultiRobotNavRooms-{n}{suffix}-v0": EnvSpec(
+            _ROBOTS,
+            {"n_robots": n, "scenario": "rooms", **({"level_set": level_set} if suffix else {})},
+            _ROBOT_ALONE,
+            default_kwargs={"level_set": level_set},
         )
         for n in (4, 8, 12, 24)
+        for suffix, level_set in (("", "train"), ("-validation", "validation"), ("-test", "test"))
     },
     "MultiRobotNavUnseen-4-v0": EnvSpec(_ROBOTS, {"n_robots": 4, "scenario": "unseen"}, _ROBOT_ALONE),
     # The same room, every start and target moved by a seeded offset of up to 0.3 m: 100 episodes, 100 problems.

@@ -43,7 +43,7 @@ from envs.turtlebot3.rooms import (
 )
 from sb3_eps import evaluate_team
 
-ROOM_IDS = [f"MultiRobotNavRooms-{n}-v0" for n in (4, 8, 12, 24)]
+ROOM_IDS = [f"MultiRobotNavRooms-{n}{suffix}-v0" for n in (4, 8, 12, 24) for suffix in ("", "-validation", "-test")]
 
 
 class RandomPolicy:
@@ -299,7 +299,16 @@ def test_the_ids_default_to_training_levels_and_records_name_the_level_set() -> 
     test_env = envs.make_parallel_env("MultiRobotNavRooms-8-v0", level_set="test")
     assert test_env.level_set == "test"
     test_env.close()
+    for level_set in ("validation", "test"):  # these ids fix their set
+        env = envs.make_parallel_env(f"MultiRobotNavRooms-8-{level_set}-v0")
+        assert env.level_set == level_set
+        env.close()
+        with pytest.raises(ValueError, match=f"fixes level_set='{level_set}'"):
+            envs.make_parallel_env(f"MultiRobotNavRooms-8-{level_set}-v0", level_set="train")
     summary = evaluate_team(RandomPolicy(), "MultiRobotNavRooms-4-v0", 2, n_envs=1, env_kwargs={"level_set": "validation"})
     assert summary["level_set"] == "validation" and summary["env_id"] == "MultiRobotNavRooms-4-v0"
     assert all(level_set_of(episode["level"]) == "validation" for episode in summary["episodes"])
     assert evaluate_team(RandomPolicy(), "MultiRobotNavRooms-4-v0", 1, n_envs=1)["level_set"] == "train"
+    summary = evaluate_team(RandomPolicy(), "MultiRobotNavRooms-4-test-v0", 2, n_envs=1)
+    assert summary["level_set"] == "test" and summary["env_kwargs"] == {}
+    assert all(level_set_of(episode["level"]) == "test" for episode in summary["episodes"])
