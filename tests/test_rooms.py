@@ -162,6 +162,10 @@ def test_a_seed_replays_its_levels_and_a_pickled_or_rebuilt_world_sees_the_same(
     fresh = MultiRobotNavEnv(8, scenario="rooms", level=first.level)
     fresh.reset()
     np.testing.assert_array_equal(fresh.world.scan(np.arange(8)), first.world.scan(np.arange(8)))
+    fresh.world.gui = True  # the GUI's boxes of a new room, built in DIRECT mode (no display needed)
+    fresh.world.set_map(generate_room(int(levels_of("train")[0]), 8).layout)
+    assert len(fresh.world._map_visual_ids) == len(fresh.world.layout.boxes)
+    fresh.world.gui = False
     for _ in range(10):
         first.step(dict.fromkeys(first.agents, 17))
     copy = pickle.loads(pickle.dumps(first))

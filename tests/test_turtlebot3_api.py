@@ -308,7 +308,13 @@ def test_pictures_script(tmp_path: Any) -> None:
     from envs.turtlebot3 import pictures
 
     written = pictures.run(tmp_path, n_forward_ticks=2)
-    assert [path.name for path in written] == ["multi_robot_4.png", "single_robot.png", "unseen_4.png", "blocks_4.png"]
+    assert [path.name for path in written] == [
+        "multi_robot_4.png",
+        "single_robot.png",
+        "unseen_4.png",
+        "blocks_4.png",
+        "rooms.png",
+    ]
     assert all(path.stat().st_size > 1000 for path in written)
 
 
