@@ -15,13 +15,12 @@ Run it from the repository root: ``python examples/main_job.py`` (``make run``).
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
+from sb3_eps.eps.round_log import DIAGNOSTICS_NAME, read_round_log
 from sb3_eps.zoo.cli import OneLineArgumentParser, TrainOptions, positive_int
 from sb3_eps.zoo.errors import run_command
 from sb3_eps.zoo.evaluation import evaluate_run, format_summary, load_run, record_gif, save_summary
@@ -47,9 +46,7 @@ REFERENCE_LABEL = "GDQ, 8-robot entry, seeds 0-4"
 
 def eps_summary(run_dir: Path, training_ticks: int) -> str:
     """:return: one line on what EPS did in the run: rounds, crossovers, EPS ticks against the training ticks."""
-    rounds: list[dict[str, Any]] = []
-    for path in sorted(run_dir.rglob("eps_rounds.jsonl")):
-        rounds += [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    rounds = [record for path in sorted(run_dir.rglob(DIAGNOSTICS_NAME)) for record in read_round_log(path)]
     played = [record for record in rounds if not record.get("skipped")]
     if not played:
         return "EPS played no round in this run."

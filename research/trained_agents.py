@@ -26,7 +26,7 @@ import yaml
 
 from sb3_eps.zoo import run_folder
 from sb3_eps.zoo.evaluation import evaluate_run, run_env_kwargs
-from sb3_eps.zoo.pretrained import CARD_PAGE_NAME, TRAINED_AGENTS, ModelCard, _cards, pretrained_run, sha256_of
+from sb3_eps.zoo.pretrained import CARD_PAGE_NAME, TRAINED_AGENTS, ModelCard, cards, pretrained_run, sha256_of
 
 CARD_SEED = 1000
 #: A card's figures come from 500 greedy team episodes: a 100-episode figure has a standard error near 3 points at
@@ -78,8 +78,8 @@ def ship(
 def measure(card: ModelCard, n_episodes: int, seed: int) -> dict[str, dict[str, Any]]:
     """:return: env id -> greedy evaluation of the card's model in every world it serves."""
     figures = {}
+    run = pretrained_run(card.algo, card.env_id)
     for env_id in card.serves:
-        run = pretrained_run(card.algo, env_id)
         start = time.perf_counter()
         summary = evaluate_run(run, env_id, n_episodes, n_envs=4, seed=seed)
         figure = {key: round(float(summary[key]), 4) for key in KEYS if key in summary}
@@ -166,7 +166,7 @@ def results_page(root: Path = TRAINED_AGENTS, reproduction: Path = REPRODUCTION)
         "| model | world | card: success / collisions / team return (episodes) | reproduction, another seed: success / team return (100 episodes) | difference | within 5 points |",
         "|---|---|---|---|---|---|",
     ]
-    for card in _cards(root):
+    for card in cards(root):
         for env_id, figure in card.figures.items():
             row = rows.get((card.algo, env_id))
             card_success = 100 * figure["success_rate"]
@@ -211,9 +211,9 @@ def main(argv: list[str] | None = None) -> int:
         card = ship(args.run, args.commit, args.serves, args.notes, args.command)
         print(f"shipped {card.folder}")
         return 0
-    cards = [card for card in _cards(TRAINED_AGENTS) if args.only is None or card.env_id in args.only]
+    chosen = [card for card in cards(TRAINED_AGENTS) if args.only is None or card.env_id in args.only]
     report = []
-    for card in cards:
+    for card in chosen:
         figures = measure(card, args.n_episodes, args.seed)
         if args.command == "evaluate":
             card.figures = figures

@@ -23,6 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from sb3_eps import worlds
+from sb3_eps.common.vec_env import make_vec_env
 from sb3_eps.zoo.cli import OneLineArgumentParser, add_gym_packages_flag, check_device, import_gym_packages
 from sb3_eps.zoo.config import check_env_id
 from sb3_eps.zoo.errors import ConfigError, run_command
@@ -78,8 +80,6 @@ def render_mode(args: argparse.Namespace) -> str | None:
         return "rgb_array"
     if args.no_render:
         return None
-    from sb3_eps import worlds
-
     return "human" if worlds.display_available() else "rgb_array"
 
 
@@ -97,28 +97,27 @@ def episode_line(number: int, total: int, episode: dict[str, Any], n_agents: int
 
 
 def write_video(frames: list[np.ndarray], path: str, fps: float) -> Path:
-    """Write the frames as a GIF or (``.mp4``) a video. :return: the path"""
+    """Write the frames as a GIF (the worlds' writer) or, for ``.mp4``, a video. :return: the path"""
+    target = Path(path)
+    if target.suffix.lower() != ".mp4":
+        return worlds.save_gif(frames, target, fps)
     import imageio.v2 as imageio
 
-    target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
-    frames = [np.asarray(frame, dtype=np.uint8) for frame in frames]
-    if target.suffix.lower() == ".mp4":
-        try:
-            imageio.mimsave(target, frames, fps=fps, macro_block_size=1)
-        except (ImportError, ValueError, RuntimeError) as error:
-            raise ConfigError(f"--mp4 needs imageio-ffmpeg (pip install imageio-ffmpeg): {error}") from None
-    else:
-        imageio.mimsave(target, frames, duration=1000.0 / fps, loop=0)
+    try:
+        imageio.mimsave(target, [np.asarray(frame, dtype=np.uint8) for frame in frames], fps=fps, macro_block_size=1)
+    except (ImportError, ValueError, RuntimeError) as error:
+        raise ConfigError(f"--mp4 needs imageio-ffmpeg (pip install imageio-ffmpeg): {error}") from None
     return target
 
 
 def play(
     run: LoadedRun, env_id: str, n_episodes: int, mode: str | None, seed: int, env_kwargs: dict[str, Any]
-) -> tuple[list[dict[str, Any]], list[np.ndarray]]:
-    """Play greedy team episodes in one world, printing a line per episode. :return: the episodes and the frames"""
-    from sb3_eps.common.vec_env import make_vec_env
+) -> tuple[list[dict[str, Any]], list[np.ndarray], int]:
+    """Play greedy team episodes in one world, printing a line per episode.
 
+    :return: the episodes, the frames (one per decision) and the world ticks a decision is held
+    """
     kwargs = {**run.env_kwargs, **env_kwargs}
     if mode is not None:
         kwargs["render_mode"] = mode
@@ -144,9 +143,10 @@ def play(
             if "episode" in infos[0]:
                 episodes.append(dict(infos[0]["episode"]))
                 print(episode_line(len(episodes), n_episodes, episodes[-1], venv.n_agents), flush=True)
+        ticks_per_frame = venv.ticks_per_step
     finally:
         venv.close()
-    return episodes, frames
+    return episodes, frames, ticks_per_frame
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -169,7 +169,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"No display: recording to {record} (--no-render plays without pictures)")
     options = {**run.env_kwargs, **env_kwargs}
     print(f"{run.algo} from {run.model_path} on {env_id}" + (f" with {options}" if options else ""), flush=True)
-    episodes, frames = play(run, env_id, args.n_episodes, mode, args.seed, env_kwargs)
+    episodes, frames, ticks_per_frame = play(run, env_id, args.n_episodes, mode, args.seed, env_kwargs)
     successes = [bool(episode.get("success", False)) for episode in episodes]
     collisions = [bool(episode.get("collision", False)) for episode in episodes]
     print(
@@ -177,7 +177,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"collisions in {sum(collisions)} ({100 * np.mean(collisions):.0f} %)"
     )
     if record and frames:
-        ticks_per_frame = int(options.get("action_repeat", 1))
         fps = args.speed * 20.0 / ticks_per_frame  # the worlds tick at 20 Hz; a frame per decision
         try:
             path = write_video(frames, str(record), fps)

@@ -65,7 +65,7 @@ def make_parallel_env(env_id: str, **kwargs: Any) -> ParallelEnv:
     return envs.make_parallel_env(env_id, **kwargs)
 
 
-def save_gif(frames: list[np.ndarray], path: str | Path, fps: int = 20) -> Path:
+def save_gif(frames: list[np.ndarray], path: str | Path, fps: float = 20) -> Path:
     """Write ``rgb_array`` frames to an animated GIF that loops forever (the worlds' writer). :return: the path."""
     from envs.turtlebot3 import save_gif as write
 

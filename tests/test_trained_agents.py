@@ -14,10 +14,10 @@ import sb3_eps
 from sb3_eps import enjoy
 from sb3_eps.zoo.errors import ConfigError
 from sb3_eps.zoo.evaluation import evaluate_run
-from sb3_eps.zoo.pretrained import TRAINED_AGENTS, _cards, available, model_card, pretrained_run
+from sb3_eps.zoo.pretrained import TRAINED_AGENTS, available, cards, model_card, pretrained_run
 
 ROOT = Path(__file__).resolve().parents[1]
-CARDS = _cards(TRAINED_AGENTS)
+CARDS = cards(TRAINED_AGENTS)
 #: Episodes per model in the regression check, the points a model may fall below its card's 100-episode figure, and
 #: the evaluation seed (neither the card's nor the reproduction's).
 EPISODES, ALLOWED_FALL, SEED = 20, 10.0, 3000
@@ -94,7 +94,7 @@ def test_enjoy_plays_a_run_folder_and_refuses_a_world_of_another_kind(tmp_path) 
         enjoy.main(["-f", str(tmp_path), "--no-render"])
 
 
-def test_the_trained_teams_page_is_what_the_cards_render() -> None:
+def test_the_trained_teams_page_is_what_thecards_render() -> None:
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("trained_agents", ROOT / "research" / "trained_agents.py")

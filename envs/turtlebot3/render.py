@@ -151,7 +151,7 @@ class Rasteriser:
         return image
 
 
-def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: int = 20) -> Path:
+def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: float = 20) -> Path:
     """Write ``rgb_array`` frames to an animated GIF that loops forever.
 
     :param frames: ``(H, W, 3)`` uint8 pictures, all of one size

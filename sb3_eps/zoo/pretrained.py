@@ -85,14 +85,15 @@ class ModelCard:
             raise ConfigError(f"{path}: not a model card ({error})") from None
 
 
-def _cards(root: Path) -> list[ModelCard]:
+def cards(root: Path = TRAINED_AGENTS) -> list[ModelCard]:
+    """:return: the card of every shipped model, in the order of their folders."""
     return [ModelCard.read(path.parent) for path in sorted(root.glob(f"*/*/{CARD_NAME}"))]
 
 
 def available(root: Path = TRAINED_AGENTS) -> dict[tuple[str, str], ModelCard]:
     """:return: (algo, env id) -> the card of the shipped model for it, for every env id a card serves."""
     found: dict[tuple[str, str], ModelCard] = {}
-    for card in _cards(root):
+    for card in cards(root):
         for env_id in card.serves:
             found.setdefault((card.algo, env_id), card)
     return found
@@ -130,9 +131,7 @@ def pretrained_run(algo: str, env_id: str, device: str = "auto", root: Path = TR
         raise ConfigError(f"{card.model_path} is missing: reinstall sb3-eps")
     if sha256_of(card.model_path) != card.sha256:
         raise ConfigError(f"{card.model_path} differs from its model card (SHA-256): reinstall sb3-eps")
-    run = load_run(card.folder, "final", device)
-    run.env_kwargs = dict(card.env_kwargs)
-    return run
+    return load_run(card.folder, "final", device)  # with its world options, from its config.yml as the card's
 
 
 def load_pretrained(algo: str, env_id: str, device: str = "auto") -> Any:
