@@ -127,6 +127,7 @@ PAGE_TEXT = """
 
 - Each model is seed 0 of the setting its card names, trained from a frozen copy of the code (the commit on its
   card); nothing was trained twice or picked among seeds.
+- Training curves of the shipped models (monitor, greedy evaluations during training): `trained_agents/runs/`.
 - Card figures: `python research/trained_agents.py evaluate`: 500 greedy team episodes in every world the model
   serves, 4 evaluation worlds, evaluation seed 1000, the card's world options.
 - Reproduction: `python research/trained_agents.py reproduce -o {reproduction}`: 100 greedy team episodes with
