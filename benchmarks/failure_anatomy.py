@@ -284,6 +284,12 @@ def main() -> None:
     parser.add_argument("--algo", choices=sorted(ALGORITHMS), default="gdq")
     parser.add_argument("--model", help="a model saved by learning_check.py --save-models")
     parser.add_argument("--env", default="MultiRobotNav-4-v0")
+    parser.add_argument(
+        "--env-kwargs",
+        type=json.loads,
+        default={},
+        help='world options as JSON, the model\'s own (e.g. \'{"action_repeat": 4, "lidar_range": 1.0}\')',
+    )
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--seed", type=int, default=20_000, help="episode k is reset with seed + k")
     parser.add_argument("--window", type=int, default=200, help="ticks read before a time-out")
@@ -311,7 +317,7 @@ def main() -> None:
     if not args.env.startswith("MultiRobotNav"):
         parser.error(f"--env {args.env!r}: the anatomy reads TurtleBot3 worlds (MultiRobotNav-<n>-v0, ...)")
     model = algorithm_spec(args.algo).algorithm_class.load(args.model, env=None, device="cpu", buffer_size=1)
-    env = envs.make_parallel_env(args.env)
+    env = envs.make_parallel_env(args.env, **args.env_kwargs)
     try:
         sets = env.layout.target_sets
         records = [
