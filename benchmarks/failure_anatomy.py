@@ -320,17 +320,14 @@ def main() -> None:
     env = envs.make_parallel_env(args.env, **args.env_kwargs)
     try:
         sets = env.layout.target_sets
-        records = [
-            run_episode(
-                model,
-                env,
-                args.seed + k,
-                args.window,
-                args.epsilon,
-                target_set=None if sets is None else k % len(sets),
+        records = []
+        for k in range(args.episodes):
+            record = run_episode(
+                model, env, args.seed + k, args.window, args.epsilon, target_set=None if sets is None else k % len(sets)
             )
-            for k in range(args.episodes)
-        ]
+            # Every record names its world: the env id, its options, the level set and the level played.
+            record.update(env_id=args.env, env_kwargs=args.env_kwargs, level_set=env.level_set, level=env.level)
+            records.append(record)
     finally:
         env.close()
     if args.out:
