@@ -89,6 +89,21 @@ def test_a_world_draws_only_levels_of_its_own_set(level_set: str) -> None:
     assert len(drawn) > 0.8 * len(levels_of(level_set))  # it draws across the whole set
 
 
+@pytest.mark.parametrize("level_set", ["train", "validation"])
+def test_the_single_robot_rooms_world_draws_only_its_own_set(level_set: str) -> None:
+    """EPS's single-robot world among the rooms (``SingleRobotNav-v0``, ``scenario="rooms"``) keeps the split too."""
+    env = envs.make_single_env("SingleRobotNav-v0", scenario="rooms", level_set=level_set)
+    played = set()
+    observation, _ = env.reset(seed=0)
+    for _ in range(10):
+        played.add(env.multi_env.level)
+        observation, _ = env.reset()
+    assert env.observation_space.contains(observation)
+    drawn = {env.multi_env._draw_level({}) for _ in range(5_000)}
+    env.close()
+    assert {level_set_of(level) for level in played | drawn} == {level_set}
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [

@@ -226,6 +226,28 @@ def test_wall_collision_ends_the_episode_for_everyone() -> None:
     env.close()
 
 
+def test_collision_reward_sets_the_penalty_of_a_crash_only() -> None:
+    """The training option ``collision_reward`` changes the crash's reward, nothing else of the episode."""
+    half = arena_side(2) / 2
+    starts, targets = [[half - 0.2, 0.0, 0.0], [-0.5, 0.5, 0.0]], [[0.0, -1.0], [1.0, 1.0]]
+    outcomes = []
+    for collision_reward in (-1.0, -5.0):
+        env = placed_env(starts, targets, collision_reward=collision_reward)
+        trace, terminations = [], {"robot_0": False}
+        while not any(terminations.values()):
+            _, rewards, terminations, _, infos = env.step({"robot_0": STRAIGHT_FULL, "robot_1": STRAIGHT_FULL})
+            trace.append((rewards["robot_0"], rewards["robot_1"]))
+        outcomes.append((trace, infos["robot_0"]["collided"]))
+        env.close()
+    (paper, crashed_paper), (harsh, crashed_harsh) = outcomes
+    assert crashed_paper and crashed_harsh and len(paper) == len(harsh) == 10
+    assert paper[:-1] == harsh[:-1] and paper[-1][1] == harsh[-1][1]  # the same episode up to the crash
+    assert paper[-1][0] == -1.0 and harsh[-1][0] == -5.0
+    for bad in (-0.5, True, "x"):
+        with pytest.raises(ValueError, match=r"collision_reward must be a number <= -1\.0"):
+            MultiRobotNavEnv(n_robots=2, collision_reward=bad)  # type: ignore[arg-type]
+
+
 def test_robot_robot_collision_penalises_both() -> None:
     env = placed_env([[-0.2, 0.0, 0.0], [0.2, 0.0, np.pi], [0.0, 1.0, 0.0]], [[1.0, -1.0], [-1.0, -1.0], [1.0, 1.0]])
     ticks, terminations = 0, {"robot_0": False}

@@ -137,6 +137,11 @@ class MultiRobotNavEnv(ParallelEnv):
         option beside the paper's world; with ``action_repeat=4`` it is the setting of the 8- and 12-robot GDQ zoo
         entries and of the arena-only models that solve the unseen room (``docs/results/many_robots.md``).
         Collisions and rewards do not depend on it
+    :param collision_reward: the reward of a robot that collides (a number <= -1; -1, the default, is the paper's
+        Eq. 7). With the paper's -1, a robot that would need more than 200 ticks (10 s) of detour without progress
+        scores better by crashing (the step penalty is 0.005 a tick): in rooms whose targets lie behind walls the
+        learners crash into walls. A training option beside the paper's world; success and collisions do not
+        depend on it (``docs/results/navigator.md``)
     :param level_set: ``"rooms"`` only: the levels every reset draws from, ``"train"`` (the default), ``"validation"``
         (make every choice there) or ``"test"`` (report there only); a world never plays a level of another set
     :param levels: ``"rooms"`` only: None (the whole set), a count ``k`` (the set's ``k`` lowest levels) or level ids of
@@ -167,6 +172,7 @@ class MultiRobotNavEnv(ParallelEnv):
         level_set: str | None = None,
         levels: int | Sequence[int] | None = None,
         level: int | None = None,
+        collision_reward: float = REWARD_COLLISION,
     ) -> None:
         self.layout: Layout = make_layout(scenario, n_robots)
         self.scenario = scenario
@@ -198,6 +204,13 @@ class MultiRobotNavEnv(ParallelEnv):
                 f"lidar_range must be a number of metres in ({LIDAR_RANGE_MIN}, {RANGE_MAX}], got {lidar_range!r}."
             )
         self.lidar_range = float(lidar_range)
+        if (
+            isinstance(collision_reward, bool)
+            or not isinstance(collision_reward, (int, float, np.integer, np.floating))
+            or not -1e6 <= collision_reward <= REWARD_COLLISION
+        ):
+            raise ValueError(f"collision_reward must be a number <= {REWARD_COLLISION}, got {collision_reward!r}.")
+        self.collision_reward = float(collision_reward)
         self.placement_jitter = self._check_placement_jitter(placement_jitter)
         for name, value, largest in (
             ("lidar_frames", lidar_frames, LIDAR_FRAMES_MAX),
@@ -484,7 +497,7 @@ class MultiRobotNavEnv(ParallelEnv):
         # Paper Eq. 7, collision taking precedence over arrival.
         progress = (self._distance[rows] - distance) - STEP_PENALTY
         bearing = self._bearing(live, offset)
-        rewards = np.where(collided, REWARD_COLLISION, np.where(arrived, REWARD_ARRIVAL, progress))
+        rewards = np.where(collided, self.collision_reward, np.where(arrived, REWARD_ARRIVAL, progress))
         self._distance[rows] = distance
         self._team_return += float(rewards.sum())
 

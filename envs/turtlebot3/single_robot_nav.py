@@ -12,6 +12,7 @@ Version history (``metadata["name"]``; bump the suffix on any change of behaviou
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium
@@ -33,7 +34,9 @@ class SingleRobotNavEnv(gymnasium.Env):
     :param scenario: ``"eps"`` (default: the EPS world with bars, paper Fig. 3 left), ``"eps_pillars"`` (the
         4-robot arena's 4 m walls with three robot-sized static pillars in place of the other robots: what
         ``EvolutionCallback`` evaluates in by default), ``"arena"`` (the
-        1-robot arena, 3.25 m, walls only) or ``"unseen"`` (robot 0 of the unseen room)
+        1-robot arena, 3.25 m, walls only), ``"unseen"`` (robot 0 of the unseen room) or ``"rooms"`` (a room generated
+        from a level seed for one robot, 3.3-4.2 m a side: inner walls with doorways, corridors, blocks, clutter;
+        ``envs/turtlebot3/rooms.py``), where a robot of a rooms-trained team fails alone
     :param max_episode_steps: time limit in ticks; None = 150 ticks per metre of the room's side (600 here)
     :param render_mode: None, ``"rgb_array"`` or ``"human"`` (PyBullet GUI; needs a display)
     :param lidar_noise_std: standard deviation of Gaussian range noise [m]
@@ -45,6 +48,12 @@ class SingleRobotNavEnv(gymnasium.Env):
     :param lidar_frame_ticks: ticks between two stacked scans
     :param action_repeat: ticks each action is held, as in :class:`~envs.turtlebot3.MultiRobotNavEnv`
     :param lidar_range: the ranges the policy sees [m], as in :class:`~envs.turtlebot3.MultiRobotNavEnv`
+    :param level_set: ``"rooms"`` only: the level set every reset draws from (``"train"``, the default,
+        ``"validation"`` or ``"test"``), as in :class:`~envs.turtlebot3.MultiRobotNavEnv`
+    :param levels: ``"rooms"`` only: None (the whole set), a count or level ids of the set
+    :param level: ``"rooms"`` only: the one level of the set this world plays
+    :param collision_reward: the reward of a collision, as in :class:`~envs.turtlebot3.MultiRobotNavEnv` (-1: the
+        paper's)
     """
 
     metadata: dict[str, Any] = {
@@ -65,6 +74,10 @@ class SingleRobotNavEnv(gymnasium.Env):
         lidar_frame_ticks: int = 5,
         action_repeat: int = 1,
         lidar_range: float = RANGE_MAX,
+        level_set: str | None = None,
+        levels: int | Sequence[int] | None = None,
+        level: int | None = None,
+        collision_reward: float = -1.0,
     ) -> None:
         self.multi_env = MultiRobotNavEnv(
             n_robots=1,
@@ -78,6 +91,10 @@ class SingleRobotNavEnv(gymnasium.Env):
             lidar_frame_ticks=lidar_frame_ticks,
             action_repeat=action_repeat,
             lidar_range=lidar_range,
+            level_set=level_set,
+            levels=levels,
+            level=level,
+            collision_reward=collision_reward,
         )
         self.observation_space = self.multi_env.observation_space(AGENT)
         self.action_space = self.multi_env.action_space(AGENT)
