@@ -68,6 +68,14 @@ _MULTI_AGENT_SPECS: dict[str, EnvSpec] = {
         for n in (4, 8, 12, 24)
         for suffix, level_set in (("", "train"), ("-validation", "validation"), ("-test", "test"))
     },
+    # The navigator's training worlds: the training rooms and, half the time, the open arena of the team size
+    # (docs/results/navigator.md).
+    **{
+        f"MultiRobotNavMixed-{n}-v0": EnvSpec(
+            _ROBOTS, {"n_robots": n, "scenario": "rooms", "level_set": "train", "arena_share": 0.5}, _ROBOT_ALONE
+        )
+        for n in (4, 8, 12, 24)
+    },
     "MultiRobotNavUnseen-4-v0": EnvSpec(_ROBOTS, {"n_robots": 4, "scenario": "unseen"}, _ROBOT_ALONE),
     # The same room, every start and target moved by a seeded offset of up to 0.3 m: 100 episodes, 100 problems.
     "MultiRobotNavUnseen-4-varied-v0": EnvSpec(

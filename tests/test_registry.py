@@ -15,6 +15,7 @@ def test_ids_are_partitioned() -> None:
         "MultiRobotNav-12-v0",
         "MultiRobotNav-24-v0",
         *(f"MultiRobotNavRooms-{n}{suffix}-v0" for n in (4, 8, 12, 24) for suffix in ("", "-validation", "-test")),
+        *(f"MultiRobotNavMixed-{n}-v0" for n in (4, 8, 12, 24)),
         "MultiRobotNavUnseen-4-v0",
         "MultiRobotNavUnseen-4-varied-v0",
         "MultiRobotNavBlocks-12-v0",

@@ -280,7 +280,7 @@ def test_every_start_is_clear_of_the_walls_in_the_world() -> None:
 # --- the worlds ----------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("env_id", [*ROOM_IDS, "MultiRobotNav-24-v0"])
+@pytest.mark.parametrize("env_id", [*ROOM_IDS, "MultiRobotNav-24-v0", "MultiRobotNavMixed-4-v0"])
 def test_the_new_ids_pass_the_parallel_api_test_with_the_arena_s_spaces(env_id: str) -> None:
     env = envs.make_parallel_env(env_id)
     arena = envs.make_parallel_env("MultiRobotNav-4-v0")
@@ -291,6 +291,34 @@ def test_the_new_ids_pass_the_parallel_api_test_with_the_arena_s_spaces(env_id: 
         parallel_api_test(env, num_cycles=100)
     env.close()
     arena.close()
+
+
+def test_the_mixed_world_plays_the_open_arena_or_a_training_level() -> None:
+    """The navigator's training world: about ``arena_share`` of its episodes in the team's open arena (walls only,
+    no level), the others in training levels; the same seed replays the same episodes."""
+    arena_side_4 = nav.make_layout("arena", 4).width
+
+    def played(seed: int) -> list[tuple[int | None, float]]:
+        env = envs.make_parallel_env("MultiRobotNavMixed-4-v0")
+        env.reset(seed=seed)
+        episodes = []
+        for _ in range(200):
+            episodes.append((env.level, env.layout.width))
+            env.reset()
+        env.close()
+        return episodes
+
+    episodes = played(5)
+    assert played(5) == episodes
+    open_arena = [width for level, width in episodes if level is None]
+    assert 0.4 < len(open_arena) / len(episodes) < 0.6
+    assert set(open_arena) == {arena_side_4}
+    assert {level_set_of(level) for level, _ in episodes if level is not None} == {"train"}
+    with pytest.raises(ValueError, match="is a test level"):  # the id fixes the training levels
+        envs.make_parallel_env("MultiRobotNavMixed-4-v0", level=int(levels_of("test")[0]))
+    for kwargs, message in (({"arena_share": 1.0}, "probability in"), ({"scenario": "arena", "arena_share": 0.5}, "rooms")):
+        with pytest.raises(ValueError, match=message):
+            MultiRobotNavEnv(4, **kwargs)
 
 
 def test_the_24_robot_arena_has_room_and_runs() -> None:

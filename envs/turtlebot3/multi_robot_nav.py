@@ -147,6 +147,10 @@ class MultiRobotNavEnv(ParallelEnv):
     :param levels: ``"rooms"`` only: None (the whole set), a count ``k`` (the set's ``k`` lowest levels) or level ids of
         the set
     :param level: ``"rooms"`` only: the one level of the set this world plays (not with ``levels``)
+    :param arena_share: ``"rooms"`` only: the probability, in [0, 1), that an episode plays the open arena of the team
+        size (walls only, random starts and targets, as ``scenario="arena"``) instead of a level; 0 (the default)
+        plays levels only. A training option: a world that mixes the open arena and the rooms (the
+        ``MultiRobotNavMixed-<n>-v0`` ids, the navigator's training worlds)
     """
 
     metadata: dict[str, Any] = {
@@ -173,12 +177,15 @@ class MultiRobotNavEnv(ParallelEnv):
         levels: int | Sequence[int] | None = None,
         level: int | None = None,
         collision_reward: float = REWARD_COLLISION,
+        arena_share: float = 0.0,
     ) -> None:
         self.layout: Layout = make_layout(scenario, n_robots)
         self.scenario = scenario
         self.n_robots = int(n_robots)
         self.level_set, self.levels = self._check_levels(level_set, levels, level)
-        self.level: int | None = None  # the level of the current episode ("rooms")
+        self.level: int | None = None  # the level of the current episode ("rooms"; None when it plays the arena)
+        self.arena_share = self._check_arena_share(arena_share)
+        self._arena = make_layout("arena", self.n_robots) if self.arena_share > 0 else None
         # Every room of a "rooms" world is drawn on the canvas of its largest one, so all pictures share one size.
         self._canvas = self.layout.half_extent if scenario == "rooms" else None
         if max_episode_steps is None:
@@ -281,6 +288,17 @@ class MultiRobotNavEnv(ParallelEnv):
         level_set = "train" if level_set is None else level_set
         return level_set, select_levels(level_set, levels, level)
 
+    def _check_arena_share(self, arena_share: float) -> float:
+        if (
+            isinstance(arena_share, bool)
+            or not isinstance(arena_share, (int, float, np.integer, np.floating))
+            or not 0.0 <= arena_share < 1.0
+        ):
+            raise ValueError(f"arena_share must be a probability in [0, 1), got {arena_share!r}.")
+        if arena_share > 0 and self.scenario != "rooms":
+            raise ValueError(f"arena_share: an option of scenario='rooms' only, not of {self.scenario!r}.")
+        return float(arena_share)
+
     def _check_placement_jitter(self, placement_jitter: float) -> float:
         if (
             isinstance(placement_jitter, bool)
@@ -353,8 +371,9 @@ class MultiRobotNavEnv(ParallelEnv):
             self.world.set_blocks(self.layout.obstacles)
             self._rasteriser = None
         elif self.scenario == "rooms":  # a level of the world's set every episode: its room, starts and targets
-            self.level = self._draw_level(options)
-            self.layout = generate_room(self.level, self.n_robots).layout
+            open_arena = self._arena is not None and "level" not in options and self.np_random.random() < self.arena_share
+            self.level = None if open_arena else self._draw_level(options)
+            self.layout = self._arena if open_arena else generate_room(self.level, self.n_robots).layout
             if self.world.n_map_shapes < MAP_SHAPES_MAX:
                 self.world.set_map(self.layout)
             else:  # free the earlier rooms' meshes with their client
