@@ -34,6 +34,7 @@ from envs.turtlebot3.layouts import (
     sample_starts,
     sample_targets,
 )
+from envs.turtlebot3.paths import PathGuide
 from envs.turtlebot3.render import Rasteriser
 from envs.turtlebot3.robot import (
     ACTION_ANGULAR,
@@ -151,6 +152,11 @@ class MultiRobotNavEnv(ParallelEnv):
         size (walls only, random starts and targets, as ``scenario="arena"``) instead of a level; 0 (the default)
         plays levels only. A training option: a world that mixes the open arena and the rooms (the
         ``MultiRobotNavMixed-<n>-v0`` ids, the navigator's training worlds)
+    :param path_guidance: False (the default, the paper's observation): the observation holds the target's straight
+        distance and bearing. True: the world plans on the room's static map as a robot's global planner would, and
+        the observation holds the path length to go and the bearing of a waypoint 1 m ahead on the shortest path;
+        progress is rewarded along the path (:mod:`envs.turtlebot3.paths`). Arrival is still at the target. The
+        observation's layout is unchanged; a deployed policy needs a planner to feed it the waypoints
     """
 
     metadata: dict[str, Any] = {
@@ -178,6 +184,7 @@ class MultiRobotNavEnv(ParallelEnv):
         level: int | None = None,
         collision_reward: float = REWARD_COLLISION,
         arena_share: float = 0.0,
+        path_guidance: bool = False,
     ) -> None:
         self.layout: Layout = make_layout(scenario, n_robots)
         self.scenario = scenario
@@ -185,6 +192,10 @@ class MultiRobotNavEnv(ParallelEnv):
         self.level_set, self.levels = self._check_levels(level_set, levels, level)
         self.level: int | None = None  # the level of the current episode ("rooms"; None when it plays the arena)
         self.arena_share = self._check_arena_share(arena_share)
+        if not isinstance(path_guidance, (bool, np.bool_)):
+            raise ValueError(f"path_guidance must be True or False, got {path_guidance!r}.")
+        self.path_guidance = bool(path_guidance)
+        self._guide: PathGuide | None = None
         self._arena = make_layout("arena", self.n_robots) if self.arena_share > 0 else None
         # Every room of a "rooms" world is drawn on the canvas of its largest one, so all pictures share one size.
         self._canvas = self.layout.half_extent if scenario == "rooms" else None
@@ -398,6 +409,10 @@ class MultiRobotNavEnv(ParallelEnv):
         self._collision = False
         offset = self._targets - self.world.xy
         self._distance = np.hypot(offset[:, 0], offset[:, 1])
+        if self.path_guidance:
+            self._guide = PathGuide(self.layout, self._targets)
+            self._distance, waypoint = self._guide.query(self.world.xy, np.arange(n))
+            offset = waypoint - self.world.xy
         bearing = self._bearing(self._live_index, offset)
         obs = self._observe(self._live_index, offset, self._distance, bearing, new_episode=True)
         team = self._team_info()
@@ -513,6 +528,9 @@ class MultiRobotNavEnv(ParallelEnv):
         offset = self._targets[rows] - self.world.xy[rows]
         distance = np.hypot(offset[:, 0], offset[:, 1])
         arrived = (distance <= TARGET_RADIUS) & ~collided
+        if self._guide is not None:  # the path length to go, heading for the waypoint (progress along the path)
+            distance, waypoint = self._guide.query(self.world.xy[rows], np.arange(self.n_robots)[rows])
+            offset = waypoint - self.world.xy[rows]
         # Paper Eq. 7, collision taking precedence over arrival.
         progress = (self._distance[rows] - distance) - STEP_PENALTY
         bearing = self._bearing(live, offset)
