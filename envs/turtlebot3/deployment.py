@@ -38,6 +38,7 @@ def deployment_description(
     lidar_frames: int = 1,
     lidar_frame_ticks: int = 5,
     lidar_noise_std: float = 0.0,
+    path_guidance: bool = False,
 ) -> dict[str, Any]:
     """The robot-side description of a TurtleBot3 world with these options (the world's own values).
 
@@ -46,6 +47,8 @@ def deployment_description(
     :param lidar_frames: scans in an observation (the current one, then earlier ones)
     :param lidar_frame_ticks: ticks between two stacked scans
     :param lidar_noise_std: the range noise the policy was trained with [m] (for the record)
+    :param path_guidance: the policy was trained with waypoints of a planner on the map (``envs.turtlebot3.paths``):
+        the goal inputs then come from the path, not the straight line to the target
     :return: a dict of JSON types only
     """
     obs_size = N_BEAMS + 2 + (lidar_frames - 1) * N_BEAMS
@@ -69,6 +72,14 @@ def deployment_description(
             "note": "bearing of the target minus the robot's heading, counter-clockwise positive, 0 straight ahead",
         },
     }
+    if path_guidance:
+        observation["goal_distance"]["note"] = (
+            "length of the shortest path on the static map from the robot to its target [m] (a planner's)"
+        )
+        observation["goal_heading"]["note"] = (
+            "bearing of the waypoint 1 m ahead on that path (the target itself when less is left) minus the robot's "
+            "heading, counter-clockwise positive; the planner keeps 0.15 m from every wall (envs/turtlebot3/paths.py)"
+        )
     if lidar_frames > 1:
         observation["earlier_ranges"] = {
             "slice": [N_BEAMS + 2, obs_size],

@@ -342,7 +342,12 @@ class MultiRobotNavEnv(ParallelEnv):
         """What a real robot needs to run a policy of this world (lidar beams, observation, action table, decision
         period), JSON-ready: ``sb3_eps.export_policy`` writes it into the exported policy's JSON."""
         return deployment_description(
-            self.lidar_range, self.action_repeat, self.lidar_frames, self.lidar_frame_ticks, self.lidar_noise_std
+            self.lidar_range,
+            self.action_repeat,
+            self.lidar_frames,
+            self.lidar_frame_ticks,
+            self.lidar_noise_std,
+            self.path_guidance,
         )
 
     def _check_agent(self, agent: str) -> None:

@@ -54,6 +54,7 @@ class SingleRobotNavEnv(gymnasium.Env):
     :param level: ``"rooms"`` only: the one level of the set this world plays
     :param collision_reward: the reward of a collision, as in :class:`~envs.turtlebot3.MultiRobotNavEnv` (-1: the
         paper's)
+    :param path_guidance: waypoints on the room's map, as in :class:`~envs.turtlebot3.MultiRobotNavEnv`
     """
 
     metadata: dict[str, Any] = {
@@ -78,6 +79,7 @@ class SingleRobotNavEnv(gymnasium.Env):
         levels: int | Sequence[int] | None = None,
         level: int | None = None,
         collision_reward: float = -1.0,
+        path_guidance: bool = False,
     ) -> None:
         self.multi_env = MultiRobotNavEnv(
             n_robots=1,
@@ -95,6 +97,7 @@ class SingleRobotNavEnv(gymnasium.Env):
             levels=levels,
             level=level,
             collision_reward=collision_reward,
+            path_guidance=path_guidance,
         )
         self.observation_space = self.multi_env.observation_space(AGENT)
         self.action_space = self.multi_env.action_space(AGENT)

@@ -35,7 +35,14 @@ __all__ = ["PAPER_SETTINGS", "EvolutionCallback", "sample_visited_observations"]
 
 #: World options EPS's evaluation world takes from the training worlds (the vec env's ``env_kwargs``) when
 #: ``eval_env_kwargs`` does not set them: what a robot sees must be the same in both (``docs/modules/eps.md``).
-SHARED_WORLD_OPTIONS = ("lidar_range", "lidar_frames", "lidar_frame_ticks", "lidar_noise_std", "collision_reward")
+SHARED_WORLD_OPTIONS = (
+    "lidar_range",
+    "lidar_frames",
+    "lidar_frame_ticks",
+    "lidar_noise_std",
+    "collision_reward",
+    "path_guidance",
+)
 #: The dueling network's state-value stream: greedy actions (hence fitness) never see it, GDQ feeds it to V_G'.
 VALUE_STREAM = "value_stream"
 
