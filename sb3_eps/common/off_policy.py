@@ -98,19 +98,42 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     Parameters as SB3's ``DQN`` where they share a name; ``buffer_size`` and ``batch_size`` count joint rows (one
     world's tick, all its agents), ``learning_starts`` agent-steps, ``train_freq`` ticks of every world.
 
+    :param policy: the policy class, or ``"MlpPolicy"`` for the algorithm's own
+    :param env: the vector env from :func:`~sb3_eps.make_vec_env` (one sub-env per agent); None to set it later
+    :param learning_rate: learning rate, or a schedule of the remaining progress (1 to 0)
+    :param buffer_size: replay capacity, in joint rows (one world's tick, all its agents)
+    :param learning_starts: agent-steps of uniformly random actions before learning starts
+    :param batch_size: joint rows per gradient step
+    :param tau: Polyak coefficient of the target networks (1: a hard copy)
+    :param gamma: discount factor
+    :param train_freq: ticks of every world between two trainings, or ``(n, "step" | "episode")``
+    :param gradient_steps: gradient steps per training (-1: as many as agent-steps collected)
     :param replay_buffer_class: a :class:`~sb3_eps.common.buffers.JointReplayBuffer` class (None: the prioritised one
         when ``prioritized_replay``); ``replay_buffer_kwargs`` are its arguments beyond capacity, spaces and agents
+    :param replay_buffer_kwargs: the replay buffer's arguments beyond capacity, spaces and agents
     :param gradient_steps_per_target_update: gradient steps between two Polyak updates of the target networks
     :param n_steps: n of the n-step returns
     :param prioritized_replay: proportional prioritised replay, with exponent ``prioritized_replay_alpha`` and an
         importance exponent annealed from ``prioritized_replay_beta0`` to 1
+    :param prioritized_replay_alpha: priority exponent of the prioritised replay
+    :param prioritized_replay_beta0: importance exponent at the start, annealed linearly to 1 over training
     :param double_q: choose the bootstrap action with the online network and value it with the target one
         (only with an agent target network)
+    :param exploration_fraction: fraction of training over which epsilon decays linearly
+    :param exploration_initial_eps: epsilon at the start (one epsilon coin per agent)
+    :param exploration_final_eps: epsilon at the end of the decay
+    :param max_grad_norm: gradient norm clipping
     :param team_reward_mode: team reward of a tick: ``"sum"`` or ``"mean"`` of the alive agents' rewards
     :param overlap_training: run the gradient steps due after a collection while its last tick's worlds step (with
         worlds in worker processes, learning and simulation run side by side); a tick's own transition then joins
         the buffer after that tick's gradient steps. Needs ``train_freq`` in steps
     :param stats_window_size: episodes (worlds, not agents) averaged in the rollout logs
+    :param tensorboard_log: TensorBoard log folder (None: none)
+    :param policy_kwargs: the policy's arguments (network sizes, target network, weight average)
+    :param verbose: 0: no output, 1: training information, 2: debug
+    :param seed: seed of the random generators
+    :param device: torch device (``"auto"``: CUDA where available)
+    :param _init_setup_model: build the networks and the buffer now (SB3's ``load`` builds them later)
     """
 
     policy: MultiAgentQPolicy
