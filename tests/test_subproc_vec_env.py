@@ -19,6 +19,7 @@ import pytest
 import torch as th
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
+import envs  # noqa: F401  (registers the env ids: the tests run alone too)
 from sb3_eps import EvolutionCallback, make_vec_env
 from sb3_eps.common import subproc_vec_env
 from sb3_eps.common.snapshots import snapshot_dumps

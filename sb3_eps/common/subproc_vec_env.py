@@ -298,14 +298,16 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
     def _ask_all(
         self, command: str, data: Sequence[Any] | None = None, local: Any = None, doing: str | None = None
     ) -> list[Any]:
-        """Send ``command`` to every worker (``data[i]`` to worker ``i``), run it on the main process's block
-        meanwhile (with ``local`` as its data), then gather the replies in order, the main block's first."""
-        doing = doing or _DOING.get(command, command)
+        """:meth:`~sb3_eps.common.workers.WorkerBlocks.ask` once no step is in flight."""
+        doing = self._no_step_in_flight(doing or _DOING.get(command, command))
+        return self._workers.ask(command, data, local, doing)
+
+    def _no_step_in_flight(self, doing: str) -> str:
         if self._step_in_flight:
             raise RuntimeError(
                 f"a step is in flight: call step_wait() after step_async() before {doing.replace('its', 'the')}"
             )
-        return self._workers.ask(command, data, local, doing)
+        return doing
 
     # -------------------------------------------------------------------------------- VecEnv
     def reset(self) -> np.ndarray:
@@ -330,9 +332,9 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         other work (an algorithm with ``overlap_training`` learns meanwhile) until :meth:`step_wait`."""
         super().step_async(actions)
         actions, want_state = self._actions, self._want_state
-        if self._step_in_flight:
-            raise RuntimeError("a step is in flight: call step_wait() after step_async() before stepping the worlds")
-        self._workers.send("step", [(actions[part], want_state) for part in self._slices], _DOING["step"])
+        self._workers.send(
+            "step", [(actions[part], want_state) for part in self._slices], self._no_step_in_flight(_DOING["step"])
+        )
         self._step_in_flight = True
 
     def step_wait(self) -> VecEnvStepReturn:
