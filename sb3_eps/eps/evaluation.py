@@ -247,7 +247,7 @@ class EnvPool:
         n_blocks = max(1, min(n_workers, n_individuals))
         self.blocks = [block for block in np.array_split(np.arange(n_individuals), n_blocks) if len(block)]
         common = {"env_id": env_id, "env_kwargs": env_kwargs, "n_episodes": n_episodes, "network": network}
-        payloads = [{**common, "n_individuals": len(block), "record": record} for block in self.blocks]
+        payloads: list[dict[str, Any]] = [{**common, "n_individuals": len(block), "record": record} for block in self.blocks]
         # The workers build their envs while the main process goes on training; the first evaluation waits for
         # their hellos within its own deadline.
         self._workers = WorkerBlocks(
