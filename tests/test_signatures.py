@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import ast
 import inspect
+import re
 import textwrap
 from typing import Any
 
@@ -92,3 +93,19 @@ def test_the_check_finds_a_constructor_out_of_step() -> None:
     assert "gamma is not passed by name to super().__init__" in problems
     assert "n_steps is not passed by name to super().__init__" in problems
     assert "the base's arguments are not in the base's order" not in problems  # those present keep the order
+
+
+def _param_docs(cls: type) -> dict[str, str]:
+    """:return: argument -> its ``:param:`` text in ``cls``'s docstring (continuation lines joined)."""
+    text = " ".join((inspect.getdoc(cls) or "").split())
+    return {name: doc.strip() for name, doc in re.findall(r":param (\w+): (.*?)(?= :param |$)", text)}
+
+
+def test_the_repeated_docs_of_a_shared_argument_say_the_same() -> None:
+    """Each algorithm repeats the base's arguments in its docs (as SB3's algorithms do): the repeated lines stay equal
+    where the algorithm keeps the base's default (its policy's arguments name its own policy)."""
+    reference = _param_docs(IQL)
+    for cls in (GDQ, QMIX, VDN):
+        docs = _param_docs(cls)
+        for name in set(reference) - OWN_DEFAULTS[cls] - {"policy_kwargs"}:
+            assert docs[name] == reference[name], f"{cls.__name__}'s :param {name}: differs from IQL's"
