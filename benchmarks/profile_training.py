@@ -5,8 +5,8 @@ Builds the algorithm with its package defaults on ``MultiRobotNav-<n>-v0`` (``n_
 the profiled wall time (cumulative time of the functions that make it up; the parts of ``train`` nest inside it):
 
 - ``env step``: the worlds' step (physics, lidar, rewards) through the bridge (``step_wait``);
-- ``action selection``: the epsilon-greedy forward pass (``sample_actions``);
-- ``buffer writes``: n-step folding and joint rows (``store_joint_transition``);
+- ``action selection``: the epsilon-greedy forward pass (``_sample_actions``);
+- ``buffer writes``: n-step folding and joint rows (``_store_joint_transition``);
 - ``train``: the gradient steps, and inside it ``sampling`` (``sample``), ``loss`` (the forward passes and
   the TD targets: ``_compute_loss``), ``backward``, ``clip`` (``clip_grad_norm_``), ``optimizer`` (Adam's
   ``step``), ``weight average`` (``update_weight_average``), ``targets`` (``_update_targets``);
@@ -33,8 +33,8 @@ from time_to_solution import ALGORITHMS, build_model, configuration
 #: part -> (function name, a piece of its file's path); the cumulative times of matching functions are summed.
 PARTS: dict[str, list[tuple[str, str]]] = {
     "env step": [("step_wait", "sb3_eps")],
-    "action selection": [("sample_actions", "sb3_eps")],
-    "buffer writes": [("store_joint_transition", "sb3_eps")],
+    "action selection": [("_sample_actions", "sb3_eps")],
+    "buffer writes": [("_store_joint_transition", "sb3_eps")],
     "train": [("train", "off_policy")],
     "  sampling": [("sample", "buffers")],
     "  loss": [("_compute_loss", "sb3_eps")],

@@ -11,7 +11,6 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 import envs
 from sb3_eps import GDQ, IQL, QMIX, VDN, export_policy, make_vec_env
-from sb3_eps.common.collection import sample_actions
 from sb3_eps.common.utils import epsilon_greedy
 
 ALGORITHMS = [IQL, GDQ, QMIX, VDN]
@@ -374,7 +373,7 @@ def test_greedy_actions_come_from_the_average_and_exploring_ones_from_the_online
     np.testing.assert_array_equal(model.predict(obs, deterministic=False)[0], online)
     model._last_obs = obs
     model.num_timesteps = model.learning_starts
-    np.testing.assert_array_equal(sample_actions(model, model.learning_starts, 64), online)
+    np.testing.assert_array_equal(model._sample_actions(model.learning_starts, 64), online)
     # The average is saved and loaded with the model; the greedy actions stay the same.
     model.save(tmp_path / "model")
     loaded = GDQ.load(tmp_path / "model")

@@ -12,7 +12,6 @@ from stable_baselines3.common.logger import configure
 import envs
 from sb3_eps import make_vec_env
 from sb3_eps.common.buffers import NStepJointCollector
-from sb3_eps.common.collection import store_joint_transition
 from sb3_eps.common.parallel_wrappers import TeamAsGymnasium
 from sb3_eps.eps import EvolutionCallback, InProcessEnvPool, SubprocessEnvPool, evaluate_population
 from sb3_eps.eps.evaluation import TeamEpisode, _EpisodeRecorder
@@ -60,7 +59,7 @@ def scripted_episode(seed: int, record_states: bool) -> TeamEpisode:
 
 def training_rows(model, env_kwargs: dict, seed: int, actions: np.ndarray) -> dict[str, np.ndarray]:
     """The rows the training rollout writes when ``actions`` are played in a fresh training world reset with ``seed``
-    (the rollout's own ``store_joint_transition`` and collector, into an empty buffer)."""
+    (the rollout's own ``_store_joint_transition`` and collector, into an empty buffer)."""
     buffer = model._make_replay_buffer()
     venv = make_vec_env(TEAM, n_envs=1, seed=seed, env_kwargs=env_kwargs)
     model.set_env(venv)
@@ -70,7 +69,7 @@ def training_rows(model, env_kwargs: dict, seed: int, actions: np.ndarray) -> di
     for tick_actions in actions:
         venv.step_async(tick_actions)
         obs, rewards, dones, infos = venv.step_wait()
-        store_joint_transition(model, tick_actions, obs, rewards, dones, infos)
+        model._store_joint_transition(tick_actions, obs, rewards, dones, infos)
     assert dones.all(), "the episode must end where the EPS episode ended"
     venv.close()
     return rows_of(buffer)

@@ -22,7 +22,6 @@ from test_zoo_resume import ARGV, ENV_ID, N_TIMESTEPS, assert_equal_runs, run_fo
 import envs
 from sb3_eps import GDQ, IQL, QMIX, EvolutionCallback, export_policy, make_vec_env, train
 from sb3_eps import evaluate as evaluate_command
-from sb3_eps.common import collection
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.vec_env import MultiAgentVecEnv
 from sb3_eps.eps import SubprocessEnvPool
@@ -87,7 +86,7 @@ def crashed_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, where: str) -> 
     """Train ``ARGV`` until the injected crash at ``where``; :return: the run folder left behind."""
     with monkeypatch.context() as patch:
         if where == "rollout":  # while a world's tick is being stored
-            crash_on_call(patch, collection, "store_joint_transition", 350)
+            crash_on_call(patch, GDQ, "_store_joint_transition", 350)
         elif where == "gradient step":  # inside train(), between the loss and the optimiser step
             crash_on_call(patch, GDQ, "_compute_loss", 90)
         elif where == "eps round":  # while the population is being evaluated

@@ -19,6 +19,7 @@ import pytest
 import torch as th
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
+import envs  # noqa: F401  (registers the env ids: the tests run alone too)
 from sb3_eps import EvolutionCallback, make_vec_env
 from sb3_eps.common import subproc_vec_env
 from sb3_eps.common.snapshots import snapshot_dumps
@@ -101,9 +102,10 @@ def test_default_layout_main_process_and_one_worker_per_other_core() -> None:
 def test_a_step_travels_as_raw_bytes_and_comes_back_equal(with_state) -> None:
     """Actions out, observations, rewards, dones, alive flags and states back as bytes; infos pickled."""
     actions = np.array([4, 0, 2, 1], dtype=np.int64)
-    assert _unpack_step(_pack_step(actions, with_state)) == (pytest.approx(actions), with_state)
-    assert _pack_step(actions.astype(np.int32), False) is None  # anything else: the pickled command
-    assert _pack_step(np.zeros((4, 2)), False) is None
+    assert _unpack_step(_pack_step("step", (actions, with_state))) == (pytest.approx(actions), with_state)
+    assert _pack_step("step", (actions.astype(np.int32), False)) is None  # anything else: the pickled command
+    assert _pack_step("step", (np.zeros((4, 2)), False)) is None
+    assert _pack_step("reset", (actions, False)) is None
     rng = np.random.default_rng(0)
     reply = (
         rng.random((4, 7), dtype=np.float32),  # odd sizes: the arrays after them stay 8-byte aligned
@@ -255,7 +257,7 @@ def test_a_step_in_flight_refuses_other_commands_and_closes_cleanly(closing) -> 
     assert obs.shape[0] == venv.num_envs
     venv.step_async(np.zeros(venv.num_envs, dtype=np.int64))
     venv.close()  # drains the step's replies before it asks the workers to close
-    assert all(not process.is_alive() for process in venv._pool._processes)
+    assert all(not process.is_alive() for process in venv._workers.pool._processes)
 
 
 def test_overlap_training_needs_train_freq_in_steps() -> None:

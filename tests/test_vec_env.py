@@ -9,6 +9,7 @@ from pettingzoo import ParallelEnv
 from stable_baselines3 import DQN
 from stable_baselines3.common.callbacks import BaseCallback
 
+import envs
 from sb3_eps import MultiAgentVecEnv, make_vec_env
 from sb3_eps.common.subproc_vec_env import SubprocMultiAgentVecEnv
 
@@ -388,7 +389,6 @@ def test_env_ids_resolve_through_pettingzoo_and_gymnasium_registries() -> None:
     import gymnasium
     import pettingzoo
 
-    import envs
     from sb3_eps.common.vec_env import world_constructor
 
     make, kwargs, multi_agent = world_constructor("MultiRobotNav-2-v0")

@@ -51,33 +51,45 @@ class MultiAgentVecEnv(VecEnv):
     def __init__(self, env_fns: Sequence[Callable[[], ParallelEnv | gymnasium.Env]], env_id: str | None = None):
         self._worlds = [FixedAgentSet(_as_parallel_env(env_fn())) for env_fn in env_fns]
         first = self._worlds[0]
-        self.possible_agents: list[str] = list(first.possible_agents)
-        self.n_agents = len(self.possible_agents)
         self.n_worlds = len(self._worlds)
         self.env_id = env_id
         for world in self._worlds[1:]:
-            if world.possible_agents != self.possible_agents:
+            if world.possible_agents != first.possible_agents:
                 raise ValueError("all worlds must have the same possible_agents")
-        self.state_space: spaces.Box = first.state_space
-        #: world ticks per step (the worlds' ``action_repeat``; 1 for a world that decides at every tick)
-        self.ticks_per_step = ticks_per_step(first.env)
-        if any(ticks_per_step(world.env) != self.ticks_per_step for world in self._worlds[1:]):
+        if any(ticks_per_step(world.env) != ticks_per_step(first.env) for world in self._worlds[1:]):
             raise ValueError("all worlds must advance the same ticks per step (action_repeat)")
         # SuperSuit: each world becomes a vector env of its agents (it checks that they share their spaces).
         self._agent_venvs = [pettingzoo_env_to_vec_env_v1(world) for world in self._worlds]
-        self._slices = [slice(w * self.n_agents, (w + 1) * self.n_agents) for w in range(self.n_worlds)]
         agent_venv = self._agent_venvs[0]
-        super().__init__(self.n_worlds * self.n_agents, agent_venv.observation_space, agent_venv.action_space)
-        self.alive = np.ones(self.num_envs, dtype=bool)
+        spaces_ = (agent_venv.observation_space, agent_venv.action_space)
+        self._set_layout(first.possible_agents, *spaces_, first.state_space, ticks_per_step(first.env))
+        self._slices = [slice(w * self.n_agents, (w + 1) * self.n_agents) for w in range(self.n_worlds)]
         self._discrete_actions = isinstance(self.action_space, spaces.Discrete)
-        self._actions = np.zeros(self.num_envs, dtype=np.int64)
-        self._seed: int | None = None
         # Per-step bookkeeping in Python numbers: NumPy's call overhead dominates at a few worlds.
-        self._n_steps = 0
         self._episode_returns = [0.0] * self.n_worlds
         self._episode_start = [0] * self.n_worlds
-        self._state: np.ndarray | None = None
         self._t_start = time.time()
+
+    def _set_layout(
+        self,
+        possible_agents: Sequence[str],
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+        state_space: spaces.Box,
+        ticks_per_step: int,
+    ) -> None:
+        """Set what every bridge keeps of its worlds' layout, and a fresh step state (``n_worlds`` is set before)."""
+        self.possible_agents: list[str] = list(possible_agents)
+        self.n_agents = len(self.possible_agents)
+        self.state_space = state_space
+        #: world ticks per step (the worlds' ``action_repeat``; 1 for a world that decides at every tick)
+        self.ticks_per_step = ticks_per_step
+        VecEnv.__init__(self, self.n_worlds * self.n_agents, observation_space, action_space)
+        self.alive = np.ones(self.num_envs, dtype=bool)
+        self._actions = np.zeros(self.num_envs, dtype=np.int64)
+        self._seed: int | None = None
+        self._n_steps = 0
+        self._state: np.ndarray | None = None
 
     def reset(self) -> np.ndarray:
         """Reset every world (world ``w`` with ``seed + w`` after :meth:`seed`) and return all observations."""

@@ -1,7 +1,9 @@
 """Multi-agent off-policy base: set-up, the optimisation step on joint rows, target updates, logging, saving.
 
-An algorithm adds only its loss (:meth:`_compute_loss`) and its joint modules (in its policy); collection lives in
-:mod:`sb3_eps.common.collection`. ``num_timesteps`` counts agent-steps, ``ticks`` simulator steps of one world.
+An algorithm adds only its loss (:meth:`_compute_loss`) and its joint modules (in its policy); collection
+(:meth:`~MultiAgentOffPolicyAlgorithm.collect_rollouts`) steps the worlds with per-agent epsilon-greedy actions,
+turns the per-agent stream into joint rows through the n-step collector, counts episodes per world, and with
+``overlap_training`` runs the due gradient steps while the worlds step. ``num_timesteps`` counts agent-steps, ``ticks`` simulator steps of one world.
 """
 
 from __future__ import annotations
@@ -29,13 +31,13 @@ from stable_baselines3.common.type_aliases import (
     TrainFreq,
     TrainFrequencyUnit,
 )
-from stable_baselines3.common.utils import LinearSchedule, safe_mean
+from stable_baselines3.common.utils import LinearSchedule, safe_mean, should_collect_more_steps
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
-from sb3_eps.common import collection
 from sb3_eps.common.buffers import (
     JointReplayBuffer,
     JointReplayBufferSamples,
+    JointTick,
     NStepJointCollector,
     PrioritizedJointReplayBuffer,
     TeamRewardMode,
@@ -96,19 +98,42 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
     Parameters as SB3's ``DQN`` where they share a name; ``buffer_size`` and ``batch_size`` count joint rows (one
     world's tick, all its agents), ``learning_starts`` agent-steps, ``train_freq`` ticks of every world.
 
+    :param policy: the policy class, or ``"MlpPolicy"`` for the algorithm's own
+    :param env: the vector env from :func:`~sb3_eps.make_vec_env` (one sub-env per agent); None to set it later
+    :param learning_rate: learning rate, or a schedule of the remaining progress (1 to 0)
+    :param buffer_size: replay capacity, in joint rows (one world's tick, all its agents)
+    :param learning_starts: agent-steps of uniformly random actions before learning starts
+    :param batch_size: joint rows per gradient step
+    :param tau: Polyak coefficient of the target networks (1: a hard copy)
+    :param gamma: discount factor
+    :param train_freq: ticks of every world between two trainings, or ``(n, "step" | "episode")``
+    :param gradient_steps: gradient steps per training (-1: as many as agent-steps collected)
     :param replay_buffer_class: a :class:`~sb3_eps.common.buffers.JointReplayBuffer` class (None: the prioritised one
         when ``prioritized_replay``); ``replay_buffer_kwargs`` are its arguments beyond capacity, spaces and agents
+    :param replay_buffer_kwargs: the replay buffer's arguments beyond capacity, spaces and agents
     :param gradient_steps_per_target_update: gradient steps between two Polyak updates of the target networks
     :param n_steps: n of the n-step returns
     :param prioritized_replay: proportional prioritised replay, with exponent ``prioritized_replay_alpha`` and an
         importance exponent annealed from ``prioritized_replay_beta0`` to 1
+    :param prioritized_replay_alpha: priority exponent of the prioritised replay
+    :param prioritized_replay_beta0: importance exponent at the start, annealed linearly to 1 over training
     :param double_q: choose the bootstrap action with the online network and value it with the target one
         (only with an agent target network)
+    :param exploration_fraction: fraction of training over which epsilon decays linearly
+    :param exploration_initial_eps: epsilon at the start (one epsilon coin per agent)
+    :param exploration_final_eps: epsilon at the end of the decay
+    :param max_grad_norm: gradient norm clipping
     :param team_reward_mode: team reward of a tick: ``"sum"`` or ``"mean"`` of the alive agents' rewards
     :param overlap_training: run the gradient steps due after a collection while its last tick's worlds step (with
         worlds in worker processes, learning and simulation run side by side); a tick's own transition then joins
         the buffer after that tick's gradient steps. Needs ``train_freq`` in steps
     :param stats_window_size: episodes (worlds, not agents) averaged in the rollout logs
+    :param tensorboard_log: TensorBoard log folder (None: none)
+    :param policy_kwargs: the policy's arguments (network sizes, target network, weight average)
+    :param verbose: 0: no output, 1: training information, 2: debug
+    :param seed: seed of the random generators
+    :param device: torch device (``"auto"``: CUDA where available)
+    :param _init_setup_model: build the networks and the buffer now (SB3's ``load`` builds them later)
     """
 
     policy: MultiAgentQPolicy
@@ -432,8 +457,102 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         learning_starts: int = 0,
         log_interval: int | None = None,
     ) -> RolloutReturn:
-        """Step every world ``train_freq`` times into the replay buffer (:mod:`sb3_eps.common.collection`)."""
-        return collection.collect_rollouts(self, env, callback, train_freq, learning_starts, log_interval)
+        """Step every world ``train_freq`` times, store joint rows, count episodes per world (not agent)."""
+        self.policy.set_training_mode(False)
+        self._trained_ahead = False
+        n_collected_steps, n_collected_episodes = 0, 0
+        callback.on_rollout_start()
+        while should_collect_more_steps(train_freq, n_collected_steps, n_collected_episodes):
+            actions = self._sample_actions(learning_starts, env.num_envs)
+            env.step_async(actions)
+            if self.overlap_training and n_collected_steps + 1 >= train_freq.frequency:
+                self._train_ahead(env.num_envs, n_collected_steps + 1)
+            new_obs, rewards, dones, infos = env.step_wait()
+            self.num_timesteps += env.num_envs
+            n_collected_steps += 1
+            callback.update_locals(locals())
+            if not callback.on_step():
+                return RolloutReturn(n_collected_steps * env.num_envs, n_collected_episodes, continue_training=False)
+            self._update_info_buffer(infos, dones)
+            n_ended = self._store_joint_transition(actions, cast(np.ndarray, new_obs), rewards, dones, infos)
+            self._update_current_progress_remaining(self.num_timesteps, self._total_timesteps)
+            self._on_step()
+            for _ in range(n_ended):
+                n_collected_episodes += 1
+                self._episode_num += 1
+                if log_interval is not None and self._episode_num % log_interval == 0:
+                    self.dump_logs()
+        callback.on_rollout_end()
+        return RolloutReturn(n_collected_steps * env.num_envs, n_collected_episodes, continue_training=True)
+
+    def _sample_actions(self, learning_starts: int, n_envs: int) -> np.ndarray:
+        """Uniformly random actions before ``learning_starts``, then the online network's with one epsilon coin per
+        agent (SB3's DQN draws one for the whole batch, so all agents would explore on the same steps)."""
+        n_actions = int(self.action_space.n)  # type: ignore[attr-defined]
+        if self.num_timesteps < learning_starts:
+            return np.random.randint(n_actions, size=n_envs)
+        # ``predict`` without SB3's generic input checks, which cost as much as the network itself here.
+        assert self._last_obs is not None
+        self.policy.set_training_mode(False)
+        with th.no_grad():
+            observation = th.as_tensor(self._last_obs, device=self.device)
+            actions = self.policy._predict(observation, deterministic=False).cpu().numpy()
+        if self.exploration_rate > 0:
+            actions, _ = epsilon_greedy(actions, self.exploration_rate, n_actions)
+        return actions
+
+    def _train_ahead(self, n_envs: int, n_steps: int) -> None:
+        """``overlap_training``: the gradient steps that SB3's ``learn`` runs after this collection, run now while the
+        worlds step; its own call to ``train`` then does nothing (the same condition decides both)."""
+        if self.num_timesteps + n_envs <= self.learning_starts:
+            return
+        gradient_steps = self.gradient_steps if self.gradient_steps >= 0 else n_steps * n_envs
+        if gradient_steps > 0:
+            self.train(gradient_steps, self.batch_size)
+            self._trained_ahead = True
+            self.policy.set_training_mode(False)
+
+    def _store_joint_transition(
+        self, actions: np.ndarray, new_obs: np.ndarray, rewards: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]
+    ) -> int:
+        """Feed the agents' transitions, grouped by world, to the n-step collector; :return: the worlds whose episode
+        ended."""
+        collector, last_state = self._collector, self._last_state
+        assert collector is not None and last_state is not None and self._last_obs is not None
+        shape = (self.n_worlds, self.n_agents)
+        step = _read_step(new_obs, dones, infos, shape)
+        new_state = self._global_state()
+        last_obs = np.asarray(self._last_obs, dtype=np.float32).reshape((*shape, -1))
+        next_obs = step.next_observations.reshape((*shape, -1))
+        rewards = np.asarray(rewards, dtype=np.float32).reshape(shape)
+        actions = np.asarray(actions, dtype=np.int64).reshape(shape)
+        refused = _non_finite_worlds(last_obs, next_obs, rewards)
+        for world in range(self.n_worlds):
+            if world in refused:  # never stored; windows across the bad tick are dropped too
+                collector.pending[world].clear()
+                warnings.warn(f"{refused[world]}: the tick is not stored", RuntimeWarning, stacklevel=3)
+                continue
+            next_state = new_state[world]
+            if step.world_ended[world] and self.uses_global_state:
+                next_state = infos[world * self.n_agents].get("terminal_state", next_state)
+            collector.add(
+                world,
+                JointTick(
+                    observations=last_obs[world],
+                    actions=actions[world],
+                    rewards=rewards[world],
+                    next_observations=next_obs[world],
+                    ended=step.ended[world],
+                    truncated=step.truncated[world],
+                    alive=step.alive[world],
+                    state=last_state[world],
+                    next_state=np.asarray(next_state, dtype=np.float32),
+                    world_ended=bool(step.world_ended[world]),
+                ),
+            )
+        self._last_obs = new_obs
+        self._last_state = new_state
+        return int(step.world_ended.sum())
 
     # ------------------------------------------------------------------ learning
     def _compute_loss(self, batch: JointReplayBufferSamples) -> tuple[th.Tensor, np.ndarray, dict[str, float]]:
@@ -621,3 +740,45 @@ def _load_mismatch(cls: type[MultiAgentOffPolicyAlgorithm], path: Any, env: GymE
                 f"{describe_space(ours)}: use an env of the same kind (robots with robots, MPE with MPE)"
             )
     return None
+
+
+class _Step(NamedTuple):
+    """What one vector step says of each agent, as ``(n_worlds, n_agents)`` arrays (observations flat)."""
+
+    next_observations: np.ndarray  # (n_worlds * n_agents, obs): terminal observations where an episode ended
+    alive: np.ndarray  # the agent acted at this tick
+    truncated: np.ndarray  # its episode was cut by the time limit
+    ended: np.ndarray  # its episode (its life) ended at this tick
+    world_ended: np.ndarray  # (n_worlds,): every agent of the world is done
+
+
+def _read_step(new_obs: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]], shape: tuple[int, int]) -> _Step:
+    """Read the bridge's flags from a step's infos; patch in the terminal observations SB3 moved to the infos."""
+    next_obs = np.array(new_obs, dtype=np.float32, copy=True)
+    for index in np.flatnonzero(dones):
+        next_obs[index] = infos[index]["terminal_observation"]
+    alive = np.fromiter((info.get("alive", True) for info in infos), dtype=bool, count=len(infos))
+    truncated = np.fromiter((info.get("TimeLimit.truncated", False) for info in infos), dtype=bool, count=len(infos))
+    dones = np.asarray(dones, dtype=bool)
+    ended = dones & alive
+    return _Step(
+        next_observations=next_obs,
+        alive=alive.reshape(shape),
+        truncated=truncated.reshape(shape),
+        ended=ended.reshape(shape),
+        world_ended=np.asarray(dones.reshape(shape).all(axis=1)),
+    )
+
+
+def _non_finite_worlds(observations: np.ndarray, next_observations: np.ndarray, rewards: np.ndarray) -> dict[int, str]:
+    """:return: world -> what was not finite in its tick (``(worlds, agents, ...)`` arrays; empty when all are)."""
+    parts = {"observation": observations, "next observation": next_observations, "reward": rewards}
+    found: dict[int, str] = {}
+    if all(np.isfinite(array).all() for array in parts.values()):  # the hot path: one check per array
+        return found
+    for name, array in parts.items():
+        bad = ~np.isfinite(array.reshape(array.shape[0], array.shape[1], -1)).all(axis=2)
+        for world in np.flatnonzero(bad.any(axis=1)):
+            agents = np.flatnonzero(bad[world]).tolist()
+            found.setdefault(int(world), f"non-finite {name} from the env (world {world}, agents {agents})")
+    return found

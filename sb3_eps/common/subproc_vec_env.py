@@ -17,12 +17,12 @@ from typing import Any
 import gymnasium
 import numpy as np
 from pettingzoo import ParallelEnv
-from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper, VecEnv, VecEnvStepReturn
+from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper, VecEnvStepReturn
 
 from sb3_eps.common.multi_agent_vec_env import MultiAgentVecEnv
 from sb3_eps.common.snapshots import snapshot_dumps
 from sb3_eps.common.utils import check_arguments
-from sb3_eps.common.workers import START_TIMEOUT, Served, WorkerError, WorkerPool, default_start_method
+from sb3_eps.common.workers import START_TIMEOUT, Served, WorkerBlocks, WorkerError, default_start_method
 
 #: Seconds a process polls its pipe without sleeping before it sleeps, where every process of the vec env has a
 #: core of its own: waking a sleeping process costs about as much as stepping a world, and 10 ms covers the learning
@@ -40,7 +40,7 @@ _RESUME_HINT = (
     "--resume <run folder>"
 )
 # What a pickled vec env leaves out: the live processes and the main block's worlds (snapshotted).
-_PROCESS_LOCAL = ("_pool", "_slices", "_main_slice", "_local", "_step_in_flight")
+_PROCESS_LOCAL = ("_workers", "_slices", "_main_slice", "_step_in_flight")
 
 
 class VecEnvWorkerError(WorkerError):
@@ -84,8 +84,11 @@ _STEP, _STEP_WITH_STATE, _STEP_REPLY = b"s", b"S", b"R"
 _HEADER = 8  # a message's first byte says what it is; arrays start 8-byte aligned
 
 
-def _pack_step(actions: np.ndarray, want_state: bool) -> bytes | None:
-    """:return: the step command as bytes, or None where the actions need the pickled command."""
+def _pack_step(command: str, data: Any) -> bytes | None:
+    """:return: the step command as bytes, or None for another command or actions that need the pickled command."""
+    if command != "step":
+        return None
+    actions, want_state = data
     if actions.dtype != np.int64 or actions.ndim != 1:
         return None
     return (_STEP_WITH_STATE if want_state else _STEP).ljust(_HEADER, b"\0") + actions.tobytes()
@@ -256,45 +259,35 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
     @property
     def worker_pids(self) -> list[int]:
         """Process id of each worker (world block ``i`` lives in ``worker_pids[i]``)."""
-        return self._pool.pids
+        return self._workers.pool.pids
 
     def _start_workers(self, payloads: list[tuple[str, Any]], main_payload: tuple[str, Any] | None) -> None:
         self._step_in_flight = False
-        self._local: _Worlds | None = None
-        self._pool = WorkerPool(
+        t_start = self._t_start
+        self._workers = WorkerBlocks(
             _Worlds,
-            [(*payload, self._t_start) for payload in payloads],
-            self.start_method,
+            [(*payload, t_start) for payload in payloads],
+            None if main_payload is None else lambda: _Worlds((*main_payload, t_start)),
+            start_method=self.start_method,
             describe=self._describe,
             error=VecEnvWorkerError,
             hint=_RESUME_HINT,
             spin_s=self.spin_s,
             unpack=_unpack_step_reply,
+            pack=_pack_step,
         )
         try:
-            if main_payload is not None:  # built while the workers build theirs, after the forks
-                self._local = _Worlds((*main_payload, self._t_start))
-            layouts = [self._pool.recv(i, "building its worlds", START_TIMEOUT) for i in range(self.n_workers)]
+            layouts = self._workers.hellos("building its worlds", time.monotonic() + START_TIMEOUT)
         except BaseException:
-            self._pool.terminate()
+            self._workers.pool.terminate()
             raise
-        if self._local is not None:
-            layouts.insert(0, self._local.hello())
-        possible_agents, observation_space, action_space, state_space, self.ticks_per_step = layouts[0]
+        possible_agents, observation_space, action_space, state_space, ticks_per_step = layouts[0]
         if any(layout[0] != possible_agents for layout in layouts[1:]):
             self.close()
             raise ValueError("all worlds must have the same possible_agents")
-        self.possible_agents = list(possible_agents)
-        self.n_agents = len(self.possible_agents)
-        self.state_space = state_space
+        self._set_layout(possible_agents, observation_space, action_space, state_space, ticks_per_step)
         self._main_slice = slice(0, len(self._main_block) * self.n_agents)
         self._slices = [slice(block.start * self.n_agents, block.stop * self.n_agents) for block in self._blocks]
-        VecEnv.__init__(self, self.n_worlds * self.n_agents, observation_space, action_space)
-        self.alive = np.ones(self.num_envs, dtype=bool)
-        self._actions = np.zeros(self.num_envs, dtype=np.int64)
-        self._seed: int | None = None
-        self._n_steps = 0
-        self._state: np.ndarray | None = None
         self._want_state = False
 
     def _describe(self, i: int) -> str:
@@ -302,41 +295,19 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         worlds = f"world {block.start}" if len(block) == 1 else f"worlds {block.start}-{block.stop - 1}"
         return f"{worlds} of {self.env_id}" if self.env_id else worlds
 
-    def _send_all(self, command: str, data: Sequence[Any] | None, doing: str | None = None) -> None:
-        doing = doing or _DOING.get(command, command)
+    def _ask_all(
+        self, command: str, data: Sequence[Any] | None = None, local: Any = None, doing: str | None = None
+    ) -> list[Any]:
+        """:meth:`~sb3_eps.common.workers.WorkerBlocks.ask` once no step is in flight."""
+        doing = self._no_step_in_flight(doing or _DOING.get(command, command))
+        return self._workers.ask(command, data, local, doing)
+
+    def _no_step_in_flight(self, doing: str) -> str:
         if self._step_in_flight:
             raise RuntimeError(
                 f"a step is in flight: call step_wait() after step_async() before {doing.replace('its', 'the')}"
             )
-        for i in range(self.n_workers):
-            message = _pack_step(*data[i]) if command == "step" and data is not None else None
-            if message is not None:
-                self._pool.send_bytes(i, message, _DOING["step"])
-            else:
-                self._pool.send(i, command, None if data is None else data[i], doing)
-
-    def _ask_all(
-        self, command: str, data: Sequence[Any] | None = None, local: Any = None, doing: str | None = None
-    ) -> list[Any]:
-        """Send ``command`` to every worker (``data[i]`` to worker ``i``), run it on the main process's block
-        meanwhile (with ``local`` as its data), then gather the replies in order, the main block's first; ``doing``
-        names the command in errors."""
-        self._send_all(command, data, doing)
-        return self._finish_all(command, local, doing)
-
-    def _finish_all(self, command: str, local: Any, doing: str | None = None) -> list[Any]:
-        """Run ``command`` on the main process's block while the workers run theirs; if it raises, collect the
-        workers' replies first (the error of the main block is the one raised, as in process)."""
-        doing, workers = doing or _DOING.get(command, command), range(self.n_workers)
-        if self._local is None:
-            return self._pool.gather(workers, doing)
-        try:
-            mine = self._local.handle(command, local)
-        except BaseException:
-            with contextlib.suppress(VecEnvWorkerError):
-                self._pool.gather(workers, doing)
-            raise
-        return [mine, *self._pool.gather(workers, doing)]
+        return doing
 
     # -------------------------------------------------------------------------------- VecEnv
     def reset(self) -> np.ndarray:
@@ -361,7 +332,9 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         other work (an algorithm with ``overlap_training`` learns meanwhile) until :meth:`step_wait`."""
         super().step_async(actions)
         actions, want_state = self._actions, self._want_state
-        self._send_all("step", [(actions[part], want_state) for part in self._slices])
+        self._workers.send(
+            "step", [(actions[part], want_state) for part in self._slices], self._no_step_in_flight(_DOING["step"])
+        )
         self._step_in_flight = True
 
     def step_wait(self) -> VecEnvStepReturn:
@@ -369,12 +342,12 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         if not self._step_in_flight:
             raise RuntimeError("step_wait() needs a step_async() before it")
         self._step_in_flight = False
-        replies = self._finish_all("step", (self._actions[self._main_slice], self._want_state))
+        replies = self._workers.finish("step", (self._actions[self._main_slice], self._want_state), _DOING["step"])
         obs, rewards, dones, alive = (self._join([reply[i] for reply in replies]) for i in (0, 1, 2, 4))
         infos = [info for reply in replies for info in reply[3]]
         self.alive = alive
         self._state = self._join_states([reply[5] for reply in replies])
-        parts = self._slices if self._local is None else [self._main_slice, *self._slices]
+        parts = self._slices if self._workers.local is None else [self._main_slice, *self._slices]
         for part, reply in zip(parts, replies):
             if reply[6] is not None:
                 self.reset_infos[part] = reply[6]
@@ -392,15 +365,13 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
 
     def close(self) -> None:
         """Close every world and stop the workers (idempotent)."""
-        if self._pool.closed:
+        if self._workers.closed:
             return
         if self._step_in_flight:  # the workers' step replies come before their answers to "close"
             self._step_in_flight = False
             with contextlib.suppress(VecEnvWorkerError):
-                self._pool.gather(range(self.n_workers), _DOING["step"])
-        if self._local is not None:
-            self._local.close()
-        self._pool.close()
+                self._workers.pool.gather(range(self.n_workers), _DOING["step"])
+        self._workers.close()
 
     def _world_call(
         self,
@@ -415,10 +386,10 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         def request(block: range) -> tuple[Any, ...]:  # the block's wanted worlds by their index in the block
             return [w - block.start for w in block if w in wanted], kind, name, args, kwargs
 
-        local = request(self._main_block) if self._local is not None else None
+        local = request(self._main_block) if self._workers.local is not None else None
         doing = f"running {kind} {name or ''}".strip()
         replies = self._ask_all("call", [request(block) for block in self._blocks], local, doing)
-        blocks = self._blocks if self._local is None else [self._main_block, *self._blocks]
+        blocks = self._blocks if self._workers.local is None else [self._main_block, *self._blocks]
         return {block.start + w: value for block, reply in zip(blocks, replies) for w, value in reply.items()}
 
     def _join(self, parts: list[np.ndarray]) -> np.ndarray:
@@ -435,7 +406,7 @@ class SubprocMultiAgentVecEnv(MultiAgentVecEnv):
         """The main process's bookkeeping plus a snapshot of every block's worlds (mid-episode)."""
         snapshots = self._ask_all("snapshot")
         state = {key: value for key, value in super().__getstate__().items() if key not in _PROCESS_LOCAL}
-        if self._local is not None:
+        if self._workers.local is not None:
             state["_main_snapshot"], snapshots = snapshots[0], snapshots[1:]
         state["_snapshots"] = snapshots
         return state

@@ -40,12 +40,6 @@ def check_arguments(function: Callable[..., Any], values: dict[str, Any], ranges
             raise ValueError(f"{name} must be {describe_hint(hint, interval)}, got {value!r}")
 
 
-def base_arguments(base_init: Callable[..., Any], values: dict[str, Any]) -> dict[str, Any]:
-    """The arguments of ``base_init`` (a base class's constructor) among ``values`` (a subclass constructor's
-    ``locals()``): a subclass states its defaults in its own explicit signature and hands the shared arguments on."""
-    return {name: values[name] for name in inspect.signature(base_init).parameters if name != "self" and name in values}
-
-
 #: What :func:`conform` returns for a value that does not fit its hint.
 INVALID: Any = object()
 #: The check of a plain hint: ``(value, hint) ->`` the value in canonical form, or :data:`INVALID`.

@@ -1,5 +1,7 @@
-"""Worker processes that answer the main process's commands over pipes: :class:`WorkerPool`, for the worlds of
-:class:`~sb3_eps.common.subproc_vec_env.SubprocMultiAgentVecEnv` and EPS's evaluation blocks.
+"""Worker processes that answer the main process's commands over pipes (:class:`WorkerPool`), and
+:class:`WorkerBlocks`, the one mechanism of the blocks of work spread over them and the main process: the worlds of
+:class:`~sb3_eps.common.subproc_vec_env.SubprocMultiAgentVecEnv` and EPS's evaluation envs
+(:class:`~sb3_eps.eps.evaluation.EnvPool`).
 
 A worker holds a :class:`Served` object and answers every ``(command, data)`` with ``("ok", reply)`` or ``("error",
 traceback)``. Workers ignore SIGINT and SIGTERM (the main process stops them after its checkpoint) and exit with it.
@@ -144,6 +146,8 @@ class WorkerPool:
     :param error: the exception class raised for a worker that dies, hangs or raises; ``hint`` ends a death's message
     :param spin_s: seconds a process waiting for a message polls its pipe before it sleeps
     :param unpack: reads a reply that a worker sent as raw bytes (:meth:`Served.pack`)
+    :param pack: ``(command, data)`` as raw bytes for :meth:`Served.unpack` (not starting with a pickle's first
+        byte), or None to pickle it
     """
 
     def __init__(
@@ -157,10 +161,11 @@ class WorkerPool:
         spin_s: float = 0.0,
         close_timeout: float = CLOSE_TIMEOUT,
         unpack: Callable[[bytes], Any] = bytes,
+        pack: Callable[[str, Any], bytes | None] = lambda command, data: None,
     ) -> None:
         context: Any = mp.get_context(start_method or default_start_method())
         self.describe, self.error, self.hint = describe, error, hint
-        self.spin_s, self.close_timeout, self.unpack = spin_s, close_timeout, unpack
+        self.spin_s, self.close_timeout, self.unpack, self.pack = spin_s, close_timeout, unpack, pack
         self.closed = False
         self._remotes: list[Connection] = []
         self._processes: list[Any] = []
@@ -194,8 +199,9 @@ class WorkerPool:
         return self.error(f"the worker process of {self.name(i)} died: it {how} while {doing}{self.hint}")
 
     def send(self, i: int, command: str, data: Any = None, doing: str = "") -> None:
-        """Send ``(command, data)`` pickled to worker ``i``."""
-        self.send_bytes(i, ForkingPickler.dumps((command, data)), doing or command)
+        """Send ``(command, data)`` to worker ``i``, as ``pack`` makes it or pickled."""
+        message = self.pack(command, data)
+        self.send_bytes(i, ForkingPickler.dumps((command, data)) if message is None else message, doing or command)
 
     def send_bytes(self, i: int, message: Any, doing: str) -> None:
         try:
@@ -259,3 +265,72 @@ class WorkerPool:
                 process.join(timeout=1.0)
         for remote in self._remotes:
             remote.close()
+
+
+class WorkerBlocks:
+    """Blocks of work: one per worker process (a :class:`WorkerPool` of ``build(payload)``), and optionally one in
+    the main process (``local()``, built after the forks while the workers build theirs). A command goes to every
+    worker, runs on the local block meanwhile, and the replies come back in block order, the local block's first.
+
+    :param local: makes the main process's block (None: every block in a worker)
+    :param pool_options: the :class:`WorkerPool`'s
+    """
+
+    def __init__(
+        self,
+        build: Callable[[Any], Served],
+        payloads: Sequence[Any],
+        local: Callable[[], Served] | None = None,
+        **pool_options: Any,
+    ) -> None:
+        self.pool = WorkerPool(build, payloads, **pool_options)
+        try:
+            self.local = None if local is None else local()
+        except BaseException:
+            self.pool.terminate()
+            raise
+
+    @property
+    def n_workers(self) -> int:
+        return len(self.pool.pids)
+
+    @property
+    def closed(self) -> bool:
+        return self.pool.closed
+
+    def hellos(self, doing: str, deadline: float | None = None) -> list[Any]:
+        """:return: every block's :meth:`Served.hello` (a worker's once its object is built), before ``deadline``."""
+        replies = self.pool.gather(range(self.n_workers), doing, deadline)
+        return replies if self.local is None else [self.local.hello(), *replies]
+
+    def send(self, command: str, data: Sequence[Any] | None, doing: str) -> None:
+        """Send ``command`` to every worker, ``data[i]`` to worker ``i``."""
+        for i in range(self.n_workers):
+            self.pool.send(i, command, None if data is None else data[i], doing)
+
+    def finish(self, command: str, local: Any, doing: str, deadline: float | None = None) -> list[Any]:
+        """Run ``command`` on the local block (with ``local`` as its data) while the workers run theirs, then gather
+        the replies; if the local block raises, the workers' replies are collected first (its error is raised)."""
+        workers = range(self.n_workers)
+        if self.local is None:
+            return self.pool.gather(workers, doing, deadline)
+        try:
+            mine = self.local.handle(command, local)
+        except BaseException:
+            with contextlib.suppress(self.pool.error):
+                self.pool.gather(workers, doing, deadline)
+            raise
+        return [mine, *self.pool.gather(workers, doing, deadline)]
+
+    def ask(
+        self, command: str, data: Sequence[Any] | None, local: Any, doing: str, deadline: float | None = None
+    ) -> list[Any]:
+        """:meth:`send`, then :meth:`finish`."""
+        self.send(command, data, doing)
+        return self.finish(command, local, doing, deadline)
+
+    def close(self) -> None:
+        if self.local is not None:
+            self.local.close()
+            self.local = None
+        self.pool.close()

@@ -2,6 +2,7 @@
 
 from sb3_eps.eps.callback import EvolutionCallback
 from sb3_eps.eps.evaluation import (
+    EnvPool,
     EvaluationFailed,
     InProcessEnvPool,
     PopulationForward,
@@ -27,6 +28,7 @@ __all__ = [
     "EPS_WORLDS",
     "PAPER_SETTINGS",
     "EPSSettings",
+    "EnvPool",
     "EvaluationFailed",
     "EvolutionCallback",
     "InProcessEnvPool",

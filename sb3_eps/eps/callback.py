@@ -20,8 +20,6 @@ from sb3_eps.eps.budget import RoundBudget, model_ticks
 from sb3_eps.eps.evaluation import (
     EnvPool,
     EvaluationFailed,
-    InProcessEnvPool,
-    SubprocessEnvPool,
     agent_space,
     make_eval_env,
 )
@@ -268,15 +266,10 @@ class EvolutionCallback(BaseCallback):
         # The workers get the architecture only (a CPU copy); each round sends them the weights.
         template = copy.deepcopy(self.model.policy.q_net).to("cpu")
         arguments = (settings.eval_env_id, settings.eval_env_kwargs, settings.n_individuals, settings.n_eval_episodes)
-        kwargs: dict[str, Any] = {"record": record_mode(self.model) if settings.share_experience else None}
+        record = record_mode(self.model) if settings.share_experience else None
         # A worker evaluates whole individuals, so more workers than individuals would idle.
         n_workers = (os.cpu_count() or 1) if settings.n_workers is None else settings.n_workers
-        n_workers = min(n_workers, settings.n_individuals)
-        pool: EnvPool = (
-            SubprocessEnvPool(*arguments, template, n_workers=n_workers, **kwargs)
-            if n_workers
-            else InProcessEnvPool(*arguments, template, **kwargs)
-        )
+        pool = EnvPool(*arguments, template, n_workers=min(n_workers, settings.n_individuals), record=record)
         self.round.pool = pool
         # Close the workers even when training dies with an exception (no _on_training_end then).
         self._pool_finalizer = weakref.finalize(self, pool.close)

@@ -1,12 +1,13 @@
 """Greedy evaluation of an EPS population (Algorithm 1, lines 4 and 10).
 
-The individuals are split into contiguous blocks, one per worker process (:class:`SubprocessEnvPool`) or one in the
-main process (:class:`InProcessEnvPool`); a block plays all its episodes in lockstep, episode ``j`` of every
+The individuals are split into contiguous blocks, one per worker process or one in the main process
+(:class:`EnvPool`, on :class:`~sb3_eps.common.workers.WorkerBlocks` as the subprocess vec env); a block plays all its episodes in lockstep, episode ``j`` of every
 individual from the same seed (common random numbers), and gets the weights once per round (``docs/modules/eps.md``).
 """
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -19,7 +20,7 @@ from torch import nn
 from torch.func import functional_call, vmap
 
 from sb3_eps.common.parallel_wrappers import TeamAsGymnasium, TeamTick, ticks_per_step
-from sb3_eps.common.workers import Served, WorkerError, WorkerPool
+from sb3_eps.common.workers import Served, WorkerBlocks, WorkerError
 from sb3_eps.eps.mutations import Parameters, finite_individuals
 
 
@@ -221,28 +222,15 @@ def _build_served_block(block_kwargs: dict[str, Any]) -> _Block:
     return _Block(**block_kwargs)
 
 
-class InProcessEnvPool(_Block):
-    """All envs in the main process: no start-up cost, no protection against a hanging env (arguments as
-    :class:`SubprocessEnvPool`)."""
-
-    pids: list[int] = []  # no worker process
-
-    def evaluate(self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float = 0.0) -> PoolAnswer:
-        """:meth:`_Block.evaluate` (``deadline``: a worker pool's, not enforced), else :class:`EvaluationFailed`."""
-        try:
-            return super().evaluate(population, seeds, valid)
-        except Exception as error:  # an env that fails (e.g. its PyBullet client is gone): skip the round
-            reason = " ".join(str(error).split()) or type(error).__name__
-            raise EvaluationFailed(f"an evaluation env raised {type(error).__name__}: {reason}") from error
-
-
-class SubprocessEnvPool:
-    """Individuals split into contiguous blocks over worker processes.
+class EnvPool:
+    """The evaluation envs of ``n_individuals`` x ``n_episodes`` episodes: the individuals split into contiguous
+    blocks, one per worker process, or all in one block in the main process (``n_workers=0``: no start-up cost, no
+    protection against a hanging env).
 
     :param env_id: an id :func:`check_eval_env_id` accepts, built with ``env_kwargs``
     :param n_individuals: individuals per round, each playing ``n_episodes`` episodes
     :param network: architecture template (CPU; copied into the workers)
-    :param n_workers: number of worker processes (at most ``n_individuals``)
+    :param n_workers: number of worker processes (at most ``n_individuals``; 0: the main process)
     :param record: what to record of every episode (see :class:`_Block`), sent back with the answer
     """
 
@@ -259,12 +247,13 @@ class SubprocessEnvPool:
         n_blocks = max(1, min(n_workers, n_individuals))
         self.blocks = [block for block in np.array_split(np.arange(n_individuals), n_blocks) if len(block)]
         common = {"env_id": env_id, "env_kwargs": env_kwargs, "n_episodes": n_episodes, "network": network}
-        payloads = [{**common, "n_individuals": len(block), "record": record} for block in self.blocks]
+        payloads: list[dict[str, Any]] = [{**common, "n_individuals": len(block), "record": record} for block in self.blocks]
         # The workers build their envs while the main process goes on training; the first evaluation waits for
         # their hellos within its own deadline.
-        self._workers = WorkerPool(
+        self._workers = WorkerBlocks(
             _build_served_block,
-            payloads,
+            payloads if n_workers else [],
+            None if n_workers else lambda: _Block(**payloads[0]),
             describe=lambda i: f"evaluation block {i}",
             error=EvaluationFailed,
             close_timeout=1.0,
@@ -273,17 +262,26 @@ class SubprocessEnvPool:
 
     @property
     def pids(self) -> list[int]:
-        """Process ids of the worker processes (empty once closed)."""
-        return [] if self._workers.closed else self._workers.pids
+        """Process ids of the worker processes (empty in the main process or once closed)."""
+        return [] if self._workers.closed else self._workers.pool.pids
 
     def evaluate(self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float) -> PoolAnswer:
+        """Every episode of every ``valid`` individual (:meth:`_Block.evaluate`) before ``deadline``
+        (``time.monotonic()``; not enforced in the main process), else :class:`EvaluationFailed`."""
         if not self._ready:  # the workers' hellos: their envs are built
-            self._workers.gather(range(len(self.blocks)), "building its envs", deadline)
+            self._workers.hellos("building its envs", deadline)
             self._ready = True
-        for i, block in enumerate(self.blocks):
-            weights = {name: stacked[block].cpu().numpy() for name, stacked in population.items()}
-            self._workers.send(i, "evaluate", (weights, list(seeds), valid[block]), "receiving the weights")
-        answers = self._workers.gather(range(len(self.blocks)), "evaluating", deadline)
+        data = [
+            ({name: stacked[block].cpu().numpy() for name, stacked in population.items()}, list(seeds), valid[block])
+            for block in self.blocks
+        ]
+        try:
+            answers = self._workers.ask("evaluate", data, data[0], "evaluating", deadline)
+        except EvaluationFailed:
+            raise
+        except Exception as error:  # an env that fails (e.g. its PyBullet client is gone): skip the round
+            reason = " ".join(str(error).split()) or type(error).__name__
+            raise EvaluationFailed(f"an evaluation env raised {type(error).__name__}: {reason}") from error
         returns, lengths, outcomes, valid_parts = (np.concatenate([answer[part] for answer in answers]) for part in range(4))
         episodes = None if answers[0][4] is None else [episode for answer in answers for episode in answer[4]]
         return returns, lengths, outcomes, valid_parts, episodes
@@ -292,8 +290,8 @@ class SubprocessEnvPool:
         self._workers.close()
 
 
-#: The evaluation envs of a population of ``n_individuals`` x ``n_episodes`` episodes.
-EnvPool = InProcessEnvPool | SubprocessEnvPool
+#: The pool with its envs in worker processes (``n_workers``, 2 by default), and the one with them in this process.
+SubprocessEnvPool, InProcessEnvPool = EnvPool, functools.partial(EnvPool, n_workers=0)
 
 
 @dataclass

@@ -13,7 +13,7 @@ from sb3_eps.common.buffers import JointReplayBuffer, JointReplayBufferSamples, 
 from sb3_eps.common.losses import masked_huber, row_priority, weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import base_arguments, check_arguments, td_target
+from sb3_eps.common.utils import check_arguments, td_target
 from sb3_eps.gdq.policies import DEFAULT_GLOBAL_HEAD, GDQPolicy, MlpPolicy
 
 #: Where ``v`` and ``v'`` (the inputs of ``V_G`` and ``V_G'``) come from (``GDQ(global_values=...)``).
@@ -69,9 +69,39 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     Where the package departs from the paper: ``global_bootstrap=0.1`` (``global_bootstrap=1.0, n_steps=30`` is the
     paper's target) and an agent target network (``docs/results/gdq_target.md``), ``team_reward_mode="mean"``,
     ``learning_rate`` 3e-4 decaying linearly to 0, uniform replay (``docs/results/gdq_uniform_replay.md``) and a
-    weight average for the greedy actions (:class:`~sb3_eps.gdq.policies.GDQPolicy`). Other arguments are those of
-    :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm`.
+    weight average for the greedy actions (:class:`~sb3_eps.gdq.policies.GDQPolicy`).
 
+    :param policy: the policy class, or ``"MlpPolicy"`` for the algorithm's own
+    :param env: the vector env from :func:`~sb3_eps.make_vec_env` (one sub-env per agent); None to set it later
+    :param learning_rate: learning rate, or a schedule of the remaining progress (default: 3e-4 decaying linearly to 0)
+    :param buffer_size: replay capacity, in joint rows (one world's tick, all its agents)
+    :param learning_starts: agent-steps of uniformly random actions before learning starts
+    :param batch_size: joint rows per gradient step
+    :param tau: Polyak coefficient of the target networks (1: a hard copy)
+    :param gamma: discount factor
+    :param train_freq: ticks of every world between two trainings, or ``(n, "step" | "episode")``
+    :param gradient_steps: gradient steps per training (-1: as many as agent-steps collected)
+    :param replay_buffer_class: a :class:`~sb3_eps.common.buffers.JointReplayBuffer` class (None: by ``prioritized_replay``)
+    :param replay_buffer_kwargs: the replay buffer's arguments beyond capacity, spaces and agents
+    :param gradient_steps_per_target_update: gradient steps between two Polyak updates of the target networks
+    :param n_steps: n of the n-step returns
+    :param prioritized_replay: proportional prioritised replay (default False: uniform, ``docs/results/gdq_uniform_replay.md``)
+    :param prioritized_replay_alpha: priority exponent of the prioritised replay
+    :param prioritized_replay_beta0: importance exponent at the start, annealed linearly to 1 over training
+    :param double_q: choose the bootstrap action with the online network and value it with the target one
+    :param exploration_fraction: fraction of training over which epsilon decays linearly
+    :param exploration_initial_eps: epsilon at the start (one epsilon coin per agent)
+    :param exploration_final_eps: epsilon at the end of the decay
+    :param max_grad_norm: gradient norm clipping
+    :param team_reward_mode: team reward of a tick: ``"sum"`` or ``"mean"`` (the default) of the alive agents' rewards
+    :param overlap_training: learn while the last tick's worlds step (worlds in worker processes; ``train_freq`` in steps)
+    :param stats_window_size: episodes (worlds, not agents) averaged in the rollout logs
+    :param tensorboard_log: TensorBoard log folder (None: none)
+    :param policy_kwargs: the policy's arguments (:class:`~sb3_eps.gdq.policies.GDQPolicy`: global head, target, average)
+    :param verbose: 0: no output, 1: training information, 2: debug
+    :param seed: seed of the random generators
+    :param device: torch device (``"auto"``: CUDA where available)
+    :param _init_setup_model: build the networks and the buffer now (SB3's ``load`` builds them later)
     :param global_values: where ``v'`` comes from: ``"target"``, the agent target network (needs
         ``policy_kwargs=dict(agent_target=True)``, the default), so that every bootstrap input moves slowly;
         ``"recomputed"``, the current agent network at update time. ``v`` always comes from the current agent
@@ -88,7 +118,7 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
     def __init__(
         self,
         policy: str | type[MultiAgentQPolicy],
-        env: GymEnv | None,
+        env: GymEnv | str | None,
         learning_rate: float | Schedule = DEFAULT_LEARNING_RATE,
         buffer_size: int = 50_000,
         learning_starts: int = 2_000,
@@ -128,7 +158,20 @@ class GDQ(MultiAgentOffPolicyAlgorithm):
         )
         self.global_values: GlobalValues = global_values
         self.global_bootstrap = float(global_bootstrap)
-        super().__init__(**base_arguments(MultiAgentOffPolicyAlgorithm.__init__, locals()))
+        # fmt: off
+        super().__init__(
+            policy=policy, env=env, learning_rate=learning_rate, buffer_size=buffer_size, learning_starts=learning_starts,
+            batch_size=batch_size, tau=tau, gamma=gamma, train_freq=train_freq, gradient_steps=gradient_steps,
+            replay_buffer_class=replay_buffer_class, replay_buffer_kwargs=replay_buffer_kwargs,
+            gradient_steps_per_target_update=gradient_steps_per_target_update, n_steps=n_steps,
+            prioritized_replay=prioritized_replay, prioritized_replay_alpha=prioritized_replay_alpha,
+            prioritized_replay_beta0=prioritized_replay_beta0, double_q=double_q, exploration_fraction=exploration_fraction,
+            exploration_initial_eps=exploration_initial_eps, exploration_final_eps=exploration_final_eps,
+            max_grad_norm=max_grad_norm, team_reward_mode=team_reward_mode, overlap_training=overlap_training,
+            stats_window_size=stats_window_size, tensorboard_log=tensorboard_log, policy_kwargs=policy_kwargs, verbose=verbose,
+            seed=seed, device=device, _init_setup_model=_init_setup_model,
+        )
+        # fmt: on
 
     def _fixed_team_size(self) -> bool:
         return self.policy_kwargs.get("global_head", DEFAULT_GLOBAL_HEAD) != "pooled"

@@ -13,7 +13,7 @@ from sb3_eps.common.buffers import JointReplayBuffer, JointReplayBufferSamples, 
 from sb3_eps.common.losses import weighted_huber
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.policies import MultiAgentQPolicy
-from sb3_eps.common.utils import base_arguments, check_arguments, td_target
+from sb3_eps.common.utils import check_arguments, td_target
 from sb3_eps.qmix.policies import QMIXPolicy, VDNPolicy, apply_lr_scales
 
 #: QMIX's and VDN's default learning rate: 3e-4 decaying linearly to 0 over the budget (docs/results/qmix_vdn.md).
@@ -28,10 +28,39 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     reward, ``y = r_team + gamma^k (1 - done) mixer_target(Q_i'(s'_i, a*_i); s')``; agents act greedily on
     their own ``Q_i`` (monotonicity makes that the joint arg max). Agents that are not acting (a robot that
     arrived) enter the mixer with ``Q = 0``. Needs the env's global state (``state()``). The mixer's size and
-    initialisation are ``policy_kwargs`` (:class:`~sb3_eps.qmix.policies.QMIXPolicy`). Arguments
-    are those of :class:`~sb3_eps.common.off_policy.MultiAgentOffPolicyAlgorithm` (the learning rate decays from
-    3e-4 to 0 by default, ``docs/results/qmix_vdn.md``), and:
+    initialisation are ``policy_kwargs`` (:class:`~sb3_eps.qmix.policies.QMIXPolicy`).
 
+    :param policy: the policy class, or ``"MlpPolicy"`` for the algorithm's own
+    :param env: the vector env from :func:`~sb3_eps.make_vec_env` (one sub-env per agent); None to set it later
+    :param learning_rate: learning rate, or a schedule of the remaining progress (default: 3e-4 decaying linearly to 0)
+    :param buffer_size: replay capacity, in joint rows (one world's tick, all its agents)
+    :param learning_starts: agent-steps of uniformly random actions before learning starts
+    :param batch_size: joint rows per gradient step
+    :param tau: Polyak coefficient of the target networks (1: a hard copy)
+    :param gamma: discount factor
+    :param train_freq: ticks of every world between two trainings, or ``(n, "step" | "episode")``
+    :param gradient_steps: gradient steps per training (-1: as many as agent-steps collected)
+    :param replay_buffer_class: a :class:`~sb3_eps.common.buffers.JointReplayBuffer` class (None: by ``prioritized_replay``)
+    :param replay_buffer_kwargs: the replay buffer's arguments beyond capacity, spaces and agents
+    :param gradient_steps_per_target_update: gradient steps between two Polyak updates of the target networks
+    :param n_steps: n of the n-step returns
+    :param prioritized_replay: proportional prioritised replay (else uniform)
+    :param prioritized_replay_alpha: priority exponent of the prioritised replay
+    :param prioritized_replay_beta0: importance exponent at the start, annealed linearly to 1 over training
+    :param double_q: choose the bootstrap action with the online network and value it with the target one
+    :param exploration_fraction: fraction of training over which epsilon decays linearly
+    :param exploration_initial_eps: epsilon at the start (one epsilon coin per agent)
+    :param exploration_final_eps: epsilon at the end of the decay
+    :param max_grad_norm: gradient norm clipping
+    :param team_reward_mode: team reward of a tick: ``"sum"`` or ``"mean"`` of the alive agents' rewards
+    :param overlap_training: learn while the last tick's worlds step (worlds in worker processes; ``train_freq`` in steps)
+    :param stats_window_size: episodes (worlds, not agents) averaged in the rollout logs
+    :param tensorboard_log: TensorBoard log folder (None: none)
+    :param policy_kwargs: the policy's arguments (:class:`~sb3_eps.qmix.policies.QMIXPolicy`: mixer size, initialisation)
+    :param verbose: 0: no output, 1: training information, 2: debug
+    :param seed: seed of the random generators
+    :param device: torch device (``"auto"``: CUDA where available)
+    :param _init_setup_model: build the networks and the buffer now (SB3's ``load`` builds them later)
     :param advantage_learning: ``alpha`` of advantage learning (Bellemare et al., "Increasing the Action Gap", AAAI
         2016): the team's target is lowered by ``alpha (mixer'(max_b Q_i'(s_i, b); s) - mixer'(Q_i'(s_i, a_i); s))``,
         the gap between the joint greedy action and the joint action taken, read from the agent target network
@@ -46,7 +75,7 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     def __init__(
         self,
         policy: str | type[MultiAgentQPolicy],
-        env: GymEnv | None,
+        env: GymEnv | str | None,
         learning_rate: float | Schedule = DEFAULT_LEARNING_RATE,
         buffer_size: int = 50_000,
         learning_starts: int = 2_000,
@@ -80,7 +109,20 @@ class QMIX(MultiAgentOffPolicyAlgorithm):
     ) -> None:
         check_arguments(QMIX.__init__, {"advantage_learning": advantage_learning}, self.argument_ranges)
         self.advantage_learning = float(advantage_learning)
-        super().__init__(**base_arguments(MultiAgentOffPolicyAlgorithm.__init__, locals()))
+        # fmt: off
+        super().__init__(
+            policy=policy, env=env, learning_rate=learning_rate, buffer_size=buffer_size, learning_starts=learning_starts,
+            batch_size=batch_size, tau=tau, gamma=gamma, train_freq=train_freq, gradient_steps=gradient_steps,
+            replay_buffer_class=replay_buffer_class, replay_buffer_kwargs=replay_buffer_kwargs,
+            gradient_steps_per_target_update=gradient_steps_per_target_update, n_steps=n_steps,
+            prioritized_replay=prioritized_replay, prioritized_replay_alpha=prioritized_replay_alpha,
+            prioritized_replay_beta0=prioritized_replay_beta0, double_q=double_q, exploration_fraction=exploration_fraction,
+            exploration_initial_eps=exploration_initial_eps, exploration_final_eps=exploration_final_eps,
+            max_grad_norm=max_grad_norm, team_reward_mode=team_reward_mode, overlap_training=overlap_training,
+            stats_window_size=stats_window_size, tensorboard_log=tensorboard_log, policy_kwargs=policy_kwargs, verbose=verbose,
+            seed=seed, device=device, _init_setup_model=_init_setup_model,
+        )
+        # fmt: on
 
     def _update_learning_rate(self, optimizers: list[th.optim.Optimizer] | th.optim.Optimizer) -> None:
         super()._update_learning_rate(optimizers)
@@ -129,7 +171,41 @@ class VDN(QMIX):
     """VDN: as :class:`QMIX` with the additive mixer ``Q_tot = sum_i Q_i`` (no state needed), and its own defaults:
     ``advantage_learning=0.5`` and greedy actions from a 2e-4 weight average of the agent network's weights
     (``policy_kwargs=dict(weight_average_tau=2e-4)``, :class:`~sb3_eps.qmix.policies.VDNPolicy`), chosen together on
-    held-out seeds (``docs/results/qmix_vdn.md``)."""
+    held-out seeds (``docs/results/qmix_vdn.md``).
+
+    :param policy: the policy class, or ``"MlpPolicy"`` for the algorithm's own
+    :param env: the vector env from :func:`~sb3_eps.make_vec_env` (one sub-env per agent); None to set it later
+    :param learning_rate: learning rate, or a schedule of the remaining progress (default: 3e-4 decaying linearly to 0)
+    :param buffer_size: replay capacity, in joint rows (one world's tick, all its agents)
+    :param learning_starts: agent-steps of uniformly random actions before learning starts
+    :param batch_size: joint rows per gradient step
+    :param tau: Polyak coefficient of the target networks (1: a hard copy)
+    :param gamma: discount factor
+    :param train_freq: ticks of every world between two trainings, or ``(n, "step" | "episode")``
+    :param gradient_steps: gradient steps per training (-1: as many as agent-steps collected)
+    :param replay_buffer_class: a :class:`~sb3_eps.common.buffers.JointReplayBuffer` class (None: by ``prioritized_replay``)
+    :param replay_buffer_kwargs: the replay buffer's arguments beyond capacity, spaces and agents
+    :param gradient_steps_per_target_update: gradient steps between two Polyak updates of the target networks
+    :param n_steps: n of the n-step returns
+    :param prioritized_replay: proportional prioritised replay (else uniform)
+    :param prioritized_replay_alpha: priority exponent of the prioritised replay
+    :param prioritized_replay_beta0: importance exponent at the start, annealed linearly to 1 over training
+    :param double_q: choose the bootstrap action with the online network and value it with the target one
+    :param exploration_fraction: fraction of training over which epsilon decays linearly
+    :param exploration_initial_eps: epsilon at the start (one epsilon coin per agent)
+    :param exploration_final_eps: epsilon at the end of the decay
+    :param max_grad_norm: gradient norm clipping
+    :param team_reward_mode: team reward of a tick: ``"sum"`` or ``"mean"`` of the alive agents' rewards
+    :param overlap_training: learn while the last tick's worlds step (worlds in worker processes; ``train_freq`` in steps)
+    :param stats_window_size: episodes (worlds, not agents) averaged in the rollout logs
+    :param tensorboard_log: TensorBoard log folder (None: none)
+    :param policy_kwargs: the policy's arguments (:class:`~sb3_eps.qmix.policies.VDNPolicy`: sizes, target, average)
+    :param verbose: 0: no output, 1: training information, 2: debug
+    :param seed: seed of the random generators
+    :param device: torch device (``"auto"``: CUDA where available)
+    :param _init_setup_model: build the networks and the buffer now (SB3's ``load`` builds them later)
+    :param advantage_learning: ``alpha`` of advantage learning, as in :class:`QMIX` (default 0.5)
+    """
 
     policy_aliases: ClassVar[dict[str, type[MultiAgentQPolicy]]] = {"MlpPolicy": VDNPolicy}
     uses_global_state: ClassVar[bool] = False
@@ -139,7 +215,7 @@ class VDN(QMIX):
     def __init__(
         self,
         policy: str | type[MultiAgentQPolicy],
-        env: GymEnv | None,
+        env: GymEnv | str | None,
         learning_rate: float | Schedule = DEFAULT_LEARNING_RATE,
         buffer_size: int = 50_000,
         learning_starts: int = 2_000,
@@ -171,4 +247,18 @@ class VDN(QMIX):
         _init_setup_model: bool = True,
         advantage_learning: float = DEFAULT_VDN_ADVANTAGE_LEARNING,
     ) -> None:
-        super().__init__(**base_arguments(QMIX.__init__, locals()))
+        # fmt: off
+        super().__init__(
+            policy=policy, env=env, learning_rate=learning_rate, buffer_size=buffer_size, learning_starts=learning_starts,
+            batch_size=batch_size, tau=tau, gamma=gamma, train_freq=train_freq, gradient_steps=gradient_steps,
+            replay_buffer_class=replay_buffer_class, replay_buffer_kwargs=replay_buffer_kwargs,
+            gradient_steps_per_target_update=gradient_steps_per_target_update, n_steps=n_steps,
+            prioritized_replay=prioritized_replay, prioritized_replay_alpha=prioritized_replay_alpha,
+            prioritized_replay_beta0=prioritized_replay_beta0, double_q=double_q, exploration_fraction=exploration_fraction,
+            exploration_initial_eps=exploration_initial_eps, exploration_final_eps=exploration_final_eps,
+            max_grad_norm=max_grad_norm, team_reward_mode=team_reward_mode, overlap_training=overlap_training,
+            stats_window_size=stats_window_size, tensorboard_log=tensorboard_log, policy_kwargs=policy_kwargs, verbose=verbose,
+            seed=seed, device=device, _init_setup_model=_init_setup_model,
+            advantage_learning=advantage_learning,
+        )
+        # fmt: on
