@@ -20,7 +20,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from sb3_eps.eps.round_log import DIAGNOSTICS_NAME, read_round_log
+from sb3_eps.eps.round_log import DIAGNOSTICS_NAME, read_round_log, round_counts
 from sb3_eps.zoo.cli import OneLineArgumentParser, TrainOptions, positive_int
 from sb3_eps.zoo.errors import run_command
 from sb3_eps.zoo.evaluation import evaluate_run, format_summary, load_run, record_gif, save_summary
@@ -50,7 +50,7 @@ def eps_summary(run_dir: Path, training_ticks: int) -> str:
     played = [record for record in rounds if not record.get("skipped")]
     if not played:
         return "EPS played no round in this run."
-    crossed = sum(bool(record.get("accepted")) for record in played)
+    crossed = round_counts(rounds)["crossovers"]
     eps_ticks = max(int(record.get("eps_ticks", 0)) for record in played)
     share = eps_ticks / training_ticks if training_ticks else 0.0
     return (

@@ -36,7 +36,7 @@ from sb3_eps.eps.mutations import (
     population_outputs,
 )
 from sb3_eps.eps.round import gain_accepted, scheduled_alpha
-from sb3_eps.eps.round_log import RoundLog, read_round_log
+from sb3_eps.eps.round_log import RoundLog, read_round_log, round_counts
 from sb3_eps.eps.settings import PAPER_SETTINGS, EPSSettings
 from sb3_eps.gdq import GDQ
 from sb3_eps.iql import IQL
@@ -308,6 +308,7 @@ def test_every_round_is_a_json_line_in_the_run_folder_and_logged_under_eps(tmp_p
             "gain",
             "runner_up_margin",
             "accepted",
+            "crossovers",
             "alpha",
             "mean_abs_delta",
             "ticks_spent",
@@ -315,10 +316,15 @@ def test_every_round_is_a_json_line_in_the_run_folder_and_logged_under_eps(tmp_p
             assert key in record, key
         if record["winner"] != 0 and record["gain"] > 0:
             assert "reevaluation" in record and len(record["reevaluation"]["returns"]) == 2
+    # Each record counts the run's crossovers so far; the last one says how many rounds of the run crossed over.
+    running = np.cumsum([record["accepted"] for record in records])
+    assert [record["crossovers"] for record in records] == running.tolist()
+    assert round_counts(records) == {"rounds": callback.n_rounds, "crossovers": int(running[-1]), "skipped": 0}
+    assert callback.n_crossovers == records[-1]["crossovers"]
     header = (tmp_path / "progress.csv").read_text().splitlines()[0].split(",")
     for key in (
         "eps/flip_share", "eps/mean_abs_dq", "eps/mutation_scale", "eps/accepted", "eps/alpha", "eps/success_0",
-        "eps/runner_up_margin", "eps/round_ticks", "eps/tick_share", "eps/reevaluation_gain",
+        "eps/runner_up_margin", "eps/round_ticks", "eps/tick_share", "eps/reevaluation_gain", "eps/crossovers",
     ):  # fmt: skip
         assert key in header, key
     assert read_round_log(tmp_path / "eps_rounds.jsonl")[0]["round"] == 1
@@ -518,3 +524,20 @@ def test_rounds_until_keeps_rounds_early() -> None:
     assert max(record["model_ticks"] for record in unbounded.history) > 175
     with pytest.warns(UserWarning, match=r"rounds_until=150 ticks is not after this run's start"):
         model.learn(300, callback=early, reset_num_timesteps=False)
+
+
+# ---------------------------------------------------------------------- fitness
+def test_the_fitness_setting_from_python_decides_what_a_round_ranks() -> None:
+    """``fitness="return"`` (the paper's; the MPE entries') ranks by the mean return, ``"outcome"`` by the outcomes
+    plus 0.01 x the return; a round's records show which one it used."""
+    for fitness, min_gain in (("return", 0.2), ("outcome", 0.05)):
+        callback = new_callback(fitness=fitness, min_gain=min_gain)
+        assert (callback.settings.fitness, callback.settings.min_gain) == (fitness, min_gain)
+        tiny_model(IQL).learn(300, callback=callback)
+        record = callback.history[0]
+        returns, outcomes = np.array(record["returns"]), np.array(record["outcomes"])
+        expected = returns.mean(axis=1) + (outcomes.mean(axis=1) - 0.99 * returns.mean(axis=1)) * (fitness == "outcome")
+        np.testing.assert_allclose(record["fitness"], expected, rtol=1e-6)
+    assert EPSSettings.paper().fitness == "return"
+    with pytest.raises(ValueError, match="fitness"):
+        new_callback(fitness="reward")

@@ -16,6 +16,9 @@ from stable_baselines3.common.env_checker import check_env
 import envs
 from envs.mpe import CooperativeNavigationEnv, CooperativeNavigationSingleEnv
 from envs.mpe import cooperative_navigation as coop_module
+from envs.mpe.controllers import HandController, NoOpController, RandomController
+from sb3_eps import evaluate_team
+from sb3_eps.common.evaluation import summarize_episodes
 
 
 def rollout(env: CooperativeNavigationEnv, seed: int, n_ticks: int, action_seed: int = 0) -> list:
@@ -108,6 +111,89 @@ def test_team_metrics_match_mpe2_benchmark_data() -> None:
         team_return += sum(rewards.values())
         assert team["n_collisions"] == n_pairs and team["collision"] == (n_pairs > 0)
         assert team["team_return"] == pytest.approx(team_return)
+
+
+# A scripted episode: the world's physics replaced by positions set by hand, tick by tick. Landmarks at (-1, 0),
+# (0, 0), (1, 0); agents collide below 0.3 between centres, occupy a landmark within 0.1.
+LANDMARKS = [(-1.0, 0.0), (0.0, 0.0), (1.0, 0.0)]
+SCRIPT = [
+    [(0.0, 0.5), (0.1, 0.5), (1.0, -1.0)],  # reset: agents 0 and 1 spawn overlapping
+    [(0.0, 0.5), (0.1, 0.5), (1.0, -1.0)],  # 1: still overlapping, the spawn overlap (all: 1, after spawn: 0)
+    [(0.0, 0.5), (0.5, 0.5), (1.0, -1.0)],  # 2: separated
+    [(0.0, 0.5), (0.1, 0.5), (1.0, -1.0)],  # 3: together again, a collision of the policy's (1 and 1)
+    [(-1.0, 0.0), (0.0, 0.05), (1.0, 0.2)],  # 4: two landmarks occupied, the third 0.2 away
+    [(-1.0, 0.0), (0.0, 0.05), (1.0, 0.0)],  # 5, the last: all three occupied, distance sum 0.05
+]
+
+
+def scripted_env() -> CooperativeNavigationEnv:
+    """A 5-tick world whose agents and landmarks sit where :data:`SCRIPT` says, whatever the actions."""
+    env = CooperativeNavigationEnv(max_cycles=len(SCRIPT) - 1)
+    world, ticks = env._world, iter(SCRIPT[1:])
+
+    def place(agent_pos) -> None:
+        for entity, pos in zip(world.agents + world.landmarks, [*agent_pos, *LANDMARKS]):
+            entity.state.p_pos = np.array(pos, dtype=float)
+            entity.state.p_vel = np.zeros(2)
+
+    scenario = env._env.unwrapped.scenario
+    reset_world = scenario.reset_world
+    scenario.reset_world = lambda world_, rng: (reset_world(world_, rng), place(SCRIPT[0]))
+    world.step = lambda: place(next(ticks))
+    return env
+
+
+def test_scripted_episode_metrics() -> None:
+    env = scripted_env()
+    _, infos = env.reset(seed=0)
+    assert infos["agent_0"]["team"]["n_collisions_after_spawn"] == 0
+    team_return, per_tick = 0.0, []
+    while env.agents:
+        _, rewards, _, truncations, infos = env.step(dict.fromkeys(env.agents, 0))
+        team = infos["agent_0"]["team"]
+        per_tick.append((team["n_collisions"], team["n_collisions_after_spawn"], team["occupied_landmarks"]))
+        team_return += sum(rewards.values())
+    assert all(truncations.values())
+    # Running counts: the spawn overlap of tick 1 counts in n_collisions only; the collision of tick 3 in both.
+    assert per_tick == [(1, 0, 0), (1, 0, 0), (2, 1, 0), (2, 1, 2), (2, 1, 3)]
+    assert team["collision"] and team["collision_after_spawn"]
+    assert team["collisions_per_tick"] == pytest.approx(1 / 5)
+    assert team["occupied_landmarks"] == 3 and team["success"]
+    assert team["min_dist_sum"] == pytest.approx(0.05)
+    # The team return is mpe2's reward summed over agents and ticks: 3 x 0.5 x (-distance sum) per tick, and 0.5 x
+    # (-1) for each agent of a colliding pair (spawn overlaps included: the reward does not forgive them).
+    distance_sums = [sum(min(np.hypot(lx - x, ly - y) for x, y in tick) for lx, ly in LANDMARKS) for tick in SCRIPT[1:]]
+    expected = sum(-1.5 * d for d in distance_sums) - 0.5 * 2 * 2
+    assert team["team_return"] == pytest.approx(team_return) == pytest.approx(expected)
+    # The episode's dict reaches an evaluation: the summary averages the final tick's metrics.
+    episode = {"r": team["team_return"], "l": team["ticks"], **team}
+    summary = summarize_episodes([episode, {**episode, "success": False, "occupied_landmarks": 1}])
+    assert summary["occupied_landmarks_mean"] == 2 and summary["success_rate"] == 0.5
+    assert summary["collisions_per_tick_mean"] == pytest.approx(0.2) and summary["collision_after_spawn_rate"] == 1
+
+
+def test_a_spawn_overlap_that_never_separates_is_never_counted() -> None:
+    env = scripted_env()
+    env._world.step = lambda: None  # the agents stay where they spawned
+    env.reset(seed=0)
+    while env.agents:
+        _, _, _, _, infos = env.step(dict.fromkeys(env.agents, 0))
+    team = infos["agent_0"]["team"]
+    assert team["n_collisions"] == 5 and team["n_collisions_after_spawn"] == 0 and not team["collision_after_spawn"]
+    assert team["collisions_per_tick"] == 0 and team["occupied_landmarks"] == 0 and not team["success"]
+
+
+def test_hand_controller_beats_random_and_no_op() -> None:
+    results = {
+        name: evaluate_team(controller, "CooperativeNavigation-v0", n_eval_episodes=20, n_envs=2, seed=7)
+        for name, controller in {"hand": HandController(), "random": RandomController(0), "no-op": NoOpController()}.items()
+    }
+    hand, random, no_op = results["hand"], results["random"], results["no-op"]
+    assert hand["success_rate"] >= 0.4 and hand["occupied_landmarks_mean"] > 2
+    assert random["success_rate"] == no_op["success_rate"] == 0
+    assert hand["team_return_mean"] > max(random["team_return_mean"], no_op["team_return_mean"]) + 20
+    assert hand["min_dist_sum_mean"] < 0.5 < no_op["min_dist_sum_mean"]
+    assert no_op["collisions_per_tick_mean"] < random["collisions_per_tick_mean"]
 
 
 def test_bad_arguments_raise_value_error() -> None:

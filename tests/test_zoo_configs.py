@@ -41,8 +41,9 @@ from sb3_eps.zoo.schema import (
 
 WORLD_ENV_IDS = [env_id for env_id in envs.ENV_IDS if env_id not in getattr(envs, "DEBUG_ENV_IDS", ())]
 ENTRIES = [(algo, env_id) for algo in ALGORITHMS for env_id in WORLD_ENV_IDS]
-# Keys an untuned entry may set: a budget and the world, not the algorithm's hyper-parameters.
-UNTUNED_KEYS = {"tuned", "notes", "n_timesteps", "n_envs", "env_kwargs"}
+# Keys an untuned entry may set: a budget, the world and EPS's settings chosen for a reason its notes give (the MPE
+# entries' fitness), not the algorithm's hyper-parameters.
+UNTUNED_KEYS = {"tuned", "notes", "n_timesteps", "n_envs", "env_kwargs", "callback"}
 # ... and the layout chosen for wall-clock time under a time-to-solution rule, which the entry's notes must cite.
 LAYOUT_KEYS = {"vec_env", "overlap_training", "batch_size"}
 
@@ -228,3 +229,24 @@ def test_weight_average_tau_in_a_config(tmp_path) -> None:
         path.write_text(f"default:\n  n_timesteps: 100\n  policy_kwargs: {{weight_average_tau: {bad}}}\n")
         with pytest.raises(ConfigError, match="weight_average_tau must be"):
             resolve_config("vdn", "MultiRobotNav-4-v0", conf_file=path)
+
+
+@pytest.mark.parametrize("algo", ["eps_iql", "eps_gdq"])
+def test_the_mpe_eps_entries_select_by_return_with_a_min_gain(algo) -> None:
+    """EPS in MPE selects by the paper's fitness (the return) with the entry's min_gain; the robots keep the default."""
+    settings = {}
+    for env_id in ("CooperativeNavigation-v0", "MultiRobotNav-4-v0"):
+        entry = resolve_config(algo, env_id).entry
+        ((_, callback),) = build_callbacks(entry, env_id, 0, algo)
+        settings[env_id] = callback.settings
+    assert (settings["CooperativeNavigation-v0"].fitness, settings["CooperativeNavigation-v0"].min_gain) == ("return", 0.2)
+    assert (settings["MultiRobotNav-4-v0"].fitness, settings["MultiRobotNav-4-v0"].min_gain) == ("outcome", 0.05)
+    # The MPE entry lists every EPS setting (a run's config.yml shows them all); the others are the default entry's.
+    written = load_config_entries(config_file(algo), algo)
+    ((name, mpe),) = written["CooperativeNavigation-v0"]["callback"][0].items()
+    default = written[DEFAULT_KEY]["callback"][0][name]
+    assert mpe == {**default, "fitness": "return", "min_gain": 0.2}
+    # The command line overrides one item of the entry's callback.
+    entry = resolve_config(algo, "CooperativeNavigation-v0", hyperparams=["callback.min_gain:0.5"]).entry
+    ((_, callback),) = build_callbacks(entry, "CooperativeNavigation-v0", 0, algo)
+    assert (callback.settings.fitness, callback.settings.min_gain) == ("return", 0.5)

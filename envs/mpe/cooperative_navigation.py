@@ -115,7 +115,9 @@ class CooperativeNavigationEnv(ParallelEnv):
         observations, _ = self._env.reset(seed=check_seed(seed), options=options)
         self.agents = list(self._env.agents)
         self._reset_metrics()
-        team = self._team_metrics(n_new_collisions=0)
+        agent_pos = positions(self._world.agents)
+        self._count_collisions.start(agent_pos)
+        team = self._team_metrics((0, 0), agent_pos)
         return observations, {agent: {"team": team} for agent in self.agents}
 
     def step(
@@ -155,17 +157,19 @@ class CooperativeNavigationEnv(ParallelEnv):
         self._ticks = 0
         self._team_return = 0.0
         self._n_collisions = 0
+        self._n_collisions_after_spawn = 0
 
-    def _team_metrics(self, n_new_collisions: int, agent_pos: list[list[float]] | None = None) -> dict[str, Any]:
-        if agent_pos is None:
-            agent_pos = positions(self._world.agents)
-        self._n_collisions += n_new_collisions
+    def _team_metrics(self, new_collisions: tuple[int, int], agent_pos: list[list[float]]) -> dict[str, Any]:
+        """:param new_collisions: this tick's colliding pairs, all and without the unseparated spawn overlaps"""
+        self._n_collisions += new_collisions[0]
+        self._n_collisions_after_spawn += new_collisions[1]
         min_dist_sum, occupied = landmark_coverage(agent_pos, positions(self._world.landmarks))
         return team_metrics(
             n_landmarks=len(self._world.landmarks),
             min_dist_sum=min_dist_sum,
             occupied_landmarks=occupied,
             n_collisions=self._n_collisions,
+            n_collisions_after_spawn=self._n_collisions_after_spawn,
             team_return=self._team_return,
             ticks=self._ticks,
         )

@@ -10,15 +10,26 @@ import numpy as np
 
 from sb3_eps.common.vec_env import MultiAgentVecEnv, make_vec_env
 
-# Episode keys averaged into the summary when the env reports them.
+# Episode keys averaged into the summary when the env reports them (Cooperative Navigation's at the final tick:
+# landmarks occupied, distance sum, collisions per tick without the spawn overlaps; docs/envs_mpe.md).
 _OPTIONAL_KEYS = (
     "success",
     "collision",
+    "collision_after_spawn",
+    "collisions_per_tick",
     "n_arrived",
     "distance_travelled",
     "min_dist_sum",
     "occupied_landmarks",
 )
+#: Episode keys that are true or false: their summary is a share of episodes, ``<key>_rate``.
+RATE_KEYS = ("success", "collision", "collision_after_spawn")
+
+
+def summary_key(stem: str) -> str:
+    """:return: the summary's name of an episode key's mean: ``<stem>_rate`` for :data:`RATE_KEYS`, else
+    ``<stem>_mean`` (its spread is ``<stem>_std``)."""
+    return f"{stem}_rate" if stem in RATE_KEYS else f"{stem}_mean"
 
 
 def evaluate_team(
@@ -127,9 +138,8 @@ def summarize_episodes(episodes: list[dict[str, Any]]) -> dict[str, Any]:
     for key in _OPTIONAL_KEYS:
         if episodes and key in episodes[0]:
             values = np.array([float(episode[key]) for episode in episodes])
-            name = f"{key}_rate" if key in ("success", "collision") else f"{key}_mean"
-            summary[name] = float(values.mean())
-            summary[name.replace("_rate", "_std").replace("_mean", "_std")] = float(values.std())
+            summary[summary_key(key)] = float(values.mean())
+            summary[f"{key}_std"] = float(values.std())
     return summary
 
 

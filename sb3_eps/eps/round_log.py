@@ -68,6 +68,20 @@ def read_round_log(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
     return [json.loads(line) for line in Path(path).read_text().splitlines() if line.strip()]
 
 
+def round_counts(records: list[dict[str, Any]]) -> dict[str, int]:
+    """What a run's EPS did, from its round records (:func:`read_round_log`, or a callback's ``history``).
+
+    :return: ``rounds`` (played), ``crossovers`` (played rounds whose winner was crossed over into the model) and
+        ``skipped`` (rounds whose evaluation failed)
+    """
+    played = [record for record in records if not record.get("skipped")]
+    return {
+        "rounds": len(played),
+        "crossovers": sum(bool(record.get("accepted")) for record in played),
+        "skipped": len(records) - len(played),
+    }
+
+
 class RoundRecords:
     """The record of every round (``history``), their counters, the :class:`RoundLog` file and the ``eps/`` keys of
     SB3's logger.
@@ -88,7 +102,7 @@ class RoundRecords:
     @property
     def n_crossovers(self) -> int:
         """Rounds whose winner was crossed over into the model (of the ``n_rounds`` played)."""
-        return sum(bool(record.get("accepted")) for record in self.history if not record.get("skipped"))
+        return round_counts(self.history)["crossovers"]
 
     def open(self, path: str | None, logger: Logger | None) -> None:
         """Write to ``path``; None: ``eps_rounds.jsonl`` in the logger's folder when it has one; ``""``: no file."""
@@ -109,7 +123,9 @@ class RoundRecords:
         ticks_spent = record["round_ticks"] + record.get("reevaluation", {}).get("ticks", 0)
         ticks_spent += record.get("team_check_ticks", 0)
         record = {"round": self.n_rounds, **_counted(counters, ticks_spent), **record}
-        record.update(wall_time=wall_time, skipped=False)
+        # The run's crossovers so far, this round's included: the last record of a log says how many rounds of the
+        # run crossed over.
+        record.update(wall_time=wall_time, skipped=False, crossovers=self.n_crossovers + bool(record.get("accepted")))
         self._write(record)
         return record
 
@@ -154,6 +170,7 @@ class RoundRecords:
         logger.record("eps/runner_up_margin", record["runner_up_margin"])
         logger.record("eps/reevaluation_gain", record.get("reevaluation_gain", float("nan")))
         logger.record("eps/accepted", int(record["accepted"]))
+        logger.record("eps/crossovers", self.n_crossovers)
         logger.record("eps/alpha", record["alpha"])
         logger.record("eps/mutation_scale", record["scale"])
         logger.record("eps/flip_share", float(np.mean(record["flip_share"])))
@@ -172,6 +189,7 @@ class RoundRecords:
                 f"EPS round {self.n_rounds}: copy 0 {fitness[0]:.3f} ({100 * successes[0]:.0f} % reached), best "
                 f"{fitness[winner]:.3f} (individual {winner}), {verdict} (alpha {record['alpha']:.3f}); scale "
                 f"{record['scale']:.2e} flipped {100 * np.mean(record['flip_share']):.0f} % of greedy actions; "
+                f"{self.n_crossovers} of {self.n_rounds} rounds crossed over; "
                 f"{record['ticks_spent']} ticks, {record['wall_time']:.2f} s; {eps_ticks} EPS ticks "
                 f"({100 * eps_ticks / max(model_ticks, 1):.1f} % of training)"
                 + (f"; {record['shared_rows']} replay rows shared" if share_experience else "")

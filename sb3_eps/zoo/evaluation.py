@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from sb3_eps import worlds
-from sb3_eps.common.evaluation import evaluate_team, record_frames
+from sb3_eps.common.evaluation import evaluate_team, record_frames, summary_key
 from sb3_eps.common.off_policy import MultiAgentOffPolicyAlgorithm
 from sb3_eps.common.utils import describe_space
 from sb3_eps.common.vec_env import make_vec_env
@@ -25,6 +25,10 @@ from sb3_eps.zoo.schema import algorithm_spec
 METRICS = {
     "success": ("success", "%", 100.0),
     "collision": ("collision", "%", 100.0),
+    "collision_after_spawn": ("collision, spawns left out", "%", 100.0),
+    "collisions_per_tick": ("collisions/tick, no spawns", "", 1.0),
+    "occupied_landmarks": ("landmarks occupied (end)", "", 1.0),
+    "min_dist_sum": ("distance sum (end)", "", 1.0),
     "team_return": ("team return", "", 1.0),
     "distance_travelled": ("path length (all robots)", "m", 1.0),
     "path_length_per_robot": ("path length per robot", "m", 1.0),
@@ -147,7 +151,7 @@ def format_summary(summary: dict[str, Any]) -> str:
         f"{summary['env_id']} ({summary['n_episodes']} episodes, greedy):"
     ]
     for stem, (label, unit, scale) in METRICS.items():
-        mean_key = f"{stem}_rate" if stem in ("success", "collision") else f"{stem}_mean"
+        mean_key = summary_key(stem)
         if mean_key not in summary:
             continue
         mean, std = scale * summary[mean_key], scale * summary[f"{stem}_std"]
