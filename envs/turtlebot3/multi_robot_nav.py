@@ -387,9 +387,11 @@ class MultiRobotNavEnv(ParallelEnv):
             self.world.set_blocks(self.layout.obstacles)
             self._rasteriser = None
         elif self.scenario == "rooms":  # a level of the world's set every episode: its room, starts and targets
-            open_arena = self._arena is not None and "level" not in options and self.np_random.random() < self.arena_share
-            self.level = None if open_arena else self._draw_level(options)
-            self.layout = self._arena if open_arena else generate_room(self.level, self.n_robots).layout
+            if self._arena is not None and "level" not in options and self.np_random.random() < self.arena_share:
+                self.level, self.layout = None, self._arena
+            else:
+                self.level = self._draw_level(options)
+                self.layout = generate_room(self.level, self.n_robots).layout
             if self.world.n_map_shapes < MAP_SHAPES_MAX:
                 self.world.set_map(self.layout)
             else:  # free the earlier rooms' meshes with their client
@@ -533,12 +535,10 @@ class MultiRobotNavEnv(ParallelEnv):
         offset = self._targets[rows] - self.world.xy[rows]
         distance = np.hypot(offset[:, 0], offset[:, 1])
         arrived = (distance <= TARGET_RADIUS) & ~collided
-        if self._guide is not None:  # the path length to go, heading for the waypoint (progress along the path)
-            distance, waypoint = self._guide.query(self.world.xy[rows], np.arange(self.n_robots)[rows])
-            offset = waypoint - self.world.xy[rows]
+        if self._guide is not None:  # the path length to go: progress along the path
+            distance, cells = self._guide.locate(self.world.xy[rows], np.arange(self.n_robots)[rows])
         # Paper Eq. 7, collision taking precedence over arrival.
         progress = (self._distance[rows] - distance) - STEP_PENALTY
-        bearing = self._bearing(live, offset)
         rewards = np.where(collided, self.collision_reward, np.where(arrived, REWARD_ARRIVAL, progress))
         self._distance[rows] = distance
         self._team_return += float(rewards.sum())
@@ -555,11 +555,16 @@ class MultiRobotNavEnv(ParallelEnv):
         else:
             truncated = np.zeros(len(live), dtype=bool)
         observations: dict[str, np.ndarray] = {}
-        if observe_all:
-            observations = dict(zip(acting, self._observe(live, offset, distance, bearing)))
-        elif ended.any():
-            obs = self._observe(live[ended], offset[ended], distance[ended], bearing[ended])
-            observations = dict(zip((agent for agent, end in zip(acting, ended) if end), obs))
+        if observe_all or ended.any():
+            if self._guide is not None:  # heading for the waypoint, walked only for a tick that observes
+                robots = np.arange(self.n_robots)[rows]
+                offset = self._guide.waypoints(self.world.xy[rows], robots, distance, cells) - self.world.xy[rows]
+            bearing = self._bearing(live, offset)
+            if observe_all:
+                observations = dict(zip(acting, self._observe(live, offset, distance, bearing)))
+            else:
+                obs = self._observe(live[ended], offset[ended], distance[ended], bearing[ended])
+                observations = dict(zip((agent for agent, end in zip(acting, ended) if end), obs))
         arrived_list = arrived.tolist()
         if ended.any():
             self._arrived[live] |= arrived
@@ -648,7 +653,7 @@ class MultiRobotNavEnv(ParallelEnv):
 
     def _team_info(self) -> dict[str, Any]:
         n_arrived = int(self._arrived.sum())
-        team = {
+        team: dict[str, Any] = {
             "success": n_arrived == self.n_robots,
             "collision": self._collision,
             "n_arrived": n_arrived,

@@ -120,6 +120,16 @@ class PathGuide:
         """:param xy: ``(k, 2)`` robot positions
         :param robots: ``(k,)`` whose targets they drive to (row of :attr:`targets`)
         :return: the path lengths to go ``(k,)`` and the waypoints ``(k, 2)``"""
+        length, cell = self.locate(xy, robots)
+        return length, self.waypoints(xy, robots, length, cell)
+
+    def locate(self, xy: np.ndarray, robots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The path lengths alone (what the reward needs every tick; :meth:`waypoints` only when a robot observes).
+
+        :param xy: ``(k, 2)`` robot positions
+        :param robots: ``(k,)`` whose targets they drive to (row of :attr:`targets`)
+        :return: the path lengths to go ``(k,)`` (the straight distance where the grid cannot reach the target) and
+            the free cells ``(k,)`` they are measured from"""
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
         robots = np.asarray(robots, dtype=int)
         i, j = self._cell(xy)
@@ -140,15 +150,20 @@ class PathGuide:
             length[grazing] = self.lengths[robots[grazing], near] + np.linalg.norm(
                 self.centres.reshape(-1, 2)[near] - xy[grazing], axis=1
             )
+        unreachable = ~np.isfinite(length)  # the grid cannot reach the target: the straight line
+        length[unreachable] = np.linalg.norm(self.targets[robots[unreachable]] - xy[unreachable], axis=1)
+        return length, cell
+
+    def waypoints(self, xy: np.ndarray, robots: np.ndarray, length: np.ndarray, cell: np.ndarray) -> np.ndarray:
+        """:param xy: ``(k, 2)`` robot positions
+        :param robots: ``(k,)`` whose targets they drive to
+        :param length: ``(k,)`` and ``cell``: what :meth:`locate` returned for them
+        :return: the waypoints ``(k, 2)``: ``lookahead`` down the path, the target once less is left (or where the grid
+            cannot reach it)"""
+        robots = np.asarray(robots, dtype=int)
         goal = length - self.lookahead  # walk down the path until this much of it is left
         for _ in range(round(self.lookahead / self.resolution) + 1):
             cell = np.where(self.lengths[robots, cell] > goal, self.next_cell[robots, cell], cell)
-        waypoint = self.centres.reshape(-1, 2)[cell]
         target = self.targets[robots]
-        near_end = length <= self.lookahead
-        waypoint = np.where(near_end[:, None], target, waypoint)
-        unreachable = ~np.isfinite(length)  # the grid cannot reach the target: the straight line
-        straight = np.linalg.norm(target - xy, axis=1)
-        length = np.where(unreachable, straight, length)
-        waypoint = np.where(unreachable[:, None], target, waypoint)
-        return length, waypoint
+        straight = (length <= self.lookahead) | ~np.isfinite(self.lengths[robots, cell])
+        return np.where(straight[:, None], target, self.centres.reshape(-1, 2)[cell])

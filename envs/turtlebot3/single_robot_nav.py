@@ -19,7 +19,7 @@ import gymnasium
 import numpy as np
 
 from envs.turtlebot3.multi_robot_nav import MultiRobotNavEnv
-from envs.turtlebot3.robot import RANGE_MAX
+from envs.turtlebot3.robot import RANGE_MAX, REWARD_COLLISION
 
 AGENT = "robot_0"
 
@@ -78,7 +78,7 @@ class SingleRobotNavEnv(gymnasium.Env):
         level_set: str | None = None,
         levels: int | Sequence[int] | None = None,
         level: int | None = None,
-        collision_reward: float = -1.0,
+        collision_reward: float = REWARD_COLLISION,
         path_guidance: bool = False,
     ) -> None:
         self.multi_env = MultiRobotNavEnv(
