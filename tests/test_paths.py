@@ -70,3 +70,21 @@ def test_the_world_observes_and_rewards_along_the_path() -> None:
         env.close()
     with pytest.raises(ValueError, match="path_guidance must be True or False"):
         envs.make_parallel_env("MultiRobotNav-4-v0", path_guidance="yes")
+
+
+def test_clearance_and_lookahead_are_world_options() -> None:
+    kwargs = {"level": 1, "action_repeat": 1, "lidar_range": 1.0, "path_guidance": True}
+    near = envs.make_parallel_env("MultiRobotNavRooms-4-validation-v0", **kwargs)
+    wide = envs.make_parallel_env("MultiRobotNavRooms-4-validation-v0", path_clearance=0.25, path_lookahead=0.5, **kwargs)
+    near.reset(seed=0)
+    wide.reset(seed=0)
+    assert wide._guide.free.sum() < near._guide.free.sum()  # a wider margin blocks more cells along the walls
+    length, waypoint = wide._guide.query(wide.world.xy, np.arange(4))
+    assert np.all(np.isfinite(length))
+    ahead = np.linalg.norm(waypoint - wide.world.xy, axis=1)
+    assert np.all(ahead <= 0.5 + 0.15)  # the waypoint lies at most the lookahead (plus a cell) away
+    note = wide.deployment_description()["observation"]["goal_heading"]["note"]
+    assert "0.5 m ahead" in note and "keeps 0.25 m" in note
+    for bad in ({"path_clearance": 0.05}, {"path_clearance": 0.5}, {"path_lookahead": 0.0}, {"path_lookahead": "1"}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            envs.make_parallel_env("MultiRobotNavRooms-4-validation-v0", **bad)

@@ -39,6 +39,8 @@ def deployment_description(
     lidar_frame_ticks: int = 5,
     lidar_noise_std: float = 0.0,
     path_guidance: bool = False,
+    path_clearance: float = 0.15,
+    path_lookahead: float = 1.0,
 ) -> dict[str, Any]:
     """The robot-side description of a TurtleBot3 world with these options (the world's own values).
 
@@ -49,6 +51,8 @@ def deployment_description(
     :param lidar_noise_std: the range noise the policy was trained with [m] (for the record)
     :param path_guidance: the policy was trained with waypoints of a planner on the map (``envs.turtlebot3.paths``):
         the goal inputs then come from the path, not the straight line to the target
+    :param path_clearance: with ``path_guidance``: how far [m] the planner's path keeps from every wall
+    :param path_lookahead: with ``path_guidance``: how far ahead [m] on the path the waypoint lies
     :return: a dict of JSON types only
     """
     obs_size = N_BEAMS + 2 + (lidar_frames - 1) * N_BEAMS
@@ -77,8 +81,9 @@ def deployment_description(
             "length of the shortest path on the static map from the robot to its target [m] (a planner's)"
         )
         observation["goal_heading"]["note"] = (
-            "bearing of the waypoint 1 m ahead on that path (the target itself when less is left) minus the robot's "
-            "heading, counter-clockwise positive; the planner keeps 0.15 m from every wall (envs/turtlebot3/paths.py)"
+            f"bearing of the waypoint {path_lookahead:g} m ahead on that path (the target itself when less is left) "
+            "minus the robot's heading, counter-clockwise positive; the planner keeps "
+            f"{path_clearance:g} m from every wall (envs/turtlebot3/paths.py)"
         )
     if lidar_frames > 1:
         observation["earlier_ranges"] = {

@@ -34,7 +34,7 @@ from envs.turtlebot3.layouts import (
     sample_starts,
     sample_targets,
 )
-from envs.turtlebot3.paths import PathGuide
+from envs.turtlebot3.paths import CLEARANCE, CLEARANCE_MAX, LOOKAHEAD, LOOKAHEAD_MAX, PathGuide
 from envs.turtlebot3.render import Rasteriser
 from envs.turtlebot3.robot import (
     ACTION_ANGULAR,
@@ -50,6 +50,7 @@ from envs.turtlebot3.robot import (
     RAY_START,
     REWARD_ARRIVAL,
     REWARD_COLLISION,
+    ROBOT_RADIUS,
     STEP_PENALTY,
     TARGET_RADIUS,
     wrap_angle,
@@ -157,6 +158,10 @@ class MultiRobotNavEnv(ParallelEnv):
         the observation holds the path length to go and the bearing of a waypoint 1 m ahead on the shortest path;
         progress is rewarded along the path (:mod:`envs.turtlebot3.paths`). Arrival is still at the target. The
         observation's layout is unchanged; a deployed policy needs a planner to feed it the waypoints
+    :param path_clearance: with ``path_guidance``: how far [m] the planned path keeps from every wall and block, from
+        the robot's radius up to 0.35 (the default: the radius plus 4.5 cm, ``envs.turtlebot3.paths.CLEARANCE``)
+    :param path_lookahead: with ``path_guidance``: how far ahead [m] on the path the waypoint lies, in (0, 3] (the
+        default: 1 m, the 1 m view's reach, ``envs.turtlebot3.paths.LOOKAHEAD``)
     """
 
     metadata: dict[str, Any] = {
@@ -185,6 +190,8 @@ class MultiRobotNavEnv(ParallelEnv):
         collision_reward: float = REWARD_COLLISION,
         arena_share: float = 0.0,
         path_guidance: bool = False,
+        path_clearance: float = CLEARANCE,
+        path_lookahead: float = LOOKAHEAD,
     ) -> None:
         self.layout: Layout = make_layout(scenario, n_robots)
         self.scenario = scenario
@@ -195,6 +202,20 @@ class MultiRobotNavEnv(ParallelEnv):
         if not isinstance(path_guidance, (bool, np.bool_)):
             raise ValueError(f"path_guidance must be True or False, got {path_guidance!r}.")
         self.path_guidance = bool(path_guidance)
+        for name, value, low, high in (
+            ("path_clearance", path_clearance, ROBOT_RADIUS, CLEARANCE_MAX),
+            ("path_lookahead", path_lookahead, 0.0, LOOKAHEAD_MAX),
+        ):
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, (int, float, np.integer, np.floating))
+                or not low <= value <= high
+                or (name == "path_lookahead" and value <= 0)
+            ):
+                bounds = f"[{low}, {high}]" if name == "path_clearance" else f"({low}, {high}]"
+                raise ValueError(f"{name} must be a number of metres in {bounds}, got {value!r}.")
+        self.path_clearance = float(path_clearance)
+        self.path_lookahead = float(path_lookahead)
         self._guide: PathGuide | None = None
         self._arena = make_layout("arena", self.n_robots) if self.arena_share > 0 else None
         # Every room of a "rooms" world is drawn on the canvas of its largest one, so all pictures share one size.
@@ -348,6 +369,8 @@ class MultiRobotNavEnv(ParallelEnv):
             self.lidar_frame_ticks,
             self.lidar_noise_std,
             self.path_guidance,
+            self.path_clearance,
+            self.path_lookahead,
         )
 
     def _check_agent(self, agent: str) -> None:
@@ -417,7 +440,7 @@ class MultiRobotNavEnv(ParallelEnv):
         offset = self._targets - self.world.xy
         self._distance = np.hypot(offset[:, 0], offset[:, 1])
         if self.path_guidance:
-            self._guide = PathGuide(self.layout, self._targets)
+            self._guide = PathGuide(self.layout, self._targets, clearance=self.path_clearance, lookahead=self.path_lookahead)
             self._distance, waypoint = self._guide.query(self.world.xy, np.arange(n))
             offset = waypoint - self.world.xy
         bearing = self._bearing(self._live_index, offset)

@@ -31,6 +31,8 @@ from envs.turtlebot3.robot import ROBOT_RADIUS
 RESOLUTION = 0.075  # [m] grid cell (34 ms a plan for 8 robots; no target of 60 training rooms unreachable at 5, 7.5 or 10 cm)
 CLEARANCE = ROBOT_RADIUS + 0.045  # [m] a path keeps this far from every static box (the robot's body plus 4.5 cm)
 LOOKAHEAD = 1.0  # [m] how far ahead on the path the waypoint lies (the 1 m view's reach)
+CLEARANCE_MAX = 0.35  # [m] a wider clearance closes the narrowest doorways (0.7 m) on the grid
+LOOKAHEAD_MAX = 3.0  # [m]
 _WINDOW = np.array([(di, dj) for di in range(-2, 3) for dj in range(-2, 3)])  # the 5 x 5 cells around a position
 # 16 neighbours (the 8 around and the knight's moves): grid paths then run within 3 % of the straight line in every
 # direction (8 neighbours: up to 8 %). No blocked band is thinner than two cells, so no move jumps a wall.

@@ -19,6 +19,7 @@ import gymnasium
 import numpy as np
 
 from envs.turtlebot3.multi_robot_nav import MultiRobotNavEnv
+from envs.turtlebot3.paths import CLEARANCE, LOOKAHEAD
 from envs.turtlebot3.robot import RANGE_MAX, REWARD_COLLISION
 
 AGENT = "robot_0"
@@ -55,6 +56,8 @@ class SingleRobotNavEnv(gymnasium.Env):
     :param collision_reward: the reward of a collision, as in :class:`~envs.turtlebot3.MultiRobotNavEnv` (-1: the
         paper's)
     :param path_guidance: waypoints on the room's map, as in :class:`~envs.turtlebot3.MultiRobotNavEnv`
+    :param path_clearance: the planned path's distance from walls, as in :class:`~envs.turtlebot3.MultiRobotNavEnv`
+    :param path_lookahead: the waypoint's distance down the path, as in :class:`~envs.turtlebot3.MultiRobotNavEnv`
     """
 
     metadata: dict[str, Any] = {
@@ -80,6 +83,8 @@ class SingleRobotNavEnv(gymnasium.Env):
         level: int | None = None,
         collision_reward: float = REWARD_COLLISION,
         path_guidance: bool = False,
+        path_clearance: float = CLEARANCE,
+        path_lookahead: float = LOOKAHEAD,
     ) -> None:
         self.multi_env = MultiRobotNavEnv(
             n_robots=1,
@@ -98,6 +103,8 @@ class SingleRobotNavEnv(gymnasium.Env):
             level=level,
             collision_reward=collision_reward,
             path_guidance=path_guidance,
+            path_clearance=path_clearance,
+            path_lookahead=path_lookahead,
         )
         self.observation_space = self.multi_env.observation_space(AGENT)
         self.action_space = self.multi_env.action_space(AGENT)

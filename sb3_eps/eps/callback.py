@@ -40,6 +40,8 @@ SHARED_WORLD_OPTIONS = (
     "lidar_noise_std",
     "collision_reward",
     "path_guidance",
+    "path_clearance",
+    "path_lookahead",
 )
 #: The dueling network's state-value stream: greedy actions (hence fitness) never see it, GDQ feeds it to V_G'.
 VALUE_STREAM = "value_stream"
