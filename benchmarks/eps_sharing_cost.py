@@ -3,7 +3,7 @@
 A GDQ model (package defaults) trains briefly on
 ``MultiRobotNav-4-v0``; then, alternating, one round's population (copy 0 and ``--mutants`` mutants at a small
 Gaussian scale, ``--episodes`` common-random-number episodes each) is played by the same kind of pool without
-recording, and with recording plus :func:`sb3_eps.eps.sharing.share_episodes` into the model's buffer. Printed: the
+recording, and with recording plus :func:`research.eps_variants.share_episodes` into the model's buffer. Printed: the
 seconds of each, the ticks, the rows written and the ratio (with sharing / without). Example::
 
     python benchmarks/eps_sharing_cost.py --train-ticks 5000 --repeats 3
@@ -18,10 +18,11 @@ import numpy as np
 import torch as th
 
 import envs  # noqa: F401
+from research.eps_variants import RecordingBlock, share_episodes
 from sb3_eps import GDQ, make_vec_env
 from sb3_eps.eps import InProcessEnvPool, SubprocessEnvPool, evaluate_population
+from sb3_eps.eps.evaluation import EvaluationBlock
 from sb3_eps.eps.mutations import mutate_population, network_parameters
-from sb3_eps.eps.sharing import share_episodes
 
 ENV_ID = "MultiRobotNav-4-v0"
 
@@ -42,13 +43,13 @@ def main() -> None:
     population = mutate_population(network_parameters(network), args.mutants, 1e-3, th.Generator().manual_seed(0), None)
     n_individuals = args.mutants + 1
     pools = {}
-    for record in (None, "ticks"):
+    for record, block_class in ((None, EvaluationBlock), ("ticks", RecordingBlock)):
         if args.n_workers:
             pools[record] = SubprocessEnvPool(
-                ENV_ID, {}, n_individuals, args.episodes, network, n_workers=args.n_workers, record=record
+                ENV_ID, {}, n_individuals, args.episodes, network, n_workers=args.n_workers, block_class=block_class
             )
         else:
-            pools[record] = InProcessEnvPool(ENV_ID, {}, n_individuals, args.episodes, network, record=record)
+            pools[record] = InProcessEnvPool(ENV_ID, {}, n_individuals, args.episodes, network, block_class=block_class)
     times: dict[str | None, list[float]] = {None: [], "ticks": []}
     try:
         for repeat in range(args.repeats):

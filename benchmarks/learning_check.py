@@ -86,7 +86,7 @@ class PeriodicTeamEval(BaseCallback):
                 eps_ticks=self.eps.eps_ticks,
                 eps_rounds=self.eps.n_rounds,
                 eps_crossovers=self.eps.n_crossovers,
-                eps_shared_rows=self.eps.shared_rows,  # replay rows from EPS episodes (share_experience)
+                eps_shared_rows=getattr(self.eps, "shared_rows", 0),  # replay rows from EPS episodes (share_experience)
             )
         with self.path.open("a") as file:
             file.write(json.dumps(record) + "\n")

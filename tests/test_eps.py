@@ -55,7 +55,7 @@ def tiny_model(algorithm=GDQ, env_id=MPE, n_envs=2, seed=0, **kwargs):
     return algorithm("MlpPolicy", venv, policy_kwargs={**TINY, **extra}, **defaults)
 
 
-def tiny_callback(**kwargs) -> EvolutionCallback:
+def tiny_callback(callback_class: type[EvolutionCallback] = EvolutionCallback, **kwargs) -> EvolutionCallback:
     # The tests written for Algorithm 1 as published build it with EvolutionCallback.paper (the defaults before
     # issue 10); the new pieces have tests of their own below, with the new defaults.
     defaults = {
@@ -67,7 +67,7 @@ def tiny_callback(**kwargs) -> EvolutionCallback:
         "seed": 0,
     }
     defaults.update(kwargs)
-    return EvolutionCallback.paper(**defaults)
+    return callback_class.paper(**defaults)
 
 
 def small_network() -> nn.Module:
@@ -403,9 +403,11 @@ def test_a_tick_budget_pays_the_eps_ticks_from_training_and_ends_the_schedules_w
 
 
 def test_gaussian_mutation_and_per_robot_sensitivity_run() -> None:
+    from research.eps_variants import ResearchEvolutionCallback  # per_robot: research, outside the package
+
     for kwargs in ({"mutation": "gaussian"}, {"per_robot": True, "population_size": 3}):
         model = tiny_model(GDQ)
-        callback = tiny_callback(n_workers=0, **kwargs)
+        callback = tiny_callback(ResearchEvolutionCallback, n_workers=0, **kwargs)
         model.learn(450, callback=callback)
         assert callback.n_rounds >= 1
 
@@ -536,13 +538,23 @@ def test_sb3_dqn_works_too() -> None:
         ({"period": 0}, "period"),
         ({"n_eval_episodes": 0}, "n_eval_episodes"),
         ({"n_workers": -1}, "n_workers"),
-        ({"per_robot": True, "mutation": "gaussian"}, "per_robot"),
         ({"sensitivity_floor": 0.0}, "sensitivity_floor"),
     ],
 )
 def test_bad_arguments_raise_value_errors(kwargs, message) -> None:
     with pytest.raises(ValueError, match=message):
         tiny_callback(**kwargs)
+
+
+def test_the_research_options_are_checked_and_not_in_the_package() -> None:
+    from research.eps_variants import ResearchEvolutionCallback
+
+    with pytest.raises(ValueError, match="per_robot"):
+        tiny_callback(ResearchEvolutionCallback, per_robot=True, mutation="gaussian")
+    with pytest.raises(ValueError, match="n_team_check_episodes"):
+        tiny_callback(ResearchEvolutionCallback, n_team_check_episodes=-2)
+    with pytest.raises(TypeError, match="share_experience"):
+        tiny_callback(share_experience=True)
 
 
 def test_mismatched_spaces_and_models_fail_before_training() -> None:

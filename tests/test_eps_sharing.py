@@ -1,4 +1,5 @@
-"""EPS experience sharing (``EvolutionCallback(share_experience=True)``): the team-world episodes of a round become the
+"""EPS experience sharing (``research.eps_variants.ResearchEvolutionCallback(share_experience=True)``, research
+outside the package): the team-world episodes of a round become the
 rows a training world would write for the same ticks, in real PyBullet worlds."""
 
 from __future__ import annotations
@@ -10,14 +11,13 @@ import torch as th
 from stable_baselines3.common.logger import configure
 
 import envs
+from research.eps_variants import ResearchEvolutionCallback, StateRecordingBlock, TeamEpisode, _EpisodeRecorder, share_episodes
 from sb3_eps import make_vec_env
 from sb3_eps.common.buffers import NStepJointCollector
 from sb3_eps.common.parallel_wrappers import TeamAsGymnasium
-from sb3_eps.eps import EvolutionCallback, InProcessEnvPool, SubprocessEnvPool, evaluate_population
-from sb3_eps.eps.evaluation import TeamEpisode, _EpisodeRecorder
+from sb3_eps.eps import InProcessEnvPool, SubprocessEnvPool, evaluate_population
 from sb3_eps.eps.mutations import mutate_population, network_parameters
 from sb3_eps.eps.round_log import read_round_log
-from sb3_eps.eps.sharing import share_episodes
 from sb3_eps.gdq import GDQ
 from sb3_eps.iql import IQL
 from sb3_eps.qmix import QMIX, VDN
@@ -116,8 +116,8 @@ def test_shared_rows_equal_the_training_rows_of_the_same_ticks() -> None:
     seeds = [7, 8]
     recorded = []
     for pool in (
-        InProcessEnvPool(TEAM, SHORT, 2, 2, network, record="ticks+states"),
-        SubprocessEnvPool(TEAM, SHORT, 2, 2, network, n_workers=2, record="ticks+states"),
+        InProcessEnvPool(TEAM, SHORT, 2, 2, network, block_class=StateRecordingBlock),
+        SubprocessEnvPool(TEAM, SHORT, 2, 2, network, n_workers=2, block_class=StateRecordingBlock),
     ):
         try:
             recorded.append(evaluate_population(pool, population, seeds, timeout=60).episodes)
@@ -131,14 +131,14 @@ def test_shared_rows_equal_the_training_rows_of_the_same_ticks() -> None:
         assert_same_rows(rows, training_rows(model, SHORT, seeds[index % 2], episode.actions))
 
 
-def sharing_callback(**kwargs) -> EvolutionCallback:
+def sharing_callback(**kwargs) -> ResearchEvolutionCallback:
     defaults = {
         "eval_env_id": TEAM, "eval_env_kwargs": SHORT, "population_size": 2, "period": 40, "n_eval_episodes": 1,
         "max_eps_share": None, "fitness": "return", "min_gain": 0.0, "n_reevaluation_episodes": 2, "alpha": 0.0, "n_workers": 1,
         "seed": 0, "share_experience": True,
     }  # fmt: skip
     defaults.update(kwargs)
-    return EvolutionCallback(**defaults)
+    return ResearchEvolutionCallback(**defaults)
 
 
 @pytest.mark.parametrize(
@@ -179,8 +179,24 @@ def test_sharing_needs_a_team_world_of_the_training_agents() -> None:
     """(c) A single-robot world, a team of another size: one clear error before training, saying what to change."""
     model = team_model(GDQ)
     with pytest.raises(ValueError, match=r"needs a team world as eval_env_id.*share_experience=False"):
-        model.learn(8, callback=EvolutionCallback(eval_env_id="SingleRobotNav-v0", share_experience=True))
+        model.learn(8, callback=ResearchEvolutionCallback(eval_env_id="SingleRobotNav-v0", share_experience=True))
     with pytest.raises(ValueError, match="training worlds' 2 agents; the evaluation world has 4"):
-        model.learn(8, callback=EvolutionCallback(eval_env_id="MultiRobotNav-4-v0", share_experience=True))
+        model.learn(8, callback=ResearchEvolutionCallback(eval_env_id="MultiRobotNav-4-v0", share_experience=True))
     with pytest.raises(ValueError, match="share_experience must be True or False"):
-        EvolutionCallback(eval_env_id=TEAM, share_experience="yes")
+        ResearchEvolutionCallback(eval_env_id=TEAM, share_experience="yes")
+
+
+def test_the_research_config_builds_its_python_equivalent() -> None:
+    """``research/zoo_configs/eps_gdq_team_share.yml`` (with ``--gym-packages research.eps_variants``) builds the
+    callback of its header."""
+    from pathlib import Path
+
+    from sb3_eps.zoo.config import resolve_config
+    from sb3_eps.zoo.schema import build_callbacks
+
+    conf = Path(__file__).resolve().parents[1] / "research" / "zoo_configs" / "eps_gdq_team_share.yml"
+    config = resolve_config("eps_gdq", "MultiRobotNav-4-v0", conf)
+    ((name, callback),) = build_callbacks(config.entry, "MultiRobotNav-4-v0", 0, config.source)
+    assert name == "research.eps_variants.ResearchEvolutionCallback"
+    expected = ResearchEvolutionCallback(eval_env_id="MultiRobotNav-4-v0", share_experience=True)
+    assert callback.settings == expected.settings

@@ -26,11 +26,6 @@ VARIANTS = [
     (None, "MultiRobotNav-4-v0", lambda: EvolutionCallback()),
     (CONFIGS / "eps_gdq_paper.yml", "MultiRobotNav-4-v0", lambda: EvolutionCallback.paper()),
     (
-        CONFIGS / "eps_gdq_team_share.yml",
-        "MultiRobotNav-4-v0",
-        lambda: EvolutionCallback(eval_env_id="MultiRobotNav-4-v0", share_experience=True),
-    ),
-    (
         CONFIGS / "eps_gdq_early_rounds.yml",
         "MultiRobotNav-8-v0",
         lambda: EvolutionCallback(**EARLY_ROUNDS),
@@ -47,14 +42,14 @@ VARIANTS = [
 @pytest.mark.parametrize(
     ("conf_file", "env_id", "python"),
     VARIANTS,
-    ids=["defaults", "paper", "team_share", "early_rounds", "team_world", "early_rounds_12"],
+    ids=["defaults", "paper", "early_rounds", "team_world", "early_rounds_12"],
 )
 def test_a_variant_config_builds_its_python_equivalent(conf_file, env_id, python) -> None:
     config = resolve_config("eps_gdq", env_id, conf_file)
     assert config.entry["tuned"] is False  # no search produced any of them
     ((name, callback),) = build_callbacks(config.entry, env_id, 0, config.source)
     assert name == EVOLUTION_CALLBACK
-    python = python or VARIANTS[3][2]  # the 12-robot entry has the 8-robot entry's callback
+    python = python or VARIANTS[2][2]  # the 12-robot entry has the 8-robot entry's callback
     assert callback.settings == python().settings
 
 

@@ -239,8 +239,14 @@ def test_resume_takes_the_parameter_folder_of_a_run(tmp_path, capsys) -> None:
 
 def test_resume_of_a_run_sharing_experience_equals_the_uninterrupted_run(tmp_path) -> None:
     """EPS experience sharing (a team world of the training env): the shared rows live in the replay buffer that the
-    checkpoint carries, and the count in the callback's state; the resumed run equals the uninterrupted one."""
+    checkpoint carries, and the count in the callback's state; the resumed run equals the uninterrupted one. Sharing is
+    research (``research/eps_variants.py``): the entries of ``zoo_configs/eps_gdq.yml`` with its callback."""
+    configs = Path(__file__).resolve().parents[1] / "zoo_configs"
+    research_callback = "research.eps_variants.ResearchEvolutionCallback"
+    conf = tmp_path / "eps_gdq_sharing.yml"
+    conf.write_text((configs / "eps_gdq.yml").read_text().replace("sb3_eps.EvolutionCallback:", f"{research_callback}:"))
     sharing = [*ARGV, "callback.eval_env_id:'CooperativeNavigation-v0'", "callback.share_experience:True"]
+    sharing += ["-conf", str(conf), "--gym-packages", "research.eps_variants"]
     assert train.main([*sharing, "-f", str(tmp_path / "uninterrupted")]) == 0
     expected = run_folder(tmp_path / "uninterrupted")
     run = stop_and_resume(sharing, tmp_path / "interrupted", signal.SIGTERM, "dummy")

@@ -122,10 +122,10 @@ def test_eps_searches_its_rounds_and_world_and_the_entries_build() -> None:
         assert arguments["period_unit"] == "ticks" and arguments["period"] >= 5_000  # not the paper's episodes
         assert arguments["fitness"] == base["callback"][0][EVOLUTION_CALLBACK]["fitness"]  # from the base entry
         team = arguments.get("eval_env_id") == env_id
-        assert arguments.get("share_experience", False) is team
         worlds.add(team)
         ((_, callback),) = build_callbacks(entry, env_id, 0, "a trial")
-        assert callback.settings.share_experience is team and callback.settings.max_eps_share == arguments["max_eps_share"]
+        assert (callback.settings.eval_env_id == env_id) is team
+        assert callback.settings.max_eps_share == arguments["max_eps_share"]
         study.tell(trial, 0.0)
     assert worlds == {False, True}
 

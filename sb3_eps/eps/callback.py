@@ -17,17 +17,11 @@ from torch import nn
 
 from sb3_eps.common.parallel_wrappers import ticks_per_step
 from sb3_eps.eps.budget import RoundBudget, model_ticks
-from sb3_eps.eps.evaluation import (
-    EnvPool,
-    EvaluationFailed,
-    agent_space,
-    make_eval_env,
-)
+from sb3_eps.eps.evaluation import EnvPool, EvaluationBlock, EvaluationFailed, agent_space, make_eval_env
 from sb3_eps.eps.mutations import evolved_parameter_names
 from sb3_eps.eps.round import EPSRound, sample_visited_observations, visited_mask
 from sb3_eps.eps.round_log import RoundRecords
 from sb3_eps.eps.settings import PAPER_SETTINGS, EPSSettings
-from sb3_eps.eps.sharing import record_mode, sharing_problem
 
 __all__ = ["PAPER_SETTINGS", "EvolutionCallback", "sample_visited_observations"]
 
@@ -70,17 +64,25 @@ class EvolutionCallback(BaseCallback):
     :param verbose: 0 silent, 1 one line per round, 2 also worker restarts
     :param settings_kwargs: fields of :class:`~sb3_eps.eps.settings.EPSSettings` (as a config lists them), when
         ``settings`` is not given
+
+    A subclass plugs in variants of the method: its own settings (``settings_class``, a subclass of
+    :class:`~sb3_eps.eps.settings.EPSSettings`), rounds (``round_class``) and evaluation blocks (``block_class``);
+    ``research/eps_variants.py`` is one.
     """
 
     model: Any  # the multi-agent attributes (n_agents, replay_buffer) are not on SB3's BaseAlgorithm type
+    settings_class: type[EPSSettings] = EPSSettings
+    round_class: type[EPSRound] = EPSRound
+    block_class: type[EvaluationBlock] = EvaluationBlock
 
     def __init__(self, settings: EPSSettings | None = None, verbose: int = 0, **settings_kwargs: Any) -> None:
         super().__init__(verbose=verbose)
-        if not isinstance(settings, EPSSettings | None):
-            raise TypeError(f"settings must be an EPSSettings or None, got {settings!r} (the world is eval_env_id=...)")
+        name = self.settings_class.__name__
+        if not isinstance(settings, self.settings_class | None):
+            raise TypeError(f"settings must be an {name} or None, got {settings!r} (the world is eval_env_id=...)")
         if settings is not None and settings_kwargs:
-            raise ValueError("give EvolutionCallback either settings or keyword arguments of EPSSettings, not both")
-        self.settings = settings if settings is not None else EPSSettings(**settings_kwargs)
+            raise ValueError(f"give {type(self).__name__} either settings or keyword arguments of {name}, not both")
+        self.settings = settings if settings is not None else self.settings_class(**settings_kwargs)
         self.budget = RoundBudget(self.settings)
         self.records = RoundRecords(verbose)
         self.round: EPSRound | None = None
@@ -98,18 +100,13 @@ class EvolutionCallback(BaseCallback):
             or ``verbose``
         """
         verbose = kwargs.pop("verbose", 0)
-        return cls(EPSSettings.paper(**kwargs), verbose=verbose)
+        return cls(cls.settings_class.paper(**kwargs), verbose=verbose)
 
     # ------------------------------------------------------------------ what a run reads
     @property
     def eps_ticks(self) -> int:
         """Cumulative ticks simulated in EPS evaluation (add to the training ticks in plots)."""
         return self.round.eps_ticks if self.round is not None else self._eps_ticks
-
-    @property
-    def shared_rows(self) -> int:
-        """Replay rows written from the evaluation episodes (``share_experience``), all rounds together."""
-        return self.round.shared_rows if self.round is not None else 0
 
     @property
     def history(self) -> list[dict[str, Any]]:
@@ -153,7 +150,6 @@ class EvolutionCallback(BaseCallback):
             "rng": copy.deepcopy(round_.rng) if round_ is not None else None,
             "generator": round_.generator.get_state() if round_ is not None else None,
             "last_round_mark": self.budget.last_round_mark,
-            "shared_rows": self.shared_rows,
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -171,7 +167,7 @@ class EvolutionCallback(BaseCallback):
     def _restore_round(self) -> None:
         assert self.round is not None and self._state is not None
         state, self._state = self._state, None
-        self.round.eps_ticks, self.round.shared_rows = int(state["eps_ticks"]), int(state["shared_rows"])
+        self.round.eps_ticks = int(state["eps_ticks"])
         self.round.scale = state["scale"]
         if state["rng"] is not None:
             self.round.rng = copy.deepcopy(state["rng"])
@@ -191,7 +187,8 @@ class EvolutionCallback(BaseCallback):
             rng = np.random.default_rng(seed)
             generator = th.Generator(device=next(q_net.parameters()).device)
             generator.manual_seed(int(rng.integers(2**62)))
-            self.round = EPSRound(self.settings, self.model, evolved_parameter_names(q_net, frozen), rng, generator)
+            evolved = evolved_parameter_names(q_net, frozen)
+            self.round = self.round_class(self.settings, self.model, evolved, rng, generator)
             self.round.eps_ticks = self._eps_ticks
         if self._state is not None:
             self._restore_round()
@@ -232,25 +229,21 @@ class EvolutionCallback(BaseCallback):
     # ------------------------------------------------------------------ one round
     def _run_round(self) -> None:
         assert self.round is not None
-        start = time.perf_counter()
+        start, ticks_before = time.perf_counter(), self.round.eps_ticks
         try:
             record = self.round.run()
         except EvaluationFailed as error:
             self._skip_round(error, time.perf_counter() - start, error.record or {})
             return
-        record = self.records.played(record, time.perf_counter() - start, self._counters())
+        wall_time, ticks_spent = time.perf_counter() - start, self.round.eps_ticks - ticks_before
+        record = self.records.played(record, wall_time, ticks_spent, self._counters())
         elapsed = time.perf_counter() - self._training_start
-        totals = {**self._counters(), "shared_rows": self.shared_rows}
-        totals["time_share"] = self.records.eps_time / elapsed if elapsed > 0 else 0.0
-        self.records.log(self.logger, record, totals, self.settings.share_experience)
+        totals = {**self._counters(), "time_share": self.records.eps_time / elapsed if elapsed > 0 else 0.0}
+        self.records.log(self.logger, record, totals)
 
     def _counters(self) -> dict[str, Any]:
         assert self.round is not None
-        return {
-            "model_ticks": model_ticks(self.model),
-            "eps_ticks": self.round.eps_ticks,
-            "shared_rows": self.round.round_shared_rows,
-        }
+        return {"model_ticks": model_ticks(self.model), "eps_ticks": self.round.eps_ticks}
 
     def _skip_round(self, error: EvaluationFailed, wall_time: float, record: dict[str, Any]) -> None:
         self.records.skipped(str(error), wall_time, record.get("round_ticks", 0), self._counters())
@@ -268,10 +261,9 @@ class EvolutionCallback(BaseCallback):
         # The workers get the architecture only (a CPU copy); each round sends them the weights.
         template = copy.deepcopy(self.model.policy.q_net).to("cpu")
         arguments = (settings.eval_env_id, settings.eval_env_kwargs, settings.n_individuals, settings.n_eval_episodes)
-        record = record_mode(self.model) if settings.share_experience else None
         # A worker evaluates whole individuals, so more workers than individuals would idle.
         n_workers = (os.cpu_count() or 1) if settings.n_workers is None else settings.n_workers
-        pool = EnvPool(*arguments, template, n_workers=min(n_workers, settings.n_individuals), record=record)
+        pool = EnvPool(*arguments, template, n_workers=min(n_workers, settings.n_individuals), block_class=self.block_class)
         self.round.pool = pool
         # Close the workers even when training dies with an exception (no _on_training_end then).
         self._pool_finalizer = weakref.finalize(self, pool.close)
@@ -299,13 +291,6 @@ class EvolutionCallback(BaseCallback):
                 f"EvolutionCallback samples visited observations from model.replay_buffer; "
                 f"{type(self.model).__name__} has no replay buffer: use an off-policy model (IQL, GDQ, QMIX, VDN)"
             )
-        if self.settings.n_team_check_episodes > 0 and getattr(self.model.get_env(), "env_id", None) is None:
-            raise ValueError(
-                "n_team_check_episodes > 0 replays the training env, which needs a vec env made by "
-                "sb3_eps.make_vec_env (it records its env_id); set n_team_check_episodes=0"
-            )
-        if self.settings.per_robot and int(getattr(self.model, "n_agents", 0)) < 1:
-            raise ValueError("per_robot=True needs a multi-agent model (model.n_agents); set per_robot=False")
         return q_net
 
     def _match_training_world(self) -> int:
@@ -318,11 +303,6 @@ class EvolutionCallback(BaseCallback):
         wanted = {key: training[key] for key in SHARED_WORLD_OPTIONS if key in training}
         if ticks != 1:
             wanted["action_repeat"] = ticks
-        if wanted and self.settings.n_team_check_episodes > 0:
-            raise ValueError(
-                f"the model's worlds have options {wanted} and the team check replays the training env id with its "
-                "default options: set n_team_check_episodes=0"
-            )
         kwargs = self.settings.eval_env_kwargs
         assert kwargs is not None  # EPSSettings fills it in
         for key, value in wanted.items():
@@ -335,7 +315,8 @@ class EvolutionCallback(BaseCallback):
         return ticks
 
     def _check_eval_env(self) -> None:
-        """The evaluation world must speak the model's language: equal observation and action spaces."""
+        """The evaluation world must speak the model's language: equal observation and action spaces
+        (:meth:`_check_eval_world`)."""
         ticks = self._match_training_world()
         try:
             env = make_eval_env(self.settings.eval_env_id, self.settings.eval_env_kwargs)
@@ -361,8 +342,9 @@ class EvolutionCallback(BaseCallback):
                         f"({theirs}): pick the evaluation world that matches the training env "
                         "(sb3_eps.eps.eps_env_id_for(training env id))"
                     )
-            problem = sharing_problem(self.model, env) if self.settings.share_experience else None
-            if problem is not None:
-                raise ValueError(f"{problem}; or set share_experience=False")
+            self._check_eval_world(env)
         finally:
             env.close()
+
+    def _check_eval_world(self, env: Any) -> None:
+        """A subclass's checks of the evaluation world (built with ``eval_env_kwargs``); raise ``ValueError``."""

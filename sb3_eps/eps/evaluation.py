@@ -19,54 +19,13 @@ import torch as th
 from torch import nn
 from torch.func import functional_call, vmap
 
-from sb3_eps.common.parallel_wrappers import TeamAsGymnasium, TeamTick, ticks_per_step
+from sb3_eps.common.parallel_wrappers import TeamAsGymnasium, ticks_per_step
 from sb3_eps.common.workers import Served, WorkerBlocks, WorkerError
 from sb3_eps.eps.mutations import Parameters, finite_individuals
 
-
-@dataclass
-class TeamEpisode:
-    """Every tick of one team-world episode (``T`` ticks, ``n`` agents) for experience sharing
-    (:func:`sb3_eps.eps.sharing.share_episodes`): observations and global states ``(T + 1, ...)`` (before every
-    tick and after the last; states ``(T + 1, 0)`` when not recorded), the rest ``(T, n)`` as :class:`TeamTick`."""
-
-    observations: np.ndarray
-    actions: np.ndarray
-    rewards: np.ndarray
-    terminations: np.ndarray
-    truncations: np.ndarray
-    alive: np.ndarray
-    states: np.ndarray
-
-
-class _EpisodeRecorder:
-    """Collects the ticks of one team-world episode as it is played (:class:`TeamEpisode`)."""
-
-    def __init__(self, env: TeamAsGymnasium, first_obs: np.ndarray, record_states: bool) -> None:
-        self.env, self.record_states = env, record_states
-        self.observations = [first_obs]
-        self.states = [env.state()] if record_states else []
-        self.actions: list[np.ndarray] = []
-        self.ticks: list[TeamTick] = []
-
-    def add(self, action: np.ndarray, next_obs: np.ndarray) -> None:
-        assert self.env.last_tick is not None
-        self.actions.append(np.asarray(action, dtype=np.int64))
-        self.ticks.append(self.env.last_tick)
-        self.observations.append(np.array(next_obs, dtype=np.float32))
-        if self.record_states:
-            self.states.append(self.env.state())
-
-    def episode(self) -> TeamEpisode:
-        """The episode played (at least one tick: an individual that stops early records none)."""
-        n_ticks = len(self.actions)
-        states = np.stack(self.states) if self.record_states else np.zeros((n_ticks + 1, 0), dtype=np.float32)
-        ticks = TeamTick(*(np.stack(column) for column in zip(*self.ticks)))
-        return TeamEpisode(np.stack(self.observations), np.stack(self.actions), *ticks, states=states)
-
-
-#: Returns, lengths, outcomes ``(P, E)``, valid ``(P,)`` and the recorded episodes (individual-major) or None.
-PoolAnswer = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[TeamEpisode | None] | None]
+#: Returns, lengths, outcomes ``(P, E)``, valid ``(P,)`` and what the blocks recorded of each episode
+#: (individual-major; :meth:`EvaluationBlock.recorded`) or None.
+PoolAnswer = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[Any] | None]
 
 
 class EvaluationFailed(WorkerError):
@@ -132,12 +91,15 @@ class PopulationForward:
             return self._vmapped(self._population, obs)
 
 
-class _Block(Served):
+class EvaluationBlock(Served):
     """The envs of a block of individuals and the forward pass that drives them (in a worker or in process);
-    env ``p * n_episodes + j`` plays episode ``j`` of individual ``p``. ``record``: None, ``"ticks"`` (every tick of
-    a team world) or ``"ticks+states"`` (also its global states). A worker's block answers ``evaluate`` with the
-    numpy weights of its individuals. Episode lengths count world ticks: a world that holds each decision for
-    ``action_repeat`` ticks adds that many per step (the last decision of an episode counted whole)."""
+    env ``p * n_episodes + j`` plays episode ``j`` of individual ``p``. A worker's block answers ``evaluate`` with
+    the numpy weights of its individuals. Episode lengths count world ticks: a world that holds each decision for
+    ``action_repeat`` ticks adds that many per step (the last decision of an episode counted whole).
+
+    A subclass records the episodes it plays (:meth:`start_recording`, :meth:`record_step`, :meth:`recorded`), e.g.
+    to turn them into replay rows; the records travel back with the answer (:attr:`PopulationResult.episodes`).
+    """
 
     def __init__(
         self,
@@ -146,13 +108,11 @@ class _Block(Served):
         n_individuals: int,
         n_episodes: int,
         network: nn.Module,
-        record: str | None = None,
     ) -> None:
         self.n_individuals, self.n_episodes = n_individuals, n_episodes
         self.envs = [make_eval_env(env_id, env_kwargs) for _ in range(n_individuals * n_episodes)]
         self.team_size = int(getattr(self.envs[0], "team_size", 0))  # 0: a single-agent env
         self.ticks_per_step = ticks_per_step(self.envs[0])
-        self.record = record
         self.forward = PopulationForward(network)
 
     def evaluate(self, population: Parameters, seeds: Sequence[int], valid: np.ndarray) -> PoolAnswer:
@@ -169,7 +129,7 @@ class _Block(Served):
         obs = np.zeros((len(self.envs), *obs_shape), dtype=np.float32)
         for index in np.flatnonzero(active):
             obs[index] = self.envs[index].reset(seed=int(seeds[int(index) % self.n_episodes]))[0]
-        recorders = self._recorders(obs, active)
+        self.start_recording(obs, active)
         while active.any():
             outputs = self.forward(th.as_tensor(obs).reshape(self.n_individuals, self.n_episodes * agents, -1))
             outputs = outputs.reshape(len(self.envs), agents, -1)
@@ -183,19 +143,24 @@ class _Block(Served):
             for index in np.flatnonzero(active):
                 action = actions[index] if self.team_size else int(actions[index, 0])
                 next_obs, reward, terminated, truncated, info = self.envs[index].step(action)
-                if recorders is not None:
-                    recorders[int(index)].add(np.asarray(action), next_obs)
+                self.record_step(int(index), action, next_obs)
                 obs[index] = next_obs
                 returns.flat[index] += float(reward)
                 lengths.flat[index] += self.ticks_per_step
                 active[index] = not (terminated or truncated)
                 if terminated or truncated:
                     outcomes.flat[index] = episode_outcome(bool(terminated), info)
-        episodes = None
-        if recorders is not None:  # an individual stopped for non-finite outputs left unfinished episodes: none
-            played = np.repeat(valid, self.n_episodes)
-            episodes = [recorder.episode() if played[index] else None for index, recorder in enumerate(recorders)]
-        return returns, lengths, outcomes, valid, episodes
+        return returns, lengths, outcomes, valid, self.recorded(valid)
+
+    def start_recording(self, obs: np.ndarray, active: np.ndarray) -> None:
+        """Episodes start: ``obs`` the first observation of every env, ``active`` the envs that play."""
+
+    def record_step(self, index: int, action: Any, next_obs: np.ndarray) -> None:
+        """Env ``index`` took ``action`` and observes ``next_obs``."""
+
+    def recorded(self, valid: np.ndarray) -> list[Any] | None:
+        """:return: one record per env (``valid``: the individuals that played to the end), or None: nothing kept."""
+        return None
 
     def handle(self, command: str, data: Any) -> Any:
         if command != "evaluate":
@@ -203,23 +168,15 @@ class _Block(Served):
         population, seeds, valid = data
         return self.evaluate({name: th.from_numpy(array) for name, array in population.items()}, seeds, valid)
 
-    def _recorders(self, obs: np.ndarray, active: np.ndarray) -> list[_EpisodeRecorder] | None:
-        if self.record is None:
-            return None
-        record_states = self.record == "ticks+states"
-        return [  # team worlds only (checked in __init__)
-            _EpisodeRecorder(env, obs[index].copy(), record_states and bool(active[index]))  # type: ignore[arg-type]
-            for index, env in enumerate(self.envs)
-        ]
-
     def close(self) -> None:
         for env in self.envs:
             env.close()
 
 
-def _build_served_block(block_kwargs: dict[str, Any]) -> _Block:
+def _build_served_block(payload: tuple[type[EvaluationBlock], dict[str, Any]]) -> EvaluationBlock:
     th.set_num_threads(1)  # the forward passes are tiny; threads would fight over the cores with the envs
-    return _Block(**block_kwargs)
+    block_class, block_kwargs = payload
+    return block_class(**block_kwargs)
 
 
 class EnvPool:
@@ -231,7 +188,7 @@ class EnvPool:
     :param n_individuals: individuals per round, each playing ``n_episodes`` episodes
     :param network: architecture template (CPU; copied into the workers)
     :param n_workers: number of worker processes (at most ``n_individuals``; 0: the main process)
-    :param record: what to record of every episode (see :class:`_Block`), sent back with the answer
+    :param block_class: the blocks' class (a subclass records the episodes, :class:`EvaluationBlock`)
     """
 
     def __init__(
@@ -242,18 +199,18 @@ class EnvPool:
         n_episodes: int,
         network: nn.Module,
         n_workers: int = 2,
-        record: str | None = None,
+        block_class: type[EvaluationBlock] = EvaluationBlock,
     ) -> None:
         n_blocks = max(1, min(n_workers, n_individuals))
         self.blocks = [block for block in np.array_split(np.arange(n_individuals), n_blocks) if len(block)]
         common = {"env_id": env_id, "env_kwargs": env_kwargs, "n_episodes": n_episodes, "network": network}
-        payloads: list[dict[str, Any]] = [{**common, "n_individuals": len(block), "record": record} for block in self.blocks]
+        payloads = [(block_class, {**common, "n_individuals": len(block)}) for block in self.blocks]
         # The workers build their envs while the main process goes on training; the first evaluation waits for
         # their hellos within its own deadline.
         self._workers = WorkerBlocks(
             _build_served_block,
             payloads if n_workers else [],
-            None if n_workers else lambda: _Block(**payloads[0]),
+            None if n_workers else lambda: block_class(**payloads[0][1]),
             describe=lambda i: f"evaluation block {i}",
             error=EvaluationFailed,
             close_timeout=1.0,
@@ -266,7 +223,7 @@ class EnvPool:
         return [] if self._workers.closed else self._workers.pool.pids
 
     def evaluate(self, population: Parameters, seeds: Sequence[int], valid: np.ndarray, deadline: float) -> PoolAnswer:
-        """Every episode of every ``valid`` individual (:meth:`_Block.evaluate`) before ``deadline``
+        """Every episode of every ``valid`` individual (:meth:`EvaluationBlock.evaluate`) before ``deadline``
         (``time.monotonic()``; not enforced in the main process), else :class:`EvaluationFailed`."""
         if not self._ready:  # the workers' hellos: their envs are built
             self._workers.hellos("building its envs", deadline)
@@ -298,14 +255,14 @@ SubprocessEnvPool, InProcessEnvPool = EnvPool, functools.partial(EnvPool, n_work
 class PopulationResult:
     """What one evaluation round measured: returns, lengths and outcomes (:data:`OUTCOMES`) ``(P, E)``; valid
     ``(P,)`` (False where weights or outputs were not finite, or not run); Eq. 4's fitness ``(P,)`` (``-inf`` where
-    not valid); the recorded episodes when the pool records them."""
+    not valid); what the blocks recorded of the episodes (:meth:`EvaluationBlock.recorded`) or None."""
 
     returns: np.ndarray
     lengths: np.ndarray
     valid: np.ndarray
     fitness: np.ndarray
     outcomes: np.ndarray
-    episodes: list[TeamEpisode | None] | None = None
+    episodes: list[Any] | None = None
 
     @property
     def successes(self) -> np.ndarray:

@@ -33,11 +33,13 @@ from sb3_eps.eps.mutations import (
     select_best,
 )
 from sb3_eps.eps.settings import EPSSettings
-from sb3_eps.eps.sharing import share_episodes
 
 
 class EPSRound:
     """Plays the rounds of one model: holds the generators, the calibrated noise scale and the tick counters.
+
+    A subclass (``EvolutionCallback.round_class``) may change how the mutants are normalised (:meth:`sensitivities`),
+    what follows an evaluation (:meth:`play`) and what surrounds the crossover (:meth:`cross_over`).
 
     :param evolved: names of the ``q_net`` parameters mutated and crossed over
     :param rng: generator of the buffer sampling and the episode seeds; ``generator`` that of the mutation noise
@@ -56,8 +58,6 @@ class EPSRound:
         self.pool: EnvPool | None = None
         self.scale: float | None = None  # the last calibrated noise scale: the next calibration starts there
         self.eps_ticks = 0  # ticks simulated by EPS, all rounds together
-        self.shared_rows = 0  # replay rows written from the evaluation episodes, all rounds together
-        self.round_shared_rows = 0
 
     def run(self) -> dict[str, Any]:
         """Play one round; :return: its record (``docs/modules/eps.md``, "The round record").
@@ -65,13 +65,12 @@ class EPSRound:
         :raises EvaluationFailed: with ``record`` set to what the round measured before
         """
         settings = self.settings
-        self.round_shared_rows = 0
         q_net = self.model.policy.q_net
         theta = network_parameters(q_net)  # line 5: the copies of theta^e
         observations = self.visited_observations(None)
         assert observations is not None
         # lines 7-8
-        sensitivities = self._sensitivities(q_net, observations) if settings.mutation == "safe" else None
+        sensitivities = self.sensitivities(q_net, observations) if settings.mutation == "safe" else None
         directions = mutation_directions(  # lines 6 and 9 at unit scale: G ~ N(0, 1), G / omega
             theta,
             settings.population_size,
@@ -92,7 +91,7 @@ class EPSRound:
             "mean_abs_q": float(outputs[0].abs().mean()),
         }
         try:
-            seeds, result = self._play(population)  # line 10
+            seeds, result = self.play(population)  # line 10
             record.update(round_ticks=int(result.lengths.sum()), **_episodes_record(seeds, result))
             if not result.valid.all():
                 _warn_disqualified(population, result.valid)
@@ -105,16 +104,22 @@ class EPSRound:
         alpha = scheduled_alpha(settings.alpha, settings.alpha_schedule, remaining)
         record.update(winner=winner, accepted=accepted, alpha=alpha, mean_abs_delta=0.0)
         if accepted and alpha > 0:  # line 13, Eq. 5 (copy 0 winning would leave theta as it is)
-            self._team_check(record, "before")
-            best = individual(population, winner)
-            record["mean_abs_delta"] = polyak_crossover_(q_net, best, alpha, self.evolved)
-            target = getattr(self.model.policy, "q_net_target", None)
-            if isinstance(target, nn.Module):
-                polyak_crossover_(target, best, alpha, self.evolved)
-            self._team_check(record, "after")
+            record["mean_abs_delta"] = self.cross_over(individual(population, winner), alpha, record)
         return record
 
-    def visited_observations(self, robot: int | None) -> th.Tensor | None:
+    def cross_over(self, best: Parameters, alpha: float, record: dict[str, Any]) -> float:
+        """Eq. 5: move the agent network (and its target network, if any) toward ``best`` by ``alpha``.
+
+        :param record: the round's record so far
+        :return: the mean absolute change of the evolved weights
+        """
+        delta = polyak_crossover_(self.model.policy.q_net, best, alpha, self.evolved)
+        target = getattr(self.model.policy, "q_net_target", None)
+        if isinstance(target, nn.Module):
+            polyak_crossover_(target, best, alpha, self.evolved)
+        return delta
+
+    def visited_observations(self, robot: int | None = None) -> th.Tensor | None:
         """``sensitivity_batch_size`` visited observations of one robot (None: of every robot), or None."""
         return sample_visited_observations(self.model, self.settings.sensitivity_batch_size, self.rng, robot)
 
@@ -139,18 +144,13 @@ class EPSRound:
         self.scale, _ = calibrate_scale(flip_share_at, settings.target_flip_share, initial)
         return self.scale
 
-    def _play(self, population: Parameters, active: np.ndarray | None = None) -> tuple[list[int], PopulationResult]:
+    def play(self, population: Parameters, active: np.ndarray | None = None) -> tuple[list[int], PopulationResult]:
         """Play the population on fresh common-random-number episodes and count their ticks."""
         settings = self.settings
         assert self.pool is not None
         seeds = [int(seed) for seed in self.rng.integers(2**31 - 1, size=settings.n_eval_episodes)]
         result = evaluate_population(self.pool, population, seeds, settings.eval_timeout, settings.fitness, active)
         self.eps_ticks += int(result.lengths.sum())
-        if settings.share_experience and result.episodes is not None:
-            rows = share_episodes(self.model, result.episodes)  # before any crossover: the round's network
-            self.round_shared_rows += rows
-            self.shared_rows += rows
-            result.episodes = None  # the arrays are in the buffer now
         return seeds, result
 
     def _accept(self, population: Parameters, result: PopulationResult, winner: int, record: dict[str, Any]) -> bool:
@@ -175,7 +175,7 @@ class EPSRound:
         seeds: list[int] = []
         results = []
         for _ in range(self.settings.n_reevaluation_batches):
-            batch_seeds, result = self._play(population, active)
+            batch_seeds, result = self.play(population, active)
             seeds += batch_seeds
             results.append(result)
         returns, outcomes, lengths = (
@@ -187,48 +187,9 @@ class EPSRound:
         gain = float(fitness[1] - fitness[0]) if np.isfinite(fitness[0]) else float("nan")
         return {**record, "gain": gain, "ticks": int(lengths.sum())}
 
-    def _team_check(self, record: dict[str, Any], when: str) -> None:
-        """Greedy episodes of the training env, same seeds before and after the crossover (optional)."""
-        n_episodes = self.settings.n_team_check_episodes
-        if n_episodes == 0:
-            return
-        from sb3_eps.common.evaluation import evaluate_team
-
-        env_id = self.model.get_env().env_id
-        if when == "before":
-            record["team_check_seed"] = int(self.rng.integers(2**31 - 1))
-        # The online network, the one the crossover changed (a kept weight average, GDQ's default, follows it only
-        # slowly): policies explore only through the algorithm, so their non-deterministic actions are its argmax.
-        summary = evaluate_team(
-            self.model.policy,
-            env_id,
-            n_episodes,
-            n_envs=1,
-            deterministic=False,
-            seed=record["team_check_seed"],
-        )
-        ticks = int(sum(episode["l"] for episode in summary["episodes"]))
-        self.eps_ticks += ticks
-        record[f"team_success_{when}"] = summary.get("success_rate", float("nan"))
-        record[f"team_return_{when}"] = summary["team_return_mean"]
-        record["team_check_ticks"] = record.get("team_check_ticks", 0) + ticks
-
-    def _sensitivities(self, q_net: nn.Module, observations: th.Tensor) -> list[Parameters]:
-        """Eq. 6 on a batch of visited observations: one for all mutants, or one per robot (``per_robot``)."""
-        population_size = self.settings.population_size
-        if not self.settings.per_robot:
-            return [output_sensitivity(q_net, observations)]
-        # Mutant i follows robot i % n: the paper's m = n when population_size = n_agents.
-        n_agents = int(self.model.n_agents)
-        robots = sorted({index % n_agents for index in range(population_size)})
-        by_robot: dict[int, Parameters] = {}
-        for robot in robots:  # a robot without an alive entry yet takes every robot's states
-            robot_observations = self.visited_observations(robot)
-            if robot_observations is None:
-                robot_observations = self.visited_observations(None)
-            assert robot_observations is not None
-            by_robot[robot] = output_sensitivity(q_net, robot_observations)
-        return [by_robot[index % n_agents] for index in range(population_size)]
+    def sensitivities(self, q_net: nn.Module, observations: th.Tensor) -> list[Parameters]:
+        """Eq. 6 on a batch of visited observations, one for all mutants (a list of one, or one per mutant)."""
+        return [output_sensitivity(q_net, observations)]
 
 
 def visited_mask(replay_buffer: Any, robot: int | None = None) -> np.ndarray:

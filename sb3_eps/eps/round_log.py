@@ -111,17 +111,16 @@ class RoundRecords:
             path = os.path.join(folder, DIAGNOSTICS_NAME)
         self.file = RoundLog(path) if path else None
 
-    def played(self, record: dict[str, Any], wall_time: float, counters: dict[str, Any]) -> dict[str, Any]:
+    def played(self, record: dict[str, Any], wall_time: float, ticks_spent: int, counters: dict[str, Any]) -> dict[str, Any]:
         """Add a played round.
 
         :param record: what the round measured
-        :param counters: ``model_ticks``, ``eps_ticks`` and the round's ``shared_rows``
+        :param ticks_spent: the EPS ticks the round played
+        :param counters: ``model_ticks`` and ``eps_ticks``
         :return: the full record
         """
         self.n_rounds += 1
         self.eps_time += wall_time
-        ticks_spent = record["round_ticks"] + record.get("reevaluation", {}).get("ticks", 0)
-        ticks_spent += record.get("team_check_ticks", 0)
         record = {"round": self.n_rounds, **_counted(counters, ticks_spent), **record}
         # The run's crossovers so far, this round's included: the last record of a log says how many rounds of the
         # run crossed over.
@@ -140,10 +139,10 @@ class RoundRecords:
             self.file.append(record, n_before=len(self.history))
         self.history.append(record)
 
-    def log(self, logger: Logger, record: dict[str, Any], totals: dict[str, Any], share_experience: bool) -> None:
+    def log(self, logger: Logger, record: dict[str, Any], totals: dict[str, Any]) -> None:
         """Record a played round under ``eps/`` (and print it when ``verbose``).
 
-        :param totals: ``model_ticks``, ``eps_ticks``, ``shared_rows`` (all rounds) and ``time_share``
+        :param totals: ``model_ticks``, ``eps_ticks`` (all rounds) and ``time_share``
         """
         fitness = np.asarray(record["fitness"], dtype=float)
         finite = fitness[np.isfinite(fitness)]
@@ -153,9 +152,6 @@ class RoundRecords:
         logger.record("eps/ticks", eps_ticks)
         logger.record("eps/total_ticks", model_ticks + eps_ticks)
         logger.record("eps/round_ticks", record["ticks_spent"])
-        if share_experience:
-            logger.record("eps/shared_rows", record["shared_rows"])
-            logger.record("eps/shared_rows_total", totals["shared_rows"])
         logger.record("eps/tick_share", eps_ticks / max(model_ticks, 1))
         for index, value in enumerate(fitness):
             logger.record(f"eps/fitness_{index}", float(value))
@@ -177,9 +173,6 @@ class RoundRecords:
         logger.record("eps/mean_abs_dq", float(np.mean(record["mean_abs_dq"])))
         logger.record("eps/mean_abs_q", record["mean_abs_q"])
         logger.record("eps/mean_abs_delta", record["mean_abs_delta"])
-        for when in ("before", "after"):
-            if f"team_success_{when}" in record:
-                logger.record(f"eps/team_success_{when}", record[f"team_success_{when}"])
         logger.record("eps/round_time", record["wall_time"])
         logger.record("eps/time_share", totals["time_share"])
         logger.record("eps/skipped_rounds", self.n_skipped_rounds)
@@ -192,7 +185,6 @@ class RoundRecords:
                 f"{self.n_crossovers} of {self.n_rounds} rounds crossed over; "
                 f"{record['ticks_spent']} ticks, {record['wall_time']:.2f} s; {eps_ticks} EPS ticks "
                 f"({100 * eps_ticks / max(model_ticks, 1):.1f} % of training)"
-                + (f"; {record['shared_rows']} replay rows shared" if share_experience else "")
             )
 
 
@@ -201,5 +193,4 @@ def _counted(counters: dict[str, Any], ticks_spent: int) -> dict[str, Any]:
         "model_ticks": counters["model_ticks"],
         "eps_ticks": counters["eps_ticks"],
         "ticks_spent": ticks_spent,
-        "shared_rows": counters["shared_rows"],
     }

@@ -21,7 +21,7 @@ assert typing.get_args(Fitness) == FITNESS_KINDS
 #: The intervals of :class:`EPSSettings`'s numbers (its type hints give the rest of its schema).
 RANGES = {
     "population_size": "[1, inf)", "period": "[1, inf)", "n_eval_episodes": "[1, inf)", "alpha": "[0, 1]",
-    "sensitivity_batch_size": "[1, inf)", "n_reevaluation_episodes": "[0, inf)", "n_team_check_episodes": "[0, inf)",
+    "sensitivity_batch_size": "[1, inf)", "n_reevaluation_episodes": "[0, inf)",
     "sigma": "(0, inf)", "sensitivity_floor": "(0, inf)", "max_step": "(0, inf]", "n_workers": "[0, inf)",
     "eval_timeout": "(0, inf]", "target_flip_share": "(0, 1)", "min_gain": "[0, inf)", "rounds_until": "[1, inf)",
     "max_eps_share": "(0, inf]",
@@ -122,21 +122,15 @@ class EPSSettings:
     :param sensitivity_batch_size: ``|b|``, visited observations sampled from the replay buffer for Eq. 6
     :param sensitivity_floor: lower bound on the sensitivity ``omega`` (Lehman et al.'s reference implementation)
     :param max_step: per-weight clip on the safe mutation's step (Lehman et al.); ``float("inf")`` disables it
-    :param n_team_check_episodes: greedy episodes of the training world played before and after every crossover
-        with the same seeds (counted as EPS ticks); 0: no check
     :param diagnostics_path: JSON-lines file of the per-round records; None: ``eps_rounds.jsonl`` in the logger's
         folder when it has one; ``""``: no file
     :param n_workers: evaluation worker processes; 0: the main process; None: one per core (at most one per
         individual)
     :param eval_timeout: seconds an evaluation round may take before its workers count as hung (the round is
         skipped, the workers restarted)
-    :param per_robot: normalise mutant ``i`` by robot ``i % n_agents``'s own sensitivity (paper III-B); needs
-        ``mutation="safe"``
     :param eval_env_kwargs: constructor arguments of the evaluation env; None: :func:`default_eval_env_kwargs`;
         ``{}``: the env's own defaults (the bars world, paper)
     :param seed: seed of the noise, the buffer sampling and the evaluation episodes; None: from the model's seed
-    :param share_experience: write every tick of every evaluation episode into the model's replay buffer
-        (Evolutionary RL, Khadka & Tumer, NeurIPS 2018); needs a team world with the training world's agents
     """
 
     eval_env_id: str = "SingleRobotNav-v0"
@@ -158,19 +152,14 @@ class EPSSettings:
     sensitivity_batch_size: int = 128
     sensitivity_floor: float = 0.01
     max_step: float = 0.2
-    n_team_check_episodes: int = 0
     diagnostics_path: str | None = None
     n_workers: int | None = None
     eval_timeout: float = 120.0
-    per_robot: bool = False
     eval_env_kwargs: dict[str, Any] | None = None
     seed: int | None = None
-    share_experience: bool = False
 
     def __post_init__(self) -> None:
         check_arguments(EPSSettings, dataclasses.asdict(self), RANGES)
-        if self.per_robot and self.mutation != "safe":
-            raise ValueError("per_robot=True chooses each mutant's sensitivity: it needs mutation='safe'")
         check_eval_env_id(self.eval_env_id)
         if self.sigma is None:
             self.sigma = DEFAULT_SIGMA[self.mutation]
@@ -197,6 +186,5 @@ class EPSSettings:
 
     @property
     def most_episodes_per_round(self) -> int:
-        """Every episode a round may play: selection, reevaluation (both individuals) and team checks."""
-        episodes = (self.n_individuals + 2 * self.n_reevaluation_batches) * self.n_eval_episodes
-        return episodes + 2 * self.n_team_check_episodes
+        """Every episode a round may play: selection and reevaluation (both individuals)."""
+        return (self.n_individuals + 2 * self.n_reevaluation_batches) * self.n_eval_episodes

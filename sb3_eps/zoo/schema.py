@@ -368,6 +368,11 @@ def callback_class(name: str, where: str = "callback") -> type[BaseCallback]:
     return CALLBACKS[canonical]
 
 
+def is_evolution(name: str) -> bool:
+    """:return: whether the callback of canonical name ``name`` is an ``EvolutionCallback`` (or a subclass's)."""
+    return issubclass(CALLBACKS.get(name, BaseCallback), EvolutionCallback)
+
+
 # ---------------------------------------------------------------------------------------------- checking
 def normalize_entry(entry: Any, spec: AlgorithmSpec, where: str) -> dict[str, Any]:
     """Check one config entry and return it in canonical form.
@@ -413,20 +418,19 @@ def check_complete(entry: Mapping[str, Any], spec: AlgorithmSpec, where: str) ->
     """The checks that need the whole (merged) entry.
 
     :raises ConfigError: when ``n_timesteps`` is missing, or an ``eps_*`` algorithm has no ``EvolutionCallback``
-        (or another algorithm has one)
+        (or another algorithm has one; a subclass counts as one)
     """
     if "n_timesteps" not in entry and LADDER_KEY not in entry:  # a ladder's total is its rungs
         raise ConfigError(f"{where}: n_timesteps is missing; give it in the entry, its default, or with -n")
-    names = [next(iter(item)) for item in entry.get(CALLBACK_KEY, [])]
-    if spec.eps and EVOLUTION_CALLBACK not in names:
+    evolution = [name for item in entry.get(CALLBACK_KEY, []) if is_evolution(name := next(iter(item)))]
+    if spec.eps and not evolution:
         raise ConfigError(
             f"{where}: algorithm {spec.name} is {spec.name[4:]} plus Evolutionary Policy Search: its entry needs "
             f"callback: {EVOLUTION_CALLBACK} (with its arguments)"
         )
-    if not spec.eps and EVOLUTION_CALLBACK in names:
+    if not spec.eps and evolution:
         raise ConfigError(
-            f"{where}: {EVOLUTION_CALLBACK} belongs to the eps_* algorithms; use --algo eps_{spec.name} "
-            "(or remove the callback)"
+            f"{where}: {evolution[0]} belongs to the eps_* algorithms; use --algo eps_{spec.name} (or remove the callback)"
         )
 
 
@@ -573,7 +577,7 @@ def to_object(value: Any, hint: Any) -> Any:
 def build_callbacks(entry: Mapping[str, Any], env_id: str, verbose: int, where: str) -> list[tuple[str, BaseCallback]]:
     """Make the callbacks of a canonical entry.
 
-    ``EvolutionCallback`` gets ``eval_env_id=eps_env_id_for(env_id)`` unless the entry sets it.
+    An ``EvolutionCallback`` gets ``eval_env_id=eps_env_id_for(env_id)`` unless the entry sets it.
 
     :return: ``(canonical name, callback)`` pairs
     :raises ConfigError: when a constructor refuses its arguments
@@ -582,7 +586,7 @@ def build_callbacks(entry: Mapping[str, Any], env_id: str, verbose: int, where: 
     for item in entry.get(CALLBACK_KEY, []):
         name, kwargs = next(iter(item.items()))
         kwargs = dict(kwargs)
-        if name == EVOLUTION_CALLBACK:
+        if is_evolution(name):
             kwargs.setdefault("eval_env_id", eps_env_id_for(env_id))
             kwargs.setdefault("verbose", verbose)
         try:

@@ -87,7 +87,7 @@ def sample_hyperparams(
 
 def sample_eps(trial: Any, env_id: str | None = None) -> dict[str, Any]:
     """The ``EvolutionCallback`` arguments of a trial, around its defaults (``docs/modules/eps.md``; alpha < 0.4,
-    which the paper found harmful above); with ``env_id``, also the training team world with experience sharing."""
+    which the paper found harmful above); with ``env_id``, also the training team world."""
     arguments: dict[str, Any] = {
         "target_flip_share": trial.suggest_categorical("eps_target_flip_share", [0.02, 0.05, 0.1, 0.2]),
         "alpha": trial.suggest_float("eps_alpha", 0.05, 0.39),
@@ -101,7 +101,7 @@ def sample_eps(trial: Any, env_id: str | None = None) -> dict[str, Any]:
         "min_gain": trial.suggest_categorical("eps_min_gain", [0.0, 0.05, 0.1]),
     }
     if env_id is not None and trial.suggest_categorical("eps_world", ["single", "team"]) == "team":
-        arguments.update(eval_env_id=env_id, share_experience=True)
+        arguments.update(eval_env_id=env_id)
     return arguments
 
 
