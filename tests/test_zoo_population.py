@@ -79,10 +79,10 @@ def argv(tmp_path: Path, folder: Path, *extra: str) -> list[str]:
 # ---------------------------------------------------------------------------------------------- the YAML
 @pytest.mark.parametrize(("override", "python"), [([], {}), (["population.crossover:distill"], {"crossover": "distill"})])
 def test_the_yaml_builds_the_trainer_of_its_python_one_liner(override, python) -> None:
-    """``zoo_configs/gdq_population.yml`` (and its distillation arm) against the header's one-liner
+    """``research/zoo_configs/gdq_population.yml`` (and its distillation arm) against the header's one-liner
     ``PopulationTrainer(GDQ, "MultiRobotNav-8-v0", k=4, n_envs=4, share_buffer=True, interval=40_000, seed=0)``:
     the same settings, and learners of the same hyper-parameters and initial weights."""
-    config = resolve_config("gdq", "MultiRobotNav-8-v0", CONFIGS / "gdq_population.yml", override)
+    config = resolve_config("gdq", "MultiRobotNav-8-v0", ROOT / "research" / "zoo_configs" / "gdq_population.yml", override)
     assert config.entry["tuned"] is False and config.entry["n_timesteps"] == 8 * 300_000
     check_population_run(config, TrainOptions(algo="gdq", env="MultiRobotNav-8-v0", seed=0))
     from_yaml = PopulationTrainer(GDQ, None, seed=0, **population_kwargs(config))
