@@ -189,7 +189,7 @@ def results_page(root: Path = TRAINED_AGENTS, reproduction: Path = REPRODUCTION)
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    commands = parser.add_subparsers(dest="command", required=True)
+    commands = parser.add_subparsers(dest="action", required=True)
     ship_parser = commands.add_parser("ship")
     ship_parser.add_argument("--run", type=Path, required=True)
     ship_parser.add_argument("--commit", required=True, help="the commit of the code that trained it")
@@ -204,11 +204,11 @@ def main(argv: list[str] | None = None) -> int:
         sub.add_argument("-o", "--output", type=Path, default=None)
     commands.add_parser("page")
     args = parser.parse_args(argv)
-    if args.command == "page":
+    if args.action == "page":
         PAGE.write_text(results_page())
         print(f"wrote {PAGE}")
         return 0
-    if args.command == "ship":
+    if args.action == "ship":
         card = ship(args.run, args.commit, args.serves, args.notes, args.command)
         print(f"shipped {card.folder}")
         return 0
@@ -216,7 +216,7 @@ def main(argv: list[str] | None = None) -> int:
     report = []
     for card in chosen:
         figures = measure(card, args.n_episodes, args.seed)
-        if args.command == "evaluate":
+        if args.action == "evaluate":
             card.figures = figures
             (card.folder / "card.json").write_text(card.to_json())
             (card.folder / CARD_PAGE_NAME).write_text(card_page(card))
@@ -227,7 +227,7 @@ def main(argv: list[str] | None = None) -> int:
             report.append({"algo": card.algo, "env_id": env_id, "card": listed, "measured": figure, "difference_points": difference,
                            "within_5_points": abs(difference) <= 5})  # fmt: skip
             print(f"  card {100 * listed:.1f} %, now {100 * figure['success_rate']:.1f} %: {difference:+.1f} points")
-    if args.command == "reproduce" and args.output is not None:
+    if args.action == "reproduce" and args.output is not None:
         args.output.parent.mkdir(parents=True, exist_ok=True)
         args.output.write_text(json.dumps(report, indent=2) + "\n")
     return 0 if all(row["within_5_points"] for row in report) else 1

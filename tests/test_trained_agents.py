@@ -28,7 +28,7 @@ ALLOWED_RETURN_FALL = 10.0
 def test_a_model_is_shipped_for_each_world_family() -> None:
     shipped = set(available())
     for env_id in ("MultiRobotNav-4-v0", "MultiRobotNav-8-v0", "MultiRobotNav-12-v0", "MultiRobotNavUnseen-4-v0",
-                   "CooperativeNavigation-v0"):  # fmt: skip
+                   "CooperativeNavigation-v0", "MultiRobotNavRooms-8-test-v0"):  # fmt: skip
         assert ("gdq", env_id) in shipped, f"no shipped model for {env_id}"
     for card in CARDS:
         assert card.figures.keys() == set(card.serves), f"{card.folder}: a served world has no figure"
@@ -102,3 +102,22 @@ def test_the_trained_teams_page_is_what_thecards_render() -> None:
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     assert module.PAGE.read_text() == module.results_page(), "re-render: python research/trained_agents.py page"
+
+
+def test_the_ship_command_reaches_ship_with_the_training_command(monkeypatch, tmp_path) -> None:
+    """``research/trained_agents.py ship`` passes its flags on (its ``--command`` must not shadow the sub-command)."""
+    from research import trained_agents
+
+    calls = []
+
+    class Shipped:
+        folder = tmp_path
+
+    def fake_ship(run, commit, serves, notes, command):
+        calls.append((run, commit, serves, notes, command))
+        return Shipped()
+
+    monkeypatch.setattr(trained_agents, "ship", fake_ship)
+    argv = ["ship", "--run", str(tmp_path), "--commit", "abc1234", "--serves", "A-v0", "--command", "python -m x"]
+    assert trained_agents.main(argv) == 0
+    assert calls == [(tmp_path, "abc1234", ["A-v0"], "", "python -m x")]
