@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from envs.turtlebot3.paths import CLEARANCE, LOOKAHEAD
 from envs.turtlebot3.robot import (
     ACTION_ANGULAR,
     ACTION_LINEAR,
@@ -39,8 +40,8 @@ def deployment_description(
     lidar_frame_ticks: int = 5,
     lidar_noise_std: float = 0.0,
     path_guidance: bool = False,
-    path_clearance: float = 0.15,
-    path_lookahead: float = 1.0,
+    path_clearance: float = CLEARANCE,
+    path_lookahead: float = LOOKAHEAD,
 ) -> dict[str, Any]:
     """The robot-side description of a TurtleBot3 world with these options (the world's own values).
 

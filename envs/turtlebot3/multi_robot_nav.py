@@ -84,6 +84,11 @@ def observation_space(lidar_frames: int = 1) -> gymnasium.spaces.Box:
     return gymnasium.spaces.Box(low=low, high=np.ones(dim, dtype=np.float32), dtype=np.float32)
 
 
+def _is_number(value: Any) -> bool:
+    """:return: whether ``value`` is a real number (not a bool)"""
+    return not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating))
+
+
 class MultiRobotNavEnv(ParallelEnv):
     """TurtleBot3 Burgers navigating to their own targets in a PyBullet room (paper Sec. IV-B).
 
@@ -202,18 +207,12 @@ class MultiRobotNavEnv(ParallelEnv):
         if not isinstance(path_guidance, (bool, np.bool_)):
             raise ValueError(f"path_guidance must be True or False, got {path_guidance!r}.")
         self.path_guidance = bool(path_guidance)
-        for name, value, low, high in (
-            ("path_clearance", path_clearance, ROBOT_RADIUS, CLEARANCE_MAX),
-            ("path_lookahead", path_lookahead, 0.0, LOOKAHEAD_MAX),
-        ):
-            if (
-                isinstance(value, bool)
-                or not isinstance(value, (int, float, np.integer, np.floating))
-                or not low <= value <= high
-                or (name == "path_lookahead" and value <= 0)
-            ):
-                bounds = f"[{low}, {high}]" if name == "path_clearance" else f"({low}, {high}]"
-                raise ValueError(f"{name} must be a number of metres in {bounds}, got {value!r}.")
+        if not _is_number(path_clearance) or not ROBOT_RADIUS <= path_clearance <= CLEARANCE_MAX:
+            raise ValueError(
+                f"path_clearance must be a number of metres in [{ROBOT_RADIUS}, {CLEARANCE_MAX}], got {path_clearance!r}."
+            )
+        if not _is_number(path_lookahead) or not 0 < path_lookahead <= LOOKAHEAD_MAX:
+            raise ValueError(f"path_lookahead must be a number of metres in (0, {LOOKAHEAD_MAX}], got {path_lookahead!r}.")
         self.path_clearance = float(path_clearance)
         self.path_lookahead = float(path_lookahead)
         self._guide: PathGuide | None = None
@@ -234,20 +233,12 @@ class MultiRobotNavEnv(ParallelEnv):
             or lidar_noise_std < 0
         ):
             raise ValueError(f"lidar_noise_std must be a finite number >= 0 (metres), got {lidar_noise_std!r}.")
-        if (
-            isinstance(lidar_range, bool)
-            or not isinstance(lidar_range, (int, float, np.integer, np.floating))
-            or not LIDAR_RANGE_MIN < lidar_range <= RANGE_MAX
-        ):
+        if not _is_number(lidar_range) or not LIDAR_RANGE_MIN < lidar_range <= RANGE_MAX:
             raise ValueError(
                 f"lidar_range must be a number of metres in ({LIDAR_RANGE_MIN}, {RANGE_MAX}], got {lidar_range!r}."
             )
         self.lidar_range = float(lidar_range)
-        if (
-            isinstance(collision_reward, bool)
-            or not isinstance(collision_reward, (int, float, np.integer, np.floating))
-            or not -1e6 <= collision_reward <= REWARD_COLLISION
-        ):
+        if not _is_number(collision_reward) or not -1e6 <= collision_reward <= REWARD_COLLISION:
             raise ValueError(f"collision_reward must be a number <= {REWARD_COLLISION}, got {collision_reward!r}.")
         self.collision_reward = float(collision_reward)
         self.placement_jitter = self._check_placement_jitter(placement_jitter)
