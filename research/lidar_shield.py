@@ -1,0 +1,153 @@
+"""A safety layer on the lidar for a deployed navigation policy (rule N13 of ``docs/results/navigator/rules.md``).
+
+At every decision, each of the 20 actions is checked against what the robot's own lidar sees now: the robot's centre is
+swept along the action's arc (the command held ``action_repeat`` ticks, for ``horizon`` decisions) and the action is
+*safe* when the body stays more than ``margin`` metres clear of every lidar hit point (ranges below the view's cap).
+The layer plays the policy's best safe action (by its advantage, the greedy order); when no action is safe, the action
+that keeps the most clearance. It reads nothing but the robot's observation and the world's ``action_repeat`` and
+``lidar_range``, so it runs wherever the policy runs. Other robots are seen as lidar points frozen at this instant;
+the margin is what covers their motion.
+
+Evaluate a run with the layer (the record stores the world and the layer's options)::
+
+    python research/lidar_shield.py --run RUN_DIR --eval-env MultiRobotNavRooms-8-validation-v0 -n 100 \
+        --seed 40000 --margin 0.03 --horizon 1 --output shielded.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch as th
+
+from envs.turtlebot3.robot import (
+    ACTION_ANGULAR,
+    ACTION_LINEAR,
+    BEAM_ANGLES,
+    DT,
+    N_BEAMS,
+    ROBOT_RADIUS,
+    integrate_unicycle,
+)
+from sb3_eps.common.evaluation import evaluate_team
+from sb3_eps.common.vec_env import make_vec_env
+from sb3_eps.zoo.evaluation import check_spaces, load_run, save_summary
+
+SWEEP_POINTS = 8  # positions checked along each action's arc, per decision
+
+
+def sweep(action_repeat: int, horizon: int) -> np.ndarray:
+    """:return: ``(n_actions, horizon * SWEEP_POINTS, 2)``: the robot centre's positions along each action's arc, in
+    the robot's frame at the decision (x ahead, y to the left), the start excluded."""
+    duration = action_repeat * DT * horizon
+    times = duration * np.arange(1, horizon * SWEEP_POINTS + 1) / (horizon * SWEEP_POINTS)
+    v = np.repeat(ACTION_LINEAR[:, None], len(times), axis=1)
+    w = np.repeat(ACTION_ANGULAR[:, None], len(times), axis=1)
+    zeros = np.zeros_like(v)
+    x, y, _ = integrate_unicycle(zeros, zeros, zeros, v, w, times[None, :])
+    return np.stack([x, y], axis=-1)
+
+
+class LidarShield:
+    """A policy with the safety layer: ``predict`` as the model's, over a batch of robot observations.
+
+    :param model: a trained sb3-eps value-based model (its greedy network's advantage orders the actions)
+    :param lidar_range: the world's view [m] (the observation's ranges are divided by it)
+    :param action_repeat: the world's ticks per decision
+    :param margin: clearance [m] kept between the body and every lidar hit point along the checked arc
+    :param horizon: decisions of the same command that the check covers
+    """
+
+    def __init__(self, model: Any, lidar_range: float, action_repeat: int, margin: float, horizon: int = 1) -> None:
+        if margin < 0 or horizon < 1:
+            raise ValueError(f"margin must be >= 0 and horizon >= 1, got {margin} and {horizon}")
+        self.model, self.lidar_range, self.margin = model, float(lidar_range), float(margin)
+        self.path = sweep(int(action_repeat), int(horizon))
+        self.cos, self.sin = np.cos(BEAM_ANGLES), np.sin(BEAM_ANGLES)
+        self.n_decisions = 0
+        self.n_changed = 0
+        self.n_unsafe = 0
+
+    def clearance(self, observations: np.ndarray) -> np.ndarray:
+        """:return: ``(n_robots, n_actions)``: the least distance [m] from the swept centre to a lidar hit point,
+        minus the robot's radius (inf where the lidar sees nothing within its view)."""
+        ranges = observations[:, :N_BEAMS] * self.lidar_range
+        seen = observations[:, :N_BEAMS] < 0.999
+        points = np.stack([ranges * self.cos, ranges * self.sin], axis=-1)  # (n, beams, 2)
+        points = np.where(seen[..., None], points, np.inf)
+        gaps = self.path[None, :, :, None, :] - points[:, None, None, :, :]  # (n, actions, k, beams, 2)
+        distance = np.sqrt((gaps * gaps).sum(axis=-1)).min(axis=(2, 3))
+        return np.nan_to_num(distance, nan=np.inf, posinf=np.inf) - ROBOT_RADIUS
+
+    def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None, deterministic: bool = True):
+        observations = np.asarray(observation, dtype=np.float32)
+        net = self.model.policy.greedy_net()
+        with th.no_grad():
+            advantage = net.advantage(th.as_tensor(observations, device=self.model.device)).cpu().numpy()
+        clearance = self.clearance(observations)
+        safe = clearance > self.margin
+        any_safe = safe.any(axis=1)
+        scores = np.where(safe, advantage, -np.inf)
+        actions = np.where(any_safe, scores.argmax(axis=1), clearance.argmax(axis=1))
+        greedy = advantage.argmax(axis=1)
+        self.n_decisions += len(actions)
+        self.n_changed += int((actions != greedy).sum())
+        self.n_unsafe += int((~any_safe).sum())
+        return actions, state
+
+
+def evaluate_shielded(
+    run_dir: str, env_id: str, n_episodes: int, seed: int, margin: float, horizon: int, shield: bool = True
+) -> dict[str, Any]:
+    """Play a run's final model (with the layer unless ``shield`` is False) on ``env_id`` with the run's own world
+    options, as ``python -m sb3_eps.evaluate`` does. :return: the evaluation summary plus the layer's record."""
+    run = load_run(run_dir, "final", "cpu")
+    env_kwargs = dict(run.env_kwargs)
+    venv = make_vec_env(env_id, n_envs=4, seed=seed, env_kwargs=env_kwargs or None)
+    try:
+        check_spaces(run.model, venv, env_id, f"the model of {run_dir}")
+        lidar_range = float(env_kwargs.get("lidar_range", 3.5))
+        action_repeat = int(env_kwargs.get("action_repeat", 1))
+        policy = LidarShield(run.model, lidar_range, action_repeat, margin, horizon) if shield else run.model
+        summary = evaluate_team(policy, venv, n_episodes, seed=seed)
+    finally:
+        venv.close()
+    layer: dict[str, Any] = {"on": shield}
+    if shield:
+        layer.update(
+            margin=margin, horizon=horizon, lidar_range=lidar_range, action_repeat=action_repeat,
+            changed_share=policy.n_changed / max(policy.n_decisions, 1),
+            none_safe_share=policy.n_unsafe / max(policy.n_decisions, 1),
+        )  # fmt: skip
+    timeouts = [e for e in summary["episodes"] if not e.get("success") and not e.get("collision")]
+    summary.update(
+        algo=run.algo, train_env_id=run.env_id, run_dir=str(run.run_dir), model=str(run.model_path), seed=seed,
+        shield=layer, timeout_rate=len(timeouts) / len(summary["episodes"]),
+    )  # fmt: skip
+    return summary
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--run", required=True, help="run folder of a trained model")
+    parser.add_argument("--eval-env", required=True, help="env id to play")
+    parser.add_argument("-n", "--n-episodes", type=int, default=100)
+    parser.add_argument("--seed", type=int, default=0, help="evaluation seed")
+    parser.add_argument("--margin", type=float, default=0.03, help="clearance kept [m]")
+    parser.add_argument("--horizon", type=int, default=1, help="decisions the check covers")
+    parser.add_argument("--no-shield", action="store_true", help="play the model alone (a check of the harness)")
+    parser.add_argument("--output", required=True, help="JSON record to write")
+    args = parser.parse_args(argv)
+    summary = evaluate_shielded(
+        args.run, args.eval_env, args.n_episodes, args.seed, args.margin, args.horizon, not args.no_shield
+    )
+    save_summary(summary, Path(args.output))
+    print(json.dumps({k: summary[k] for k in ("env_id", "success_rate", "collision_rate", "timeout_rate", "shield")}))
+
+
+if __name__ == "__main__":
+    main()
