@@ -5,6 +5,8 @@ PY := $(VENV)/bin/python
 # The CPU wheel of torch; override on machines with another torch source, e.g. make TORCH_SPEC="torch>=2.3".
 TORCH_SPEC ?= torch==2.13.0
 PYTEST_ARGS ?=
+# Test processes (pytest-xdist): CI has 2 cores; each test runs torch on one thread (tests/conftest.py).
+TEST_WORKERS ?= 2
 
 .PHONY: install run test test-slow test-ray lint format type bench soak notebooks clean
 
@@ -22,7 +24,7 @@ run: install
 
 test: install
 	$(VENV)/bin/lint-imports
-	$(PY) -m pytest -m "not slow and not ray" --durations=15 -p no:cacheprovider $(PYTEST_ARGS)
+	$(PY) -m pytest -m "not slow and not ray" -n $(TEST_WORKERS) --durations=15 -p no:cacheprovider $(PYTEST_ARGS)
 
 # The grid's Ray backend on a local Ray instance (ray is an optional extra: about 80 MB, ~1 min of tests).
 test-ray: install

@@ -88,3 +88,46 @@ def test_clearance_and_lookahead_are_world_options() -> None:
     for bad in ({"path_clearance": 0.05}, {"path_clearance": 0.5}, {"path_lookahead": 0.0}, {"path_lookahead": "1"}):
         with pytest.raises(ValueError, match=next(iter(bad))):
             envs.make_parallel_env("MultiRobotNavRooms-4-validation-v0", **bad)
+
+
+def test_a_parked_robot_on_the_straight_line_is_planned_round() -> None:
+    room = Layout("open", 5.0, 5.0, walls_around(5.0, 5.0))
+    start, target = np.array([[-1.5, 0.0]]), np.array([[1.5, 0.0]])
+    static = PathGuide(room, target)
+    round_parked = PathGuide(room, target, parked=np.array([[0.0, 0.0]]), lookahead=0.3)
+    length_static, _ = static.query(start, np.array([0]))
+    length, _ = round_parked.query(start, np.array([0]))
+    assert length[0] > length_static[0] + 0.05  # the detour round the parked robot's footprint
+    # Walking the waypoints (0.3 m ahead: a waypoint 1 m ahead cuts the detour's corners, as it cuts walls') reaches
+    # the target without touching the parked robot.
+    xy, closest = start.copy(), np.inf
+    for _ in range(200):
+        _, waypoint = round_parked.query(xy, np.array([0]))
+        step = waypoint[0] - xy[0]
+        xy[0] += 0.05 * step / max(np.linalg.norm(step), 1e-9)
+        closest = min(closest, float(np.linalg.norm(xy[0])))
+        if np.linalg.norm(xy[0] - target[0]) < 0.1:
+            break
+    assert np.linalg.norm(xy[0] - target[0]) < 0.1
+    assert closest > 2 * 0.105  # never within two radii of the parked robot's centre
+
+
+def test_path_replan_plans_again_when_robots_park_and_earns_no_reward_for_it() -> None:
+    kwargs = {"level": 1, "action_repeat": 1, "lidar_range": 1.0, "path_guidance": True}
+    world = envs.make_parallel_env("MultiRobotNavRooms-4-validation-v0", path_replan=True, **kwargs)
+    world.reset(seed=0)
+    first = world._guide
+    # Park robot 0 on its target by hand, then step: the planner plans again with it on the map.
+    poses = np.column_stack([world.world.xy, world.world.theta])
+    poses[0, :2] = world._targets[0]
+    world.world.set_poses(poses)
+    _, rewards, terminations, _, infos = world.step(dict.fromkeys(world.agents, 2))  # everyone stands still
+    assert infos["robot_0"]["arrived"] and terminations["robot_0"]
+    assert world._guide is not first and world._guide.free.sum() < first.free.sum()
+    # Standing still after the replan earns the step penalty alone: the new path lengths start from here.
+    _, rewards, _, _, _ = world.step(dict.fromkeys(world.agents, 2))
+    assert all(r == pytest.approx(-STEP_PENALTY) for r in rewards.values())
+    note = world.deployment_description()["observation"]["goal_heading"]["note"]
+    assert "plans again" in note
+    with pytest.raises(ValueError, match="path_replan"):
+        envs.make_parallel_env("MultiRobotNavRooms-4-validation-v0", path_replan="yes")

@@ -42,6 +42,7 @@ def deployment_description(
     path_guidance: bool = False,
     path_clearance: float = CLEARANCE,
     path_lookahead: float = LOOKAHEAD,
+    path_replan: bool = False,
 ) -> dict[str, Any]:
     """The robot-side description of a TurtleBot3 world with these options (the world's own values).
 
@@ -54,6 +55,7 @@ def deployment_description(
         the goal inputs then come from the path, not the straight line to the target
     :param path_clearance: with ``path_guidance``: how far [m] the planner's path keeps from every wall
     :param path_lookahead: with ``path_guidance``: how far ahead [m] on the path the waypoint lies
+    :param path_replan: with ``path_guidance``: the planner plans again round robots parked on their targets
     :return: a dict of JSON types only
     """
     obs_size = N_BEAMS + 2 + (lidar_frames - 1) * N_BEAMS
@@ -85,6 +87,7 @@ def deployment_description(
             f"bearing of the waypoint {path_lookahead:g} m ahead on that path (the target itself when less is left) "
             "minus the robot's heading, counter-clockwise positive; the planner keeps "
             f"{path_clearance:g} m from every wall (envs/turtlebot3/paths.py)"
+            + ("; it plans again round every robot parked on its target" if path_replan else "")
         )
     if lidar_frames > 1:
         observation["earlier_ranges"] = {

@@ -167,6 +167,9 @@ class MultiRobotNavEnv(ParallelEnv):
         the robot's radius up to 0.35 (the default: the radius plus 4.5 cm, ``envs.turtlebot3.paths.CLEARANCE``)
     :param path_lookahead: with ``path_guidance``: how far ahead [m] on the path the waypoint lies, in (0, 3] (the
         default: 1 m, the 1 m view's reach, ``envs.turtlebot3.paths.LOOKAHEAD``)
+    :param path_replan: with ``path_guidance``: False (the default) plans once per episode on the static map; True
+        plans again each time robots park, with the parked robots on the map (a costmap's obstacle layer), so no
+        path runs through a robot standing on its target (``docs/results/navigator.md``, rule N14)
     """
 
     metadata: dict[str, Any] = {
@@ -197,6 +200,7 @@ class MultiRobotNavEnv(ParallelEnv):
         path_guidance: bool = False,
         path_clearance: float = CLEARANCE,
         path_lookahead: float = LOOKAHEAD,
+        path_replan: bool = False,
     ) -> None:
         self.layout: Layout = make_layout(scenario, n_robots)
         self.scenario = scenario
@@ -207,6 +211,9 @@ class MultiRobotNavEnv(ParallelEnv):
         if not isinstance(path_guidance, (bool, np.bool_)):
             raise ValueError(f"path_guidance must be True or False, got {path_guidance!r}.")
         self.path_guidance = bool(path_guidance)
+        if not isinstance(path_replan, (bool, np.bool_)):
+            raise ValueError(f"path_replan must be True or False, got {path_replan!r}.")
+        self.path_replan = bool(path_replan)
         if not _is_number(path_clearance) or not ROBOT_RADIUS <= path_clearance <= CLEARANCE_MAX:
             raise ValueError(
                 f"path_clearance must be a number of metres in [{ROBOT_RADIUS}, {CLEARANCE_MAX}], got {path_clearance!r}."
@@ -362,7 +369,18 @@ class MultiRobotNavEnv(ParallelEnv):
             self.path_guidance,
             self.path_clearance,
             self.path_lookahead,
+            self.path_replan,
         )
+
+    def _plan_round_parked(self) -> None:
+        """Plan again with the parked robots on the map (``path_replan``); the robots still driving measure their
+        progress from their new path lengths, so the replan itself earns no reward."""
+        parked = self.world.xy[self._arrived & ~self._live]
+        self._guide = PathGuide(
+            self.layout, self._targets, clearance=self.path_clearance, lookahead=self.path_lookahead, parked=parked
+        )
+        rows = self.world.rows_of(self._live_index)
+        self._distance[rows], _ = self._guide.locate(self.world.xy[rows], self._live_index)
 
     def _check_agent(self, agent: str) -> None:
         if agent not in self._agent_index:
@@ -585,6 +603,8 @@ class MultiRobotNavEnv(ParallelEnv):
             self._live[live[ended]] = False
             self._live_index = np.flatnonzero(self._live)
             self.agents = [self.possible_agents[i] for i in self._live_index]
+            if self.path_replan and self._guide is not None and arrived.any() and len(self._live_index):
+                self._plan_round_parked()
 
         team = self._team_info()
         infos = {

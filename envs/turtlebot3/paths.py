@@ -16,7 +16,9 @@ of ``length(cell) + |position - cell centre|`` over the free cells of the 5 x 5 
 position, so the progress reward does not jump from cell to cell), and its waypoint is reached by following the
 steepest descent of the lengths ``lookahead / resolution`` cells from there (the target itself once the path left
 is shorter). A robot whose window has no free cell (it grazes a wall) uses the nearest free cell; a target the grid
-cannot reach (never seen in the generated rooms) falls back to the straight line.
+cannot reach (never seen in the generated rooms) falls back to the straight line. With ``parked`` robots (the worlds'
+``path_replan`` option), the map also holds the robots that stand on their targets, as a costmap's obstacle layer
+marks what the lidar sees standing still.
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ class PathGuide:
     :param resolution: grid cell [m]
     :param clearance: distance [m] the path keeps from every static box
     :param lookahead: how far ahead on the path the waypoint lies [m]
+    :param parked: ``(p, 2)`` centres of robots standing still (parked on their targets), blocked like the boxes
     """
 
     def __init__(
@@ -57,6 +60,7 @@ class PathGuide:
         resolution: float = RESOLUTION,
         clearance: float = CLEARANCE,
         lookahead: float = LOOKAHEAD,
+        parked: np.ndarray | None = None,
     ) -> None:
         self.resolution = float(resolution)
         self.lookahead = float(lookahead)
@@ -72,6 +76,9 @@ class PathGuide:
             dx = np.maximum(np.abs(xs - cx) - hx, 0.0)[:, None]
             dy = np.maximum(np.abs(ys - cy) - hy, 0.0)[None, :]
             blocked |= dx * dx + dy * dy < clearance * clearance
+        for px, py in np.asarray(parked if parked is not None else np.zeros((0, 2)), dtype=float).reshape(-1, 2):
+            reach = ROBOT_RADIUS + clearance  # a parked robot's footprint, grown as the boxes are
+            blocked |= (xs[:, None] - px) ** 2 + (ys[None, :] - py) ** 2 < reach * reach
         self.free = ~blocked
         # The nearest free cell of every cell (itself when free), for positions that graze a wall.
         _, nearest = ndimage.distance_transform_edt(blocked, return_indices=True)
