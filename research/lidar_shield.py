@@ -101,12 +101,20 @@ class LidarShield:
 
 
 def evaluate_shielded(
-    run_dir: str, env_id: str, n_episodes: int, seed: int, margin: float, horizon: int, shield: bool = True
+    run_dir: str,
+    env_id: str,
+    n_episodes: int,
+    seed: int,
+    margin: float,
+    horizon: int,
+    shield: bool = True,
+    env_kwargs: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Play a run's final model (with the layer unless ``shield`` is False) on ``env_id`` with the run's own world
-    options, as ``python -m sb3_eps.evaluate`` does. :return: the evaluation summary plus the layer's record."""
+    options updated by ``env_kwargs``, as ``python -m sb3_eps.evaluate`` does. :return: the evaluation summary plus
+    the layer's record."""
     run = load_run(run_dir, "final", "cpu")
-    env_kwargs = dict(run.env_kwargs)
+    env_kwargs = {**run.env_kwargs, **(env_kwargs or {})}
     venv = make_vec_env(env_id, n_envs=4, seed=seed, env_kwargs=env_kwargs or None)
     try:
         check_spaces(run.model, venv, env_id, f"the model of {run_dir}")
@@ -140,10 +148,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--margin", type=float, default=0.03, help="clearance kept [m]")
     parser.add_argument("--horizon", type=int, default=1, help="decisions the check covers")
     parser.add_argument("--no-shield", action="store_true", help="play the model alone (a check of the harness)")
+    parser.add_argument("--env-kwargs", type=json.loads, default={}, help="world options added to the run's, as JSON")
     parser.add_argument("--output", required=True, help="JSON record to write")
     args = parser.parse_args(argv)
     summary = evaluate_shielded(
-        args.run, args.eval_env, args.n_episodes, args.seed, args.margin, args.horizon, not args.no_shield
+        args.run, args.eval_env, args.n_episodes, args.seed, args.margin, args.horizon, not args.no_shield, args.env_kwargs
     )
     save_summary(summary, Path(args.output))
     print(json.dumps({k: summary[k] for k in ("env_id", "success_rate", "collision_rate", "timeout_rate", "shield")}))
