@@ -5,7 +5,10 @@ Reads ``docs/results/navigator/report/navigator_seed<k>_on_<env id>.json`` (one 
 markdown table of the page: per world the target, the mean success over the seeds, each seed's success, the lowest
 seed's distance to the mean, the mean collisions, and whether the target is met::
 
-    python research/navigator_report.py [--records docs/results/navigator/report]
+    python research/navigator_report.py [--records docs/results/navigator/report] [--against OTHER_RECORDS]
+
+``--against`` adds a column: the mean over seeds of this table's success minus the other records' (the same seeds and
+evaluation problems, so each difference is paired by seed).
 """
 
 from __future__ import annotations
@@ -49,10 +52,11 @@ def load(records: pathlib.Path) -> dict[str, dict[int, dict]]:
     return table
 
 
-def render(table: dict[str, dict[int, dict]]) -> str:
+def render(table: dict[str, dict[int, dict]], against: dict[str, dict[int, dict]] | None = None) -> str:
     lines = [
-        "| world | target | mean success (seeds 0-4) | per seed | lowest seed below mean | mean collisions | met |",
-        "|---|---|---|---|---|---|---|",
+        "| world | target | mean success (seeds 0-4) | per seed | lowest seed below mean | mean collisions | met |"
+        + (" against the other records (paired) |" if against is not None else ""),
+        "|---|---|---|---|---|---|---|" + ("---|" if against is not None else ""),
     ]
     for env_id, (name, target, _) in WORLDS.items():
         runs = table.get(env_id, {})
@@ -71,18 +75,24 @@ def render(table: dict[str, dict[int, dict]]) -> str:
                 ok = False
             met = "yes" if ok else "no"
         per_seed = " / ".join(f"{100 * x:.0f}" for x in success)
-        lines.append(
+        line = (
             f"| {name} | {'' if target is None else f'>= {100 * target:.0f} %'} | {100 * mean:.1f} % | {per_seed} "
             f"(seeds {', '.join(map(str, seeds))}) | {100 * below:.0f} | {100 * mean_collisions:.1f} % | {met} |"
         )
+        if against is not None:
+            other = against.get(env_id, {})
+            pairs = [runs[s]["success_rate"] - other[s]["success_rate"] for s in seeds if s in other]
+            line += f" {100 * sum(pairs) / len(pairs):+.1f} points ({len(pairs)} seeds) |" if pairs else " not played |"
+        lines.append(line)
     return "\n".join(lines)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--records", type=pathlib.Path, default=pathlib.Path("docs/results/navigator/report"))
+    parser.add_argument("--against", type=pathlib.Path, default=None, help="records to pair with, seed by seed")
     args = parser.parse_args()
-    print(render(load(args.records)))
+    print(render(load(args.records), None if args.against is None else load(args.against)))
 
 
 if __name__ == "__main__":
