@@ -14,7 +14,13 @@ from sb3_eps.zoo.config import config_file, load_config_entries, merged_entry
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 COMMAND = re.compile(r"python -m sb3_eps\.train --algo gdq --env (MultiRobotNav\w*-\d+-v0)")
-WORLD = {"action_repeat": 4, "lidar_range": 1.0, "path_guidance": True, "path_clearance": 0.25, "path_lookahead": 0.5}  # the navigator's world options
+WORLD = {
+    "action_repeat": 4,
+    "lidar_range": 1.0,
+    "path_guidance": True,
+    "path_clearance": 0.25,
+    "path_lookahead": 0.5,
+}  # the navigator's world options
 GAMMA = 0.9606  # 0.99^4 per decision: the 20 Hz default's horizon in seconds (rule N8)
 TICKS = 20_000
 # Measured 2026-12-06 for this seed on the 2-core VM (about 60 s beside other jobs): untrained 0.0 robots of 4 arrive in
