@@ -4,7 +4,8 @@ At every decision, each of the 20 actions is checked against what the robot's ow
 swept along the action's arc (the command held ``action_repeat`` ticks, for ``horizon`` decisions) and the action is
 *safe* when the body stays more than ``margin`` metres clear of every lidar hit point (ranges below the view's cap).
 The layer plays the policy's best safe action (by its advantage, the greedy order); when no action is safe, the action
-that keeps the most clearance. It reads nothing but the robot's observation and the world's ``action_repeat`` and
+that keeps the most clearance. The geometry is the ONNX runner's (``OnnxPolicy.act(obs, safety_margin=...)`` on a
+robot): this script runs it on a torch model inside the evaluation worlds. It reads nothing but the robot's observation and the world's ``action_repeat`` and
 ``lidar_range``, so it runs wherever the policy runs. Other robots are seen as lidar points frozen at this instant;
 the margin is what covers their motion.
 
@@ -31,25 +32,17 @@ from envs.turtlebot3.robot import (
     DT,
     N_BEAMS,
     ROBOT_RADIUS,
-    integrate_unicycle,
 )
 from sb3_eps.common.evaluation import evaluate_team
 from sb3_eps.common.vec_env import make_vec_env
+from sb3_eps.deploy.onnx_runner import lidar_clearance, swept_arcs
 from sb3_eps.zoo.evaluation import check_spaces, load_run, save_summary
-
-SWEEP_POINTS = 8  # positions checked along each action's arc, per decision
 
 
 def sweep(action_repeat: int, horizon: int) -> np.ndarray:
-    """:return: ``(n_actions, horizon * SWEEP_POINTS, 2)``: the robot centre's positions along each action's arc, in
-    the robot's frame at the decision (x ahead, y to the left), the start excluded."""
-    duration = action_repeat * DT * horizon
-    times = duration * np.arange(1, horizon * SWEEP_POINTS + 1) / (horizon * SWEEP_POINTS)
-    v = np.repeat(ACTION_LINEAR[:, None], len(times), axis=1)
-    w = np.repeat(ACTION_ANGULAR[:, None], len(times), axis=1)
-    zeros = np.zeros_like(v)
-    x, y, _ = integrate_unicycle(zeros, zeros, zeros, v, w, times[None, :])
-    return np.stack([x, y], axis=-1)
+    """:return: ``(n_actions, horizon * ARC_POINTS, 2)``: the robot centre's positions along each action's arc, in
+    the robot's frame at the decision (x ahead, y to the left), the start excluded (the runner's :func:`swept_arcs`)."""
+    return swept_arcs(ACTION_LINEAR, ACTION_ANGULAR, action_repeat * DT, horizon)
 
 
 class LidarShield:
@@ -67,7 +60,6 @@ class LidarShield:
             raise ValueError(f"margin must be >= 0 and horizon >= 1, got {margin} and {horizon}")
         self.model, self.lidar_range, self.margin = model, float(lidar_range), float(margin)
         self.path = sweep(int(action_repeat), int(horizon))
-        self.cos, self.sin = np.cos(BEAM_ANGLES), np.sin(BEAM_ANGLES)
         self.n_decisions = 0
         self.n_changed = 0
         self.n_unsafe = 0
@@ -75,13 +67,7 @@ class LidarShield:
     def clearance(self, observations: np.ndarray) -> np.ndarray:
         """:return: ``(n_robots, n_actions)``: the least distance [m] from the swept centre to a lidar hit point,
         minus the robot's radius (inf where the lidar sees nothing within its view)."""
-        ranges = observations[:, :N_BEAMS] * self.lidar_range
-        seen = observations[:, :N_BEAMS] < 0.999
-        points = np.stack([ranges * self.cos, ranges * self.sin], axis=-1)  # (n, beams, 2)
-        points = np.where(seen[..., None], points, np.inf)
-        gaps = self.path[None, :, :, None, :] - points[:, None, None, :, :]  # (n, actions, k, beams, 2)
-        distance = np.sqrt((gaps * gaps).sum(axis=-1)).min(axis=(2, 3))
-        return np.nan_to_num(distance, nan=np.inf, posinf=np.inf) - ROBOT_RADIUS
+        return lidar_clearance(observations[:, :N_BEAMS], self.lidar_range, BEAM_ANGLES, self.path, ROBOT_RADIUS)
 
     def predict(self, observation: np.ndarray, state: Any = None, episode_start: Any = None, deterministic: bool = True):
         observations = np.asarray(observation, dtype=np.float32)

@@ -335,3 +335,29 @@ finally:
     assert lines[0].startswith("OnnxPolicy(GDQ, env_id='MultiRobotNav-4-v0'") and "held 0.20 s" in lines[1]
     assert lines[-2] == "success: 0/2 episodes" and lines[-1] == "modules []"
     assert sum(line.endswith("5 decisions") for line in lines) == 2
+
+
+def test_the_safety_layer_on_the_robot_picks_what_the_evaluated_layer_picks(exported: Any) -> None:
+    from research.lidar_shield import LidarShield
+
+    world = exported("MultiRobotNav-8-v0")
+    obs = world.obs.copy()
+    obs[::3, 10:18] = 0.15  # a wall 0.15 m away in front of every third robot: the layer has work to do
+    shield = LidarShield(world.model, lidar_range=1.0, action_repeat=4, margin=0.03)
+    evaluated, _ = shield.predict(obs)
+    on_robot = world.policy.act(obs, safety_margin=0.03)
+    q_values = world.policy.q_values(obs)
+    clearance = world.policy.clearance(obs)
+    safe = clearance > 0.03
+    # Where the safe actions' two best Q-values do not tie to float precision, both layers pick the same action.
+    top_two = np.sort(np.where(safe, q_values, -np.inf), axis=1)[:, -2:]
+    clear = (top_two[:, 1] - top_two[:, 0] > 1e-5) | ~safe.any(axis=1)
+    assert clear.mean() > 0.99
+    np.testing.assert_array_equal(on_robot[clear], evaluated[clear])
+    assert shield.n_changed > 50  # the layer overrode the greedy action on many of the walled rows
+    assert np.all(safe[np.arange(len(obs)), on_robot] | ~safe.any(axis=1))  # only safe actions, where one exists
+    assert world.policy.act(obs[0], safety_margin=0.03) == on_robot[0]
+    with pytest.raises(ValueError, match="safety_margin"):
+        world.policy.act(obs, safety_margin=-0.1)
+    with pytest.raises(ValueError, match="TurtleBot3"):
+        exported("CooperativeNavigation-v0").policy.act(exported("CooperativeNavigation-v0").obs, safety_margin=0.03)

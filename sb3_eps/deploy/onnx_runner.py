@@ -7,6 +7,7 @@ robot beside the two exported files (``pip install numpy onnxruntime``), or impo
 >>> policy = OnnxPolicy.load("gdq_4")                        # gdq_4.json and gdq_4.onnx
 >>> obs = policy.observation(ranges_m, goal_distance_m, goal_heading_rad)   # as the world builds it
 >>> action = policy.act(obs)                                 # the greedy action index
+>>> action = policy.act(obs, safety_margin=0.03)            # the best action that keeps 3 cm from what the lidar sees
 >>> linear, angular = policy.wheel_velocities(action)        # m/s, rad/s: hold for policy.decision_period_s
 
 ``observation`` and the wheel commands need a world that described itself at export (a TurtleBot3 world's
@@ -30,7 +31,44 @@ except ImportError as _error:  # pragma: no cover - depends on the machine
 EXPORT_FORMAT = "sb3-eps-policy"
 TURTLEBOT3 = "turtlebot3"
 
-__all__ = ["OnnxPolicy"]
+__all__ = ["OnnxPolicy", "lidar_clearance", "swept_arcs"]
+
+#: Positions checked along each action's arc per decision (:func:`swept_arcs`).
+ARC_POINTS = 8
+
+
+def swept_arcs(linear: np.ndarray, angular: np.ndarray, period_s: float, horizon: int = 1) -> np.ndarray:
+    """Where each command takes the robot's centre: ``(n_actions, horizon * ARC_POINTS, 2)`` positions in the robot's
+    frame at the decision (x ahead, y to the left), along the unicycle's arc held ``horizon`` decisions, start excluded."""
+    n_points = horizon * ARC_POINTS
+    times = (period_s * horizon) * np.arange(1, n_points + 1) / n_points
+    v = np.repeat(np.asarray(linear, dtype=float)[:, None], n_points, axis=1)
+    w = np.repeat(np.asarray(angular, dtype=float)[:, None], n_points, axis=1)
+    half_turn = (0.5 * times[None, :]) * w
+    sinc = np.ones_like(half_turn)
+    np.divide(np.sin(half_turn), half_turn, out=sinc, where=half_turn != 0.0)
+    chord = (v * times[None, :]) * sinc  # exact arcs: the chord along the mean heading
+    return np.stack([chord * np.cos(half_turn), chord * np.sin(half_turn)], axis=-1)
+
+
+def lidar_clearance(
+    scan: np.ndarray, lidar_range: float, angles: np.ndarray, arcs: np.ndarray, robot_radius: float
+) -> np.ndarray:
+    """How far [m] each action keeps the robot's body from the lidar's hit points of this instant.
+
+    :param scan: ``(batch, n_beams)`` ranges as the observation holds them (divided by ``lidar_range``; 1 = no hit)
+    :param angles: the beams' angles [rad] in the robot's frame
+    :param arcs: :func:`swept_arcs`
+    :return: ``(batch, n_actions)``: the least distance from the swept centre to a hit point, minus the robot's radius
+        (inf where the lidar sees nothing in its view)
+    """
+    ranges = scan * lidar_range
+    seen = scan < 0.999
+    points = np.stack([ranges * np.cos(angles), ranges * np.sin(angles)], axis=-1)  # (batch, beams, 2)
+    points = np.where(seen[..., None], points, np.inf)
+    gaps = arcs[None, :, :, None, :] - points[:, None, None, :, :]  # (batch, actions, points, beams, 2)
+    distance = np.sqrt((gaps * gaps).sum(axis=-1)).min(axis=(2, 3))
+    return np.nan_to_num(distance, nan=np.inf, posinf=np.inf) - robot_radius
 
 
 class OnnxPolicy:
@@ -132,19 +170,44 @@ class OnnxPolicy:
         (q_values,) = self.session.run([self._output], {self._input: batch.reshape(-1, self.obs_dim)})
         return q_values[0] if single else q_values
 
-    def act(self, obs: Any) -> Any:
+    def act(self, obs: Any, safety_margin: float | None = None) -> Any:
         """The greedy action (arg max of the Q-values): an int for one observation, an int64 array for a batch,
-        and ``{agent: int}`` for a dict of observations (a PettingZoo world's, one network for every agent)."""
+        and ``{agent: int}`` for a dict of observations (a PettingZoo world's, one network for every agent).
+
+        :param safety_margin: None (the policy alone), or a safety layer on the lidar (TurtleBot3 worlds): the best
+            action whose arc over the next decision keeps the body this many metres [m] clear of every lidar hit point
+            of this observation, or the action with the most clearance when none does (:meth:`clearance`). 0.03 removed
+            every collision on validation rooms (``docs/results/navigator.md``, rule N13); moving robots are seen
+            where they are now, so the margin is what covers their motion
+        """
         if isinstance(obs, dict):
             agents = list(obs)
             if not agents:
                 return {}
-            actions = self.act(np.stack([np.asarray(obs[agent], dtype=np.float32) for agent in agents]))
-            return dict(zip(agents, actions.tolist()))
+            stacked = np.stack([np.asarray(obs[agent], dtype=np.float32) for agent in agents])
+            return dict(zip(agents, self.act(stacked, safety_margin).tolist()))
         q_values = self.q_values(obs)
-        if q_values.ndim == 1:
-            return int(np.argmax(q_values))
-        return np.argmax(q_values, axis=1).astype(np.int64)
+        if safety_margin is not None:
+            if not safety_margin >= 0:
+                raise ValueError(f"safety_margin must be a number of metres >= 0, got {safety_margin!r}")
+            clearance = self.clearance(obs)
+            safe = clearance > safety_margin
+            masked = np.where(safe, q_values, -np.inf)
+            return _greedy(np.where(safe.any(axis=-1, keepdims=True), masked, clearance))
+        return _greedy(q_values)
+
+    def clearance(self, obs: Any, horizon: int = 1) -> np.ndarray:
+        """How far [m] each action, held ``horizon`` decisions, keeps the robot's body from the lidar's hit points in
+        ``obs`` (:func:`lidar_clearance`): ``(n_actions,)`` for one observation, ``(batch, n_actions)`` for a batch."""
+        deployment = self._turtlebot3("clearance")
+        lidar, actions = deployment["lidar"], deployment["actions"]
+        batch = np.asarray(obs, dtype=np.float32)
+        arcs = swept_arcs(actions["linear_m_s"], actions["angular_rad_s"], float(deployment["decision_period_s"]), horizon)
+        n_beams = int(lidar["n_beams"])
+        scan = batch.reshape(-1, batch.shape[-1])[:, :n_beams]
+        angles = np.asarray(lidar["angles_rad"], dtype=float)
+        clearance = lidar_clearance(scan, float(lidar["lidar_range_m"]), angles, arcs, float(deployment["robot_radius_m"]))
+        return clearance[0] if batch.ndim == 1 else clearance
 
     # --- the robot's side (TurtleBot3 worlds) ------------------------------------------------------------
 
@@ -255,3 +318,10 @@ class OnnxPolicy:
         if actions.dtype.kind not in "iu" or actions.ndim > 1 or (actions < 0).any() or (actions >= self.n_actions).any():
             raise ValueError(f"action must be an int in [0, {self.n_actions - 1}] or a 1-d array of them, got {action!r}")
         return actions.astype(np.int64)
+
+
+def _greedy(scores: np.ndarray) -> Any:
+    """:return: the arg max of ``(n_actions,)`` scores as an int, of ``(batch, n_actions)`` as int64s."""
+    if scores.ndim == 1:
+        return int(np.argmax(scores))
+    return np.argmax(scores, axis=1).astype(np.int64)
