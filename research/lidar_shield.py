@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -33,10 +34,8 @@ from envs.turtlebot3.robot import (
     N_BEAMS,
     ROBOT_RADIUS,
 )
-from sb3_eps.common.evaluation import evaluate_team
-from sb3_eps.common.vec_env import make_vec_env
 from sb3_eps.deploy.onnx_runner import lidar_clearance, swept_arcs
-from sb3_eps.zoo.evaluation import check_spaces, load_run, save_summary
+from sb3_eps.zoo.evaluation import evaluate_run, load_run, save_summary
 
 
 def sweep(action_repeat: int, horizon: int) -> np.ndarray:
@@ -63,6 +62,14 @@ class LidarShield:
         self.n_decisions = 0
         self.n_changed = 0
         self.n_unsafe = 0
+
+    @property
+    def observation_space(self) -> Any:
+        return self.model.observation_space
+
+    @property
+    def action_space(self) -> Any:
+        return self.model.action_space
 
     def clearance(self, observations: np.ndarray) -> np.ndarray:
         """:return: ``(n_robots, n_actions)``: the least distance [m] from the swept centre to a lidar hit point,
@@ -97,19 +104,15 @@ def evaluate_shielded(
     env_kwargs: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Play a run's final model (with the layer unless ``shield`` is False) on ``env_id`` with the run's own world
-    options updated by ``env_kwargs``, as ``python -m sb3_eps.evaluate`` does. :return: the evaluation summary plus
+    options updated by ``env_kwargs``, through :func:`sb3_eps.zoo.evaluation.evaluate_run` as ``python -m
+    sb3_eps.evaluate`` does. :return: the evaluation summary plus
     the layer's record."""
     run = load_run(run_dir, "final", "cpu")
-    env_kwargs = {**run.env_kwargs, **(env_kwargs or {})}
-    venv = make_vec_env(env_id, n_envs=4, seed=seed, env_kwargs=env_kwargs or None)
-    try:
-        check_spaces(run.model, venv, env_id, f"the model of {run_dir}")
-        lidar_range = float(env_kwargs.get("lidar_range", 3.5))
-        action_repeat = int(env_kwargs.get("action_repeat", 1))
-        policy = LidarShield(run.model, lidar_range, action_repeat, margin, horizon) if shield else run.model
-        summary = evaluate_team(policy, venv, n_episodes, seed=seed)
-    finally:
-        venv.close()
+    options = {**run.env_kwargs, **(env_kwargs or {})}
+    lidar_range = float(options.get("lidar_range", 3.5))
+    action_repeat = int(options.get("action_repeat", 1))
+    policy = LidarShield(run.model, lidar_range, action_repeat, margin, horizon) if shield else run.model
+    summary = evaluate_run(replace(run, model=policy), env_id, n_episodes, seed=seed, env_kwargs=env_kwargs)
     layer: dict[str, Any] = {"on": shield}
     if shield:
         layer.update(
@@ -118,10 +121,7 @@ def evaluate_shielded(
             none_safe_share=policy.n_unsafe / max(policy.n_decisions, 1),
         )  # fmt: skip
     timeouts = [e for e in summary["episodes"] if not e.get("success") and not e.get("collision")]
-    summary.update(
-        algo=run.algo, train_env_id=run.env_id, run_dir=str(run.run_dir), model=str(run.model_path), seed=seed,
-        shield=layer, timeout_rate=len(timeouts) / len(summary["episodes"]),
-    )  # fmt: skip
+    summary.update(shield=layer, timeout_rate=len(timeouts) / len(summary["episodes"]))
     return summary
 
 

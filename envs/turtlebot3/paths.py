@@ -76,8 +76,8 @@ class PathGuide:
             dx = np.maximum(np.abs(xs - cx) - hx, 0.0)[:, None]
             dy = np.maximum(np.abs(ys - cy) - hy, 0.0)[None, :]
             blocked |= dx * dx + dy * dy < clearance * clearance
-        for px, py in np.asarray(parked if parked is not None else np.zeros((0, 2)), dtype=float).reshape(-1, 2):
-            reach = ROBOT_RADIUS + clearance  # a parked robot's footprint, grown as the boxes are
+        reach = ROBOT_RADIUS + clearance  # a parked robot's footprint, grown as the boxes are
+        for px, py in np.zeros((0, 2)) if parked is None else np.asarray(parked, dtype=float).reshape(-1, 2):
             blocked |= (xs[:, None] - px) ** 2 + (ys[None, :] - py) ** 2 < reach * reach
         self.free = ~blocked
         # The nearest free cell of every cell (itself when free), for positions that graze a wall.

@@ -67,8 +67,7 @@ def lidar_clearance(
     points = np.stack([ranges * np.cos(angles), ranges * np.sin(angles)], axis=-1)  # (batch, beams, 2)
     points = np.where(seen[..., None], points, np.inf)
     gaps = arcs[None, :, :, None, :] - points[:, None, None, :, :]  # (batch, actions, points, beams, 2)
-    distance = np.sqrt((gaps * gaps).sum(axis=-1)).min(axis=(2, 3))
-    return np.nan_to_num(distance, nan=np.inf, posinf=np.inf) - robot_radius
+    return np.sqrt((gaps * gaps).sum(axis=-1)).min(axis=(2, 3)) - robot_radius
 
 
 class OnnxPolicy:
