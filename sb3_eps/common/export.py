@@ -139,7 +139,7 @@ def _describe_world(model: Any, env: Any, env_id: str | None, env_kwargs: dict[s
         constructor, registered, _ = world_constructor(env_id)
         source = built = constructor(**{**registered, **(env_kwargs or {})})
     try:
-        deployment = _deployment_description(source) if source is not None else None
+        deployment = deployment_description(source) if source is not None else None
     finally:
         if built is not None:
             built.close()
@@ -160,7 +160,7 @@ def _describe_world(model: Any, env: Any, env_id: str | None, env_kwargs: dict[s
     return {"env_id": env_id, "env_kwargs": _json_ready(env_kwargs, "env_kwargs"), "deployment": deployment}
 
 
-def _deployment_description(env: Any) -> dict[str, Any] | None:
+def deployment_description(env: Any) -> dict[str, Any] | None:
     """The world's ``deployment_description()`` (checked JSON-ready), None for a world without one.
 
     A vec env is asked about its first world (through worker processes too: the name is looked up among the world's

@@ -34,6 +34,7 @@ from stable_baselines3.common.type_aliases import (
 from stable_baselines3.common.utils import LinearSchedule, safe_mean, should_collect_more_steps
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
+from sb3_eps.common.export import deployment_description
 from sb3_eps.common.buffers import (
     JointReplayBuffer,
     JointReplayBufferSamples,
@@ -44,6 +45,7 @@ from sb3_eps.common.buffers import (
 )
 from sb3_eps.common.multi_agent_vec_env import MultiAgentVecEnv
 from sb3_eps.common.policies import MultiAgentQPolicy
+from sb3_eps.common.safety import safety_geometry
 from sb3_eps.common.utils import check_arguments, describe_space, epsilon_greedy, polyak_update_
 
 SelfMultiAgentOffPolicyAlgorithm = TypeVar("SelfMultiAgentOffPolicyAlgorithm", bound="MultiAgentOffPolicyAlgorithm")
@@ -327,6 +329,12 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
                 f"{type(self).__name__} needs a policy derived from {expected.__name__}, got {self.policy_class!r}"
             )
         self.replay_buffer = self._make_replay_buffer()
+        if self.policy_kwargs.get("safety_margin") is not None and self.policy_kwargs.get("safety_geometry") is None:
+            # Read once from the world and kept in policy_kwargs, so that the saved model loads without an env.
+            world = getattr(self.env, "env_id", None) or "this env"
+            description = deployment_description(self.env) if self.env is not None else None
+            geometry = safety_geometry(description, repr(world))
+            self.policy_kwargs = {**self.policy_kwargs, "safety_geometry": geometry}  # the caller's dict stays as it was
         kwargs = {"agent_target": self.default_agent_target, **self.policy_kwargs}
         kwargs.update(n_agents=self.n_agents, state_dim=self.state_dim)
         action_space = cast(spaces.Discrete, self.action_space)  # SB3 checked it against supported_action_spaces
@@ -440,7 +448,10 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         if deterministic or self.exploration_rate <= 0:
             return actions, state
         n_actions = int(self.action_space.n)  # type: ignore[attr-defined]
-        flat, _ = epsilon_greedy(np.atleast_1d(actions), self.exploration_rate, n_actions)
+        allowed = None
+        if self.policy.safety_mask is not None and not isinstance(observation, dict):
+            allowed = self.policy.allowed_actions(np.asarray(observation).reshape(-1, *self.observation_space.shape))
+        flat, _ = epsilon_greedy(np.atleast_1d(actions), self.exploration_rate, n_actions, allowed=allowed)
         return flat.reshape(np.shape(actions)), state
 
     def _on_step(self) -> None:
@@ -489,7 +500,7 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         """Uniformly random actions before ``learning_starts``, then the online network's with one epsilon coin per
         agent (SB3's DQN draws one for the whole batch, so all agents would explore on the same steps)."""
         n_actions = int(self.action_space.n)  # type: ignore[attr-defined]
-        if self.num_timesteps < learning_starts:
+        if self.num_timesteps < learning_starts and self.policy.safety_mask is None:
             return np.random.randint(n_actions, size=n_envs)
         # ``predict`` without SB3's generic input checks, which cost as much as the network itself here.
         assert self._last_obs is not None
@@ -497,8 +508,11 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         with th.no_grad():
             observation = th.as_tensor(self._last_obs, device=self.device)
             actions = self.policy._predict(observation, deterministic=False).cpu().numpy()
-        if self.exploration_rate > 0:
-            actions, _ = epsilon_greedy(actions, self.exploration_rate, n_actions)
+            allowed = None if self.policy.safety_mask is None else self.policy.safety_mask.allowed(observation).cpu().numpy()
+        # Before learning starts every action is a random one (among the allowed ones, with a safety mask).
+        epsilon = 1.0 if self.num_timesteps < learning_starts else self.exploration_rate
+        if epsilon > 0:
+            actions, _ = epsilon_greedy(actions, epsilon, n_actions, allowed=allowed)
         return actions
 
     def _train_ahead(self, n_envs: int, n_steps: int) -> None:
@@ -589,6 +603,8 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
             centred = next_advantages - next_advantages.mean(dim=1, keepdim=True)
             chooser = online_next_advantages if double else next_advantages
             assert chooser is not None
+            if self.policy.safety_mask is not None:  # the next action is one the policy would play
+                chooser = self.policy.safety_mask.masked(next_obs, chooser)
             advantage_term = centred.gather(1, chooser.argmax(dim=1, keepdim=True))
         shape = (batch_size, n_agents)
         return TDTerms(

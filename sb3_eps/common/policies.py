@@ -6,6 +6,7 @@ import copy
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
@@ -13,6 +14,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, Flatten
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 from torch import nn
 
+from sb3_eps.common.safety import LidarSafetyMask
 from sb3_eps.common.utils import dueling_aggregation, polyak_update_
 
 DEFAULT_NET_ARCH = [128, 64]
@@ -111,6 +113,14 @@ class MultiAgentQPolicy(BasePolicy):
         (:func:`weight_average_rate`), and take the greedy actions from it; training's exploring actions keep the
         online network. None: no average
     :param n_agents: agents per world; ``state_dim`` the length of the global state (for the joint modules)
+    :param safety_margin: None (the network's greedy actions), or a lidar action mask built into the policy
+        (:class:`sb3_eps.common.safety.LidarSafetyMask`, TurtleBot3 worlds): only actions whose arc over the next
+        decision keeps the body this many metres [m] clear of the lidar's hit points are played, explored and used in
+        the double-Q target. 0.03 removed every collision on validation rooms as a deployment layer (rule N13 of
+        ``docs/results/navigator/rules.md``); the navigator trains with it (rule N16)
+    :param safety_geometry: the world's lidar and action geometry for the mask
+        (:func:`sb3_eps.common.safety.safety_geometry`); the algorithm fills it from its env, and the saved model
+        keeps it
     """
 
     q_net: DuelingQNetwork
@@ -133,6 +143,8 @@ class MultiAgentQPolicy(BasePolicy):
         weight_average_tau: float | None = None,
         n_agents: int = 1,
         state_dim: int = 0,
+        safety_margin: float | None = None,
+        safety_geometry: dict[str, Any] | None = None,
     ) -> None:
         if weight_average_tau is not None and not 0.0 < float(weight_average_tau) <= 1.0:
             raise ValueError(f"weight_average_tau must be in (0, 1] or None, got {weight_average_tau!r}")
@@ -154,6 +166,13 @@ class MultiAgentQPolicy(BasePolicy):
         self.agent_target = agent_target
         self.n_agents = int(n_agents)
         self.state_dim = int(state_dim)
+        self.safety_margin = None if safety_margin is None else float(safety_margin)
+        self.safety_geometry = safety_geometry
+        self.safety_mask: LidarSafetyMask | None = None
+        if self.safety_margin is not None:
+            if safety_geometry is None:
+                raise ValueError("safety_margin needs safety_geometry (the algorithm reads it from its env)")
+            self.safety_mask = LidarSafetyMask(self.safety_margin, safety_geometry)
         self._build(lr_schedule)
 
     def make_q_net(self) -> DuelingQNetwork:
@@ -239,7 +258,17 @@ class MultiAgentQPolicy(BasePolicy):
         """Greedy actions: from :meth:`greedy_net` when ``deterministic``, else from the online network (the
         algorithm adds epsilon-greedy exploration on top of those)."""
         net = self.greedy_net() if deterministic else self.q_net
-        return net._predict(obs, deterministic=True)
+        if self.safety_mask is None:
+            return net._predict(obs, deterministic=True)
+        return self.safety_mask.masked(obs, net.advantage(obs)).argmax(dim=1).reshape(-1)
+
+    def allowed_actions(self, obs: np.ndarray) -> np.ndarray | None:
+        """:return: ``(batch, n_actions)`` booleans, the actions the safety mask lets the policy play (exploration draws
+        among them), or None without a mask."""
+        if self.safety_mask is None:
+            return None
+        with th.no_grad():
+            return self.safety_mask.allowed(th.as_tensor(obs, dtype=th.float32, device=self.device)).cpu().numpy()
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
@@ -256,6 +285,8 @@ class MultiAgentQPolicy(BasePolicy):
             weight_average_tau=self.weight_average_tau,
             n_agents=self.n_agents,
             state_dim=self.state_dim,
+            safety_margin=self.safety_margin,
+            safety_geometry=self.safety_geometry,
         )
         return data
 

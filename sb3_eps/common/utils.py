@@ -193,12 +193,22 @@ def polyak_update_(target: th.nn.Module, online: th.nn.Module, tau: float) -> No
 
 
 def epsilon_greedy(
-    greedy_actions: np.ndarray, epsilon: float, n_actions: int, rng: np.random.Generator | None = None
+    greedy_actions: np.ndarray,
+    epsilon: float,
+    n_actions: int,
+    rng: np.random.Generator | None = None,
+    allowed: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per-agent epsilon-greedy: one independent coin per entry of ``greedy_actions`` (SB3's DQN draws one for the
-    batch). ``rng`` None: numpy's global generator, which SB3 seeds. :return: ``(actions, explore_flags)``"""
+    batch). ``rng`` None: numpy's global generator, which SB3 seeds. ``allowed``: ``(n, n_actions)`` booleans, each
+    row with at least one True; random actions are drawn uniformly among the allowed ones (a safety mask).
+    :return: ``(actions, explore_flags)``"""
     draw_uniform = np.random.random if rng is None else rng.random
     draw_integers = np.random.randint if rng is None else rng.integers
     explore = np.asarray(draw_uniform(greedy_actions.shape[0]) < epsilon)
-    random_actions = draw_integers(0, n_actions, size=greedy_actions.shape[0])
+    if allowed is None:
+        random_actions = draw_integers(0, n_actions, size=greedy_actions.shape[0])
+    else:  # a uniform draw among each row's allowed actions: the largest of uniform keys over them
+        keys = draw_uniform((greedy_actions.shape[0], n_actions))
+        random_actions = np.where(allowed, keys, -1.0).argmax(axis=1)
     return np.where(explore, random_actions, greedy_actions), explore
