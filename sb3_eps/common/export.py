@@ -73,6 +73,9 @@ def export_policy(
                 f"the env's observations have {described[0]} floats and {described[1]} actions, the model's "
                 f"{obs_dim} and {int(action_space.n)}: pass the env (env_id, env_kwargs) the model was trained with"
             )
+    safety_margin = getattr(policy, "safety_margin", None)
+    if safety_margin is not None and (deployment is None or deployment.get("kind") != "turtlebot3"):
+        raise ValueError("the policy has a lidar safety mask (safety_margin): export it with env= its TurtleBot3 world")
     base = pathlib.Path(path)
     if base.suffix == ".onnx":
         base = base.with_suffix("")
@@ -103,7 +106,10 @@ def export_policy(
         "onnx_file": onnx_path.name,
         "input": {"name": "obs", "shape": ["batch", obs_dim], "dtype": "float32"},
         "output": {"name": "q_values", "shape": ["batch", int(action_space.n)], "dtype": "float32"},
-        "action_selection": "argmax over q_values (decentralised: each agent from its own observation)",
+        "action_selection": "argmax over q_values (decentralised: each agent from its own observation)"
+        + ("; the policy's lidar mask first keeps the safe actions (safety_margin)" if safety_margin is not None else ""),
+        # The policy's lidar action mask [m] (sb3_eps.common.safety): the runner's act applies it; None: no mask.
+        "safety_margin": safety_margin,
         # Which weights: the online network's, or their moving average when the policy keeps one.
         "network": "q_net_average" if getattr(policy, "q_net_average", None) is not None else "q_net",
         "weight_average_tau": getattr(policy, "weight_average_tau", None),

@@ -34,7 +34,6 @@ from stable_baselines3.common.type_aliases import (
 from stable_baselines3.common.utils import LinearSchedule, safe_mean, should_collect_more_steps
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 
-from sb3_eps.common.export import deployment_description
 from sb3_eps.common.buffers import (
     JointReplayBuffer,
     JointReplayBufferSamples,
@@ -43,6 +42,7 @@ from sb3_eps.common.buffers import (
     PrioritizedJointReplayBuffer,
     TeamRewardMode,
 )
+from sb3_eps.common.export import deployment_description
 from sb3_eps.common.multi_agent_vec_env import MultiAgentVecEnv
 from sb3_eps.common.policies import MultiAgentQPolicy
 from sb3_eps.common.safety import safety_geometry

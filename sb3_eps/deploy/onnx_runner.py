@@ -6,7 +6,7 @@ robot beside the two exported files (``pip install numpy onnxruntime``), or impo
 
 >>> policy = OnnxPolicy.load("gdq_4")                        # gdq_4.json and gdq_4.onnx
 >>> obs = policy.observation(ranges_m, goal_distance_m, goal_heading_rad)   # as the world builds it
->>> action = policy.act(obs)                                 # the greedy action index
+>>> action = policy.act(obs)                                 # the policy's action (its lidar mask applied, if trained with one)
 >>> action = policy.act(obs, safety_margin=0.03)            # the best action that keeps 3 cm from what the lidar sees
 >>> linear, angular = policy.wheel_velocities(action)        # m/s, rad/s: hold for policy.decision_period_s
 
@@ -86,6 +86,9 @@ class OnnxPolicy:
         self._output = description["output"]["name"]
         deployment = description.get("deployment")
         self.deployment: dict[str, Any] | None = deployment if isinstance(deployment, dict) else None
+        margin = description.get("safety_margin")
+        #: The lidar mask the policy was trained with [m] (its ``policy_kwargs.safety_margin``), None without one.
+        self.safety_margin: float | None = None if margin is None else float(margin)
 
     @classmethod
     def load(cls, path: str | pathlib.Path, threads: int | None = None) -> OnnxPolicy:
@@ -169,16 +172,21 @@ class OnnxPolicy:
         (q_values,) = self.session.run([self._output], {self._input: batch.reshape(-1, self.obs_dim)})
         return q_values[0] if single else q_values
 
-    def act(self, obs: Any, safety_margin: float | None = None) -> Any:
+    def act(self, obs: Any, safety_margin: float | str | None = "trained") -> Any:
         """The greedy action (arg max of the Q-values): an int for one observation, an int64 array for a batch,
         and ``{agent: int}`` for a dict of observations (a PettingZoo world's, one network for every agent).
 
-        :param safety_margin: None (the policy alone), or a safety layer on the lidar (TurtleBot3 worlds): the best
-            action whose arc over the next decision keeps the body this many metres [m] clear of every lidar hit point
-            of this observation, or the action with the most clearance when none does (:meth:`clearance`). 0.03 removed
-            every collision on validation rooms (``docs/results/navigator.md``, rule N13); moving robots are seen
-            where they are now, so the margin is what covers their motion
+        :param safety_margin: ``"trained"`` (the default): the policy as trained, with its lidar mask when it has one
+            (:attr:`safety_margin`); None: the network alone; or a number: a safety layer on the lidar (TurtleBot3
+            worlds): the best action whose arc over the next decision keeps the body this many metres [m] clear of
+            every lidar hit point of this observation, or the action with the most clearance when none does
+            (:meth:`clearance`). 0.03 removed every collision on validation rooms (``docs/results/navigator.md``, rule
+            N13); moving robots are seen where they are now, so the margin is what covers their motion
         """
+        if isinstance(safety_margin, str):
+            if safety_margin != "trained":
+                raise ValueError(f"safety_margin must be 'trained', None or metres >= 0, got {safety_margin!r}")
+            safety_margin = self.safety_margin
         if isinstance(obs, dict):
             agents = list(obs)
             if not agents:
