@@ -103,17 +103,21 @@ def evaluate_shielded(
     shield: bool = True,
     env_kwargs: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Play a run's final model (with the layer unless ``shield`` is False) on ``env_id`` with the run's own world
+    """Play a run's final model (with the layer unless ``shield`` is False: then the network alone, a mask built into
+    the model taken out too) on ``env_id`` with the run's own world
     options updated by ``env_kwargs``, through :func:`sb3_eps.zoo.evaluation.evaluate_run` as ``python -m
     sb3_eps.evaluate`` does. :return: the evaluation summary plus
     the layer's record."""
     run = load_run(run_dir, "final", "cpu")
+    if not shield:  # the network's own arg max: a mask built into the model (policy_kwargs.safety_margin) is taken out
+        run.model.policy.safety_mask = None
     options = {**run.env_kwargs, **(env_kwargs or {})}
     lidar_range = float(options.get("lidar_range", 3.5))
     action_repeat = int(options.get("action_repeat", 1))
     policy = LidarShield(run.model, lidar_range, action_repeat, margin, horizon) if shield else run.model
     summary = evaluate_run(replace(run, model=policy), env_id, n_episodes, seed=seed, env_kwargs=env_kwargs)
-    layer: dict[str, Any] = {"on": shield}
+    # The model's own mask (None: it has none) and whether it played: off with ``shield`` False.
+    layer: dict[str, Any] = {"on": shield, "model_safety_margin": run.model.policy.safety_margin, "model_mask_used": shield}
     if shield:
         layer.update(
             margin=margin, horizon=horizon, lidar_range=lidar_range, action_repeat=action_repeat,
@@ -133,7 +137,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0, help="evaluation seed")
     parser.add_argument("--margin", type=float, default=0.03, help="clearance kept [m]")
     parser.add_argument("--horizon", type=int, default=1, help="decisions the check covers")
-    parser.add_argument("--no-shield", action="store_true", help="play the model alone (a check of the harness)")
+    parser.add_argument(
+        "--no-shield", action="store_true", help="play the network alone, without this layer or a mask built into the model"
+    )
     parser.add_argument("--env-kwargs", type=json.loads, default={}, help="world options added to the run's, as JSON")
     parser.add_argument("--output", required=True, help="JSON record to write")
     args = parser.parse_args(argv)
