@@ -122,6 +122,16 @@ def test_a_masked_model_never_plays_explores_or_bootstraps_an_unsafe_action(tmp_
     venv.close()
 
 
+def test_evolution_refuses_a_masked_model_in_one_line() -> None:
+    from sb3_eps import EvolutionCallback
+
+    venv = make_vec_env("MultiRobotNav-4-v0", n_envs=1, seed=0, env_kwargs=SHORT_VIEW)
+    model = GDQ("MlpPolicy", venv, policy_kwargs={"safety_margin": MARGIN}, seed=0)
+    with pytest.raises(ValueError, match=r"bare network's arg max.*without policy_kwargs\.safety_margin"):
+        model.learn(10, callback=EvolutionCallback(eval_env_id="SingleRobotNav-v0"))
+    venv.close()
+
+
 def test_a_world_without_a_lidar_gets_a_one_line_error() -> None:
     venv = make_vec_env("CooperativeNavigation-v0", n_envs=1, seed=0)
     with pytest.raises(ValueError, match=r"safety_margin needs a world that describes its lidar.*remove policy_kwargs"):

@@ -285,6 +285,11 @@ class EvolutionCallback(BaseCallback):
                 f"EvolutionCallback needs a model with a shared agent network at model.policy.q_net "
                 f"(IQL, GDQ, QMIX, VDN or SB3's DQN); {type(self.model).__name__} has none"
             )
+        if getattr(policy, "safety_mask", None) is not None:
+            raise ValueError(
+                "EvolutionCallback judges mutants by the bare network's arg max, not through the policy's lidar mask: "
+                "train this model without policy_kwargs.safety_margin, or without EvolutionCallback"
+            )
         buffer = getattr(self.model, "replay_buffer", None)
         if buffer is None or not hasattr(buffer, "observations") or not hasattr(buffer, "size"):
             raise ValueError(
