@@ -507,12 +507,14 @@ class MultiAgentOffPolicyAlgorithm(OffPolicyAlgorithm):
         self.policy.set_training_mode(False)
         with th.no_grad():
             observation = th.as_tensor(self._last_obs, device=self.device)
-            actions = self.policy._predict(observation, deterministic=False).cpu().numpy()
-            allowed = None if self.policy.safety_mask is None else self.policy.safety_mask.allowed(observation).cpu().numpy()
+            greedy, allowed = self.policy.greedy_and_allowed(observation, deterministic=False)
+        actions = greedy.cpu().numpy()
         # Before learning starts every action is a random one (among the allowed ones, with a safety mask).
         epsilon = 1.0 if self.num_timesteps < learning_starts else self.exploration_rate
         if epsilon > 0:
-            actions, _ = epsilon_greedy(actions, epsilon, n_actions, allowed=allowed)
+            actions, _ = epsilon_greedy(
+                actions, epsilon, n_actions, allowed=None if allowed is None else allowed.cpu().numpy()
+            )
         return actions
 
     def _train_ahead(self, n_envs: int, n_steps: int) -> None:

@@ -257,10 +257,16 @@ class MultiAgentQPolicy(BasePolicy):
     def _predict(self, obs: PyTorchObs, deterministic: bool = True) -> th.Tensor:
         """Greedy actions: from :meth:`greedy_net` when ``deterministic``, else from the online network (the
         algorithm adds epsilon-greedy exploration on top of those)."""
+        return self.greedy_and_allowed(obs, deterministic)[0]
+
+    def greedy_and_allowed(self, obs: th.Tensor, deterministic: bool = True) -> tuple[th.Tensor, th.Tensor | None]:
+        """:return: the greedy actions (as :meth:`_predict`) and the safety mask's allowed actions ``(batch,
+        n_actions)`` they were chosen among (None without a mask), the mask computed once for both."""
         net = self.greedy_net() if deterministic else self.q_net
         if self.safety_mask is None:
-            return net._predict(obs, deterministic=True)
-        return self.safety_mask.masked(obs, net.advantage(obs)).argmax(dim=1).reshape(-1)
+            return net._predict(obs, deterministic=True), None
+        allowed = self.safety_mask.allowed(obs)
+        return net.advantage(obs).masked_fill(~allowed, float("-inf")).argmax(dim=1).reshape(-1), allowed
 
     def allowed_actions(self, obs: np.ndarray) -> np.ndarray | None:
         """:return: ``(batch, n_actions)`` booleans, the actions the safety mask lets the policy play (exploration draws
