@@ -7,6 +7,7 @@ Examples::
     python research/paper_page.py run --quick -f logs/paper --page logs/paper/README.md --readme ""   # tiny budgets
     python research/paper_page.py render                   # re-render the page and README's status from the records
     python research/paper_page.py render --check           # exit 1 when the committed page differs from the records
+    python research/paper_page.py adopt --runs <run>...    # copy finished runs of Table I's settings in as records
 
 ``run`` calls ``python -m sb3_eps.grid`` on the grid files of ``docs/results/paper/`` (``table1.yml``,
 ``fig4_n{2,4,8,12}.yml``, ``pretrain.yml``) into ``<folder>/<item>/``, so it is resumable and skips finished runs
@@ -16,6 +17,10 @@ greedy episodes, skipped where the result exists), picks the pre-training snapsh
 95 % greedy success, and runs one Pre-GDQ grid per stage on 4 robots with ``--init-from`` (Table III; the grid
 file of each stage is written into its folder). ``--quick`` runs the same pipeline with tiny budgets, one seed and
 only the 4-robot world of Fig. 4 (one Pre-GDQ stage from the first snapshot).
+
+Table I's runs also get their final greedy evaluation (100 team episodes, evaluation seed 6000). ``adopt`` copies
+finished runs made elsewhere with a grid file's settings (rule M4's, for Table I) into ``<folder>/<item>/`` in the
+grid's layout, their ``monitor.csv`` binned into a ``training_curve.csv`` (what the page reads of it, a few KB).
 
 The page reads a cell (an algorithm on a world) from the run folders of ``<folder>`` when one has finished there,
 else from the committed records that ``docs/results/paper/records.yml`` lists as made with today's defaults, else
@@ -65,6 +70,8 @@ UNSEEN = "MultiRobotNavUnseen-4-v0"
 #: The same room with seeded offsets: 100 episodes are 100 problems (a row of the best per world only).
 VARIED = "MultiRobotNavUnseen-4-varied-v0"
 MPE = "CooperativeNavigation-v0"
+#: Ticks of an MPE episode (mpe2's ``max_cycles``), for the per-tick reward beside the paper's.
+EPISODE_TICKS_MPE = 25
 PRETRAIN_STAGES = (0.50, 0.75, 0.95)
 #: Points within which a success is "reproduced"; more above the paper's is "better here".
 TOLERANCE = 0.05
@@ -116,6 +123,10 @@ class Seed:
     collision: np.ndarray
     wall_s: float = math.nan
     training: dict[str, float] = field(default_factory=dict)
+    #: The finished model's greedy evaluation (:data:`FINAL_EVAL_NAME`), when the run has one.
+    final_eval: dict[str, Any] | None = None
+    #: EPS rounds and crossovers (rounds whose winner was accepted), from ``eps_rounds.jsonl``; None without EPS.
+    eps_rounds: tuple[int, int] | None = None
 
 
 @dataclass
@@ -132,6 +143,11 @@ class Cell:
         return int(min(seed.ticks[-1] for seed in self.seeds))
 
     def final(self, metric: str) -> np.ndarray:
+        """Per seed, ``metric`` (``success``, ``team_return``, ``collision``) at the end: the final evaluation's
+        (:data:`FINAL_EVAL_NAME`) where every seed has one, else the last greedy evaluation's."""
+        if self.seeds and all(seed.final_eval is not None for seed in self.seeds):
+            key = FINAL_EVAL_KEYS[metric]
+            return np.array([float(seed.final_eval[key]) for seed in self.seeds])  # type: ignore[index]
         return np.array([float(getattr(seed, metric)[-1]) for seed in self.seeds])
 
     def at(self, ticks: int) -> float | None:
@@ -199,16 +215,84 @@ def monitor_seconds(times: np.ndarray) -> float:
     return float(times[0] + np.sum(counted))
 
 
-def read_run_seed(run_dir: Path) -> Seed:
-    """A finished run folder of ``sb3_eps.train``: its greedy evaluations, its training episodes' means and its
-    measured wall seconds (:func:`monitor_seconds`)."""
-    data = np.load(run_dir / EVALUATIONS_NAME)
-    training = {}
-    wall_s = math.nan
+#: The compact form of a run's ``monitor.csv`` kept in the records: its training episodes in bins of
+#: :data:`TRAINING_BIN` world ticks (episodes, means of the monitor's columns, measured wall seconds so far).
+TRAINING_CURVE_NAME = "training_curve.csv"
+TRAINING_BIN = 50_000
+#: The finished model's greedy evaluation in a Table I run folder: 100 team episodes on evaluation seed
+#: :data:`FINAL_EVAL_SEED` (rule M4, docs/results/mpe/rules.md).
+FINAL_EVAL_SEED = 6000
+FINAL_EVAL_NAME = f"eval_seed{FINAL_EVAL_SEED}.json"
+#: The final evaluation's key of each of :meth:`Cell.final`'s metrics.
+FINAL_EVAL_KEYS = {"success": "success_rate", "team_return": "team_return_mean", "collision": "collision_rate"}
+#: Monitor columns that are bookkeeping, not a measure of the episode.
+_MONITOR_BOOKKEEPING = ("l", "t", "ticks", "eps_ticks", "world")
+
+
+def training_curve(monitor: dict[str, np.ndarray], every: int = TRAINING_BIN) -> list[dict[str, float]]:
+    """A run's training episodes binned by the world ticks at their end: per bin ``ticks_up_to``, ``episodes``,
+    the mean of every measure column of the monitor (``r``, ``collision``, ...) and ``wall_s``, the run's measured
+    seconds up to the bin's last episode (:func:`monitor_seconds`)."""
+    ticks = monitor["ticks"]
+    measures = [key for key in monitor if key not in _MONITOR_BOOKKEEPING]
+    rows = []
+    for end in range(every, int(ticks.max()) + every, every):
+        inside = (ticks > end - every) & (ticks <= end)
+        if not inside.any():
+            continue
+        row = {"ticks_up_to": float(end), "episodes": float(inside.sum())}
+        row.update({key: float(np.mean(monitor[key][inside])) for key in measures})
+        row["wall_s"] = monitor_seconds(monitor["t"][ticks <= end]) if "t" in monitor else math.nan
+        rows.append(row)
+    return rows
+
+
+def write_training_curve(run_dir: Path, to: Path) -> None:
+    """Write ``run_dir``'s :func:`training_curve` as ``to``: a CSV (4 decimals) under a JSON comment line, as a
+    ``monitor.csv`` is, so :func:`read_monitor` reads both."""
+    header, monitor = read_monitor(run_dir / MONITOR_NAME)
+    rows = training_curve(monitor)
+    columns = list(rows[0]) if rows else ["ticks_up_to", "episodes"]
+    header = {**header, "from": MONITOR_NAME, "bin_ticks": TRAINING_BIN}
+    header.pop("t_start", None)
+    lines = ["#" + json.dumps(header), ",".join(columns)] + [
+        ",".join(f"{row[key]:.4f}".rstrip("0").rstrip(".") for key in columns) for row in rows
+    ]
+    to.write_text("\n".join(lines) + "\n")
+
+
+def read_training(run_dir: Path) -> tuple[dict[str, float], float]:
+    """A run's training-episode means (``r``, ``collision``, ``collision_after_spawn`` where recorded) and its
+    measured wall seconds: from ``monitor.csv``, else from its :data:`TRAINING_CURVE_NAME` (episode-weighted)."""
+    keys = ("r", "collision", "collision_after_spawn")
     if (run_dir / MONITOR_NAME).is_file():  # none before a training episode ends
         _, monitor = read_monitor(run_dir / MONITOR_NAME)
-        training = {key: float(np.mean(monitor[key])) for key in ("r", "collision") if len(monitor.get(key, []))}
-        wall_s = monitor_seconds(monitor.get("t", np.array([])))
+        training = {key: float(np.mean(monitor[key])) for key in keys if len(monitor.get(key, []))}
+        return training, monitor_seconds(monitor.get("t", np.array([])))
+    if (run_dir / TRAINING_CURVE_NAME).is_file():
+        _, curve = read_monitor(run_dir / TRAINING_CURVE_NAME)
+        weights = curve.get("episodes", np.array([]))
+        if len(weights):
+            training = {key: float(np.average(curve[key], weights=weights)) for key in keys if key in curve}
+            return training, float(curve["wall_s"][-1]) if "wall_s" in curve else math.nan
+    return {}, math.nan
+
+
+def read_eps_rounds(run_dir: Path) -> tuple[int, int] | None:
+    """(rounds, crossovers) of a run's ``eps_rounds.jsonl``; None for a run without EPS."""
+    path = run_dir / "eps_rounds.jsonl"
+    if not path.is_file():
+        return None
+    rounds = _records(path)
+    return len(rounds), sum(bool(record.get("accepted")) for record in rounds)
+
+
+def read_run_seed(run_dir: Path) -> Seed:
+    """A finished run folder of ``sb3_eps.train``: its greedy evaluations, its training episodes' means and its
+    measured wall seconds (:func:`read_training`), its final evaluation and its EPS rounds where it has them."""
+    data = np.load(run_dir / EVALUATIONS_NAME)
+    training, wall_s = read_training(run_dir)
+    final = run_dir / FINAL_EVAL_NAME
     return Seed(
         run_dir.name,
         data["ticks"] + data["eps_ticks"],
@@ -217,6 +301,8 @@ def read_run_seed(run_dir: Path) -> Seed:
         np.nanmean(data["collisions"], axis=1),
         wall_s=wall_s,
         training=training,
+        final_eval=json.loads(final.read_text()) if final.is_file() else None,
+        eps_rounds=read_eps_rounds(run_dir),
     )
 
 
@@ -382,7 +468,8 @@ def fig4_verdict(findings: Findings, n: int, algo: str) -> tuple[str, str]:
 
 
 def table1_verdict(findings: Findings, algo: str) -> str:
-    """The paper's ordering: GDQ over IL, and each EPS variant over its base, in reward and collisions."""
+    """The paper's ordering: GDQ over IL, and each EPS variant over its base, in reward and collisions (the share
+    of training episodes with a collision, spawn overlaps left out when both cells record it)."""
     base = {"gdq": "iql", "eps_iql": "iql", "eps_gdq": "gdq"}.get(algo)
     cell = findings.table1[algo]
     if cell is None:
@@ -398,7 +485,9 @@ def table1_verdict(findings: Findings, algo: str) -> str:
 
     if not all(math.isfinite(mean(c, key)) for c in (cell, other) for key in ("r", "collision")):
         return NOT_RUN  # a run too short to end a training episode
-    holds = mean(cell, "r") > mean(other, "r") and mean(cell, "collision") < mean(other, "collision")
+    spawn_out = all(math.isfinite(mean(c, "collision_after_spawn")) for c in (cell, other))
+    collision = "collision_after_spawn" if spawn_out else "collision"
+    holds = mean(cell, "r") > mean(other, "r") and mean(cell, collision) < mean(other, collision)
     return "reproduced" if holds else "not reproduced"
 
 
@@ -458,19 +547,54 @@ def _paper_table(
     return _table(header, rows)
 
 
+def _final(cell: Cell | None, key: str, scale: float = 100.0, unit: str = " %") -> str:
+    """Mean +/- std over seeds of the final evaluation's ``key`` (:data:`FINAL_EVAL_NAME`); "-" without one."""
+    if cell is None or any(seed.final_eval is None for seed in cell.seeds):
+        return "-"
+    return _spread(np.array([float(seed.final_eval.get(key, math.nan)) for seed in cell.seeds]), scale, unit)
+
+
+def _crossovers(cell: Cell | None) -> str:
+    """Per seed, EPS rounds and those that crossed over (``crossovers/rounds``); "-" for a run without EPS."""
+    if cell is None or all(seed.eps_rounds is None for seed in cell.seeds):
+        return "-"
+    return ", ".join("?" if seed.eps_rounds is None else f"{seed.eps_rounds[1]}/{seed.eps_rounds[0]}" for seed in cell.seeds)
+
+
 def section_table1(findings: Findings) -> list[str]:
     cells = findings.table1
-    ours = {algo: (_training(cell, "r", 1.0, ""), _training(cell, "collision")) for algo, cell in cells.items()}
     verdicts = {algo: table1_verdict(findings, algo) for algo in cells}
+    grid = _grid_file("table1")
     lines = ["## Table I: MPE Cooperative Navigation", ""]
     lines += [
-        "Over the whole training, as the paper measures: its average reward (its scale; ours is the team return of an",
-        "episode, 25 ticks, so the two differ in scale and only the ordering is compared) and the share of training",
-        "episodes with a collision; and, ours only, greedy success at the end. A row is reproduced when the paper's",
-        "ordering (GDQ over IL, each EPS variant over its base, in reward and in collisions) holds in our runs.",
+        "Over the whole training, as the paper measures: its average reward (per tick, its scale) beside our mean",
+        "team return of a training episode (25 ticks; per tick in brackets) and the share of training episodes with a",
+        "collision (all / spawn overlaps left out: 18 % of resets start with two agents overlapping,",
+        "[MPE](mpe.md)). Ours only: the finished model's greedy team return, success (every landmark occupied) and",
+        f"landmarks occupied at the end, 100 team episodes on evaluation seed {FINAL_EVAL_SEED}; and EPS's rounds that",
+        "crossed over, per seed. A row is reproduced when the paper's ordering (GDQ over IL, each EPS variant over its",
+        "base) holds in our runs' training means, in reward and in collisions (spawn overlaps left out where recorded).",
+        f"Budget: {_k(grid['n_timesteps'] // 3)} ticks x 3 agents a run (`table1.yml`). The hand controller of",
+        "[MPE](mpe.md) scores -26.6 greedy (76.7 % success, 2.71 landmarks), random play -77.9; the published",
+        "IQL/VDN/QMIX level is about -22 to -29 on our scale.",
         "",
     ]
-    lines += _paper_table(PAPER_TABLE1, cells, ours, verdicts, "ours: avg. team return")
+    rows = []
+    for algo, cell in cells.items():
+        (reward, reward_std), (collision, collision_std) = PAPER_TABLE1[algo]
+        per_tick = np.mean([seed.training.get("r", math.nan) for seed in cell.seeds]) / EPISODE_TICKS_MPE if cell else 0
+        ours_reward = f"{_training(cell, 'r', 1.0, '')} ({per_tick:.2f})" if cell else "-"
+        ours_collision = f"{_training(cell, 'collision')} / {_training(cell, 'collision_after_spawn')}" if cell else "-"
+        rows.append([
+            label_of(algo), f"{reward} +/- {reward_std}", ours_reward, f"{collision} +/- {collision_std} %",
+            ours_collision, _final(cell, "team_return_mean", 1.0, ""), _final(cell, "success_rate"),
+            _final(cell, "occupied_landmarks_mean", 1.0, ""), _crossovers(cell),
+            str(len(cell.seeds)) if cell else "0", verdicts[algo], _source(cell),
+        ])  # fmt: skip
+    header = ["", "paper: avg. reward (per tick)", "ours: avg. team return (mean per tick)", "paper: collision",
+              "ours: collision (all / spawn out)", "ours: greedy return at the end", "ours: greedy success",
+              "ours: landmarks occupied (of 3)", "EPS crossovers / rounds", "seeds", "verdict", "records"]  # fmt: skip
+    lines += _table(header, rows)
     if any(cell is None for cell in cells.values()):
         lines += ["", f"Not run yet: {_grid_command('table1', 'table1')}."]
     return lines
@@ -683,7 +807,7 @@ def _grid_runs(name: str) -> tuple[int, int]:
     grid = _grid_file(name)
     n_seeds = grid["seeds"] if isinstance(grid["seeds"], int) else len(grid["seeds"])
     env = grid["envs"][0]
-    n_agents = int(env.split("-")[1]) if env.startswith("MultiRobotNav-") else 1
+    n_agents = int(env.split("-")[1]) if env.startswith("MultiRobotNav-") else 3 if env == MPE else 1
     return len(grid["algos"]) * n_seeds, grid["n_timesteps"] // n_agents
 
 
@@ -921,6 +1045,56 @@ def pick_snapshot(run_dir: Path, success: float) -> dict[str, Any] | None:
     return None
 
 
+#: What :func:`adopt` copies of a run folder (besides its config folder and its training curve).
+ADOPTED_FILES = (EVALUATIONS_NAME, "final_vs_best.txt", "eps_rounds.jsonl")
+
+
+def adopt(item: str, run_dirs: Sequence[Path], folder: Path) -> list[Path]:
+    """Copy finished runs of ``python -m sb3_eps.train`` (made with the settings of the grid file ``item``, under
+    any run name) into ``<folder>/<item>/<algo>/<env>_seed<seed>/`` as the page reads them: greedy evaluations,
+    final evaluation (``eval_*.json``), EPS rounds, config and the monitor as a :data:`TRAINING_CURVE_NAME`
+    (the models and checkpoints stay behind).
+
+    :return: the folders written
+    """
+    import shutil
+
+    written = []
+    for run_dir in run_dirs:
+        configs = [path.parent for path in sorted(run_dir.glob("*/args.yml"))]
+        if len(configs) != 1:
+            raise ConfigError(f"{run_dir}: not a run folder of sb3_eps.train (no <env>/args.yml)")
+        args = yaml.safe_load((configs[0] / "args.yml").read_text())
+        env, algo, seed = args["env"], args["algo"], args["seed"]
+        if not ((run_dir / f"{env}.zip").is_file() or (run_dir / "final_vs_best.txt").is_file()):
+            raise ConfigError(f"{run_dir}: the run has not finished (no {env}.zip): resume it first")
+        target = folder / item / algo / f"{env}_seed{seed}"
+        if target.exists():
+            raise ConfigError(f"{target} exists: remove it to adopt {run_dir} in its place")
+        (target / configs[0].name).mkdir(parents=True)
+        for path in sorted(configs[0].iterdir()):
+            shutil.copy2(path, target / configs[0].name / path.name)
+        for name in ADOPTED_FILES:
+            if (run_dir / name).is_file():
+                shutil.copy2(run_dir / name, target / name)
+        for path in sorted(run_dir.glob("eval_*.json")):
+            shutil.copy2(path, target / path.name)
+        if (run_dir / MONITOR_NAME).is_file():
+            write_training_curve(run_dir, target / TRAINING_CURVE_NAME)
+        written.append(target)
+    return written
+
+
+def _final_evaluations(runs: Sequence[Path], quick: bool) -> list[list[str]]:
+    """The evaluate commands of Table I's finished runs without their :data:`FINAL_EVAL_NAME`."""
+    return [
+        ["-m", "sb3_eps.evaluate", "--run", str(run_dir), "-n", "1" if quick else "100", "--seed",
+         str(FINAL_EVAL_SEED), "--output", str(run_dir / FINAL_EVAL_NAME)]
+        for run_dir in runs
+        if (run_dir / f"{MPE}.zip").is_file() and not (run_dir / FINAL_EVAL_NAME).is_file()
+    ]  # fmt: skip
+
+
 def run_pipeline(folder: Path, quick: bool, grid_flags: Sequence[str]) -> None:
     """Every grid, the unseen-room evaluations and the Pre-GDQ stages (resumable: finished parts are skipped)."""
     flags = [*(QUICK_FLAGS if quick else []), *grid_flags]
@@ -933,6 +1107,7 @@ def run_pipeline(folder: Path, quick: bool, grid_flags: Sequence[str]) -> None:
         for run_dir in sorted((folder / "fig4_n4" / algo).glob("MultiRobotNav-4-v0_seed*"))
         if (run_dir / "MultiRobotNav-4-v0.zip").is_file() and not (run_dir / f"eval_{UNSEEN}.json").is_file()
     ]
+    evaluations += _final_evaluations(sorted((folder / "table1").glob(f"*/{MPE}_seed*")), quick)
     with ThreadPoolExecutor(max(1, os.cpu_count() or 1)) as pool:  # one evaluation per core, as the grid's runs
         list(pool.map(lambda args: _python(*args), evaluations))
     pretrain = sorted((folder / "pretrain" / "gdq").glob("SingleRobotNav-v0_seed*"))
@@ -963,7 +1138,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("command", choices=["run", "render"])
+    parser.add_argument("command", choices=["run", "render", "adopt"])
+    parser.add_argument("--runs", nargs="+", type=Path, default=[], help="adopt: finished run folders to copy in")
+    parser.add_argument("--item", default="table1", help="adopt: the grid the runs belong to (default: %(default)s)")
     parser.add_argument("-f", "--folder", type=Path, default=RUNS, help="the runs' folder (default: %(default)s)")
     parser.add_argument("--page", type=Path, default=PAGE, help="the page to write (default: %(default)s)")
     parser.add_argument("--readme", default=str(ROOT / "README.md"), help="README with the status markers ('': none)")
@@ -975,6 +1152,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     elif not args.page.parent.is_dir():
         raise ConfigError(f"--page {args.page}: its folder does not exist")
     grid_flags = [flag for flag in grid_flags if flag != "--"]
+    if args.command == "adopt":
+        if not args.runs or grid_flags:
+            parser.error("adopt takes --runs <run folders> and no grid flags")
+        if not (SPECS / f"{args.item}.yml").is_file():
+            raise ConfigError(f"--item {args.item}: no grid file {args.item}.yml in {SPECS}")
+        for target in adopt(args.item, args.runs, args.folder):
+            print(f"adopted: {target}")
+        return 0
+    if args.runs:
+        parser.error("--runs is for adopt")
     if args.command == "run":
         # The runs are processes of their own: they import the package beside this script, as this process does.
         os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))

@@ -175,3 +175,69 @@ def test_a_pre_training_stage_never_reached_is_said_so_not_left_unrun() -> None:
     assert verdicts[0.95] == paper_page.STAGE_NOT_REACHED and verdicts[0.75] == "not run yet"
     section = "\n".join(paper_page.section_table3(findings))
     assert "never reached in 200k (best 91.0 % at 150k)" in section and "Not run yet" in section
+
+
+def _finished_run(run_dir: Path, algo: str = "eps_iql", seed: int = 3) -> dict[str, float]:
+    """A finished run folder of sb3_eps.train's layout, written by hand; returns its training means."""
+    env = paper_page.MPE
+    (run_dir / env).mkdir(parents=True)
+    (run_dir / env / "args.yml").write_text(f"algo: {algo}\nenv: {env}\nseed: {seed}\n")
+    (run_dir / env / "config.yml").write_text("gamma: 0.95\n")
+    rng = np.random.default_rng(0)
+    n = 300  # episodes ending over 120k ticks: three bins of 50k, the last one partial
+    ticks = np.sort(rng.integers(1, 120_000, n))
+    r = rng.normal(-40, 5, n)
+    collision, spawn_out = rng.integers(0, 2, n), rng.integers(0, 2, n)
+    rows = [f"{r[i]},25,{ticks[i] / 100},{ticks[i]},0,0,{collision[i]},{spawn_out[i]}" for i in range(n)]
+    header = '#{"t_start": 1.0, "env_id": "' + env + '", "algo": "' + algo + '", "n_agents": 3}'
+    (run_dir / "monitor.csv").write_text(
+        "\n".join([header, "r,l,t,ticks,eps_ticks,world,collision,collision_after_spawn", *rows]) + "\n"
+    )
+    np.savez(run_dir / "evaluations.npz", timesteps=np.array([360_000]), ticks=np.array([120_000]),
+             eps_ticks=np.array([0]), successes=np.array([[0.0, 1.0]]), results=np.array([[-30.0, -20.0]]),
+             collisions=np.array([[0.0, 0.0]]))  # fmt: skip
+    (run_dir / "final_vs_best.txt").write_text("last evaluation")
+    rounds = [{"round": k, "accepted": k in (2, 5)} for k in range(1, 8)]
+    (run_dir / "eps_rounds.jsonl").write_text(
+        "".join(f'{{"round": {x["round"]}, "accepted": {str(x["accepted"]).lower()}}}\n' for x in rounds)
+    )
+    final = {"success_rate": 0.12, "team_return_mean": -28.5, "collision_rate": 0.3, "occupied_landmarks_mean": 1.4}
+    (run_dir / paper_page.FINAL_EVAL_NAME).write_text(__import__("json").dumps(final))
+    return {"r": float(r.mean()), "collision": float(collision.mean()), "collision_after_spawn": float(spawn_out.mean())}
+
+
+def test_an_adopted_run_reads_as_its_monitor_did(tmp_path: Path) -> None:
+    means = _finished_run(tmp_path / "elsewhere" / "eps_iql_s3")
+    before = paper_page.read_run_seed(tmp_path / "elsewhere" / "eps_iql_s3")
+    [target] = paper_page.adopt("table1", [tmp_path / "elsewhere" / "eps_iql_s3"], tmp_path / "runs")
+    assert target == tmp_path / "runs" / "table1" / "eps_iql" / f"{paper_page.MPE}_seed3"
+    assert not (target / "monitor.csv").exists() and (target / paper_page.TRAINING_CURVE_NAME).is_file()
+    assert (target / paper_page.MPE / "config.yml").is_file()
+    seed = paper_page.read_run_seed(target)
+    for key, value in means.items():  # the binned curve keeps the episode-weighted means (4 decimals a bin)
+        assert seed.training[key] == pytest.approx(value, abs=1e-4) and before.training[key] == pytest.approx(value)
+    assert seed.wall_s == pytest.approx(before.wall_s, abs=1e-3)
+    assert seed.eps_rounds == (7, 2)
+    cell = paper_page.run_cell(tmp_path / "runs" / "table1", "eps_iql", paper_page.MPE)
+    assert cell is not None and list(cell.final("success")) == [0.12]  # the final evaluation, not the last point
+    assert "2/7" in "\n".join(
+        paper_page.section_table1(
+            paper_page.Findings({"eps_iql": cell, "iql": None, "gdq": None, "eps_gdq": None}, {}, {}, {}, [])
+        )
+    )
+    with pytest.raises(paper_page.ConfigError, match="exists"):
+        paper_page.adopt("table1", [tmp_path / "elsewhere" / "eps_iql_s3"], tmp_path / "runs")
+    (tmp_path / "elsewhere" / "eps_iql_s3" / "final_vs_best.txt").unlink()
+    with pytest.raises(paper_page.ConfigError, match="not finished"):
+        paper_page.adopt("table1", [tmp_path / "elsewhere" / "eps_iql_s3"], tmp_path / "other")
+
+
+def test_table1_collisions_leave_spawn_overlaps_out_where_both_rows_record_them() -> None:
+    # All collisions: EPS-IL has more; spawn overlaps left out: fewer. The verdict reads the second.
+    findings = _findings(
+        iql_mpe=_cell([0.5], training={"r": -80.0, "collision": 0.30, "collision_after_spawn": 0.20}),
+        eps_iql_mpe=_cell([0.5], training={"r": -75.0, "collision": 0.32, "collision_after_spawn": 0.15}),
+    )
+    assert paper_page.table1_verdict(findings, "eps_iql") == "reproduced"
+    findings.table1["iql"].seeds[0].training.pop("collision_after_spawn")  # type: ignore[union-attr]
+    assert paper_page.table1_verdict(findings, "eps_iql") == "not reproduced"
