@@ -137,6 +137,8 @@ def test_the_quick_pipeline_runs_every_item_and_renders_its_page(tmp_path: Path)
     text = page.read_text()
     table1 = text.split("## Table I")[1].split("## Fig. 4")[0]
     assert table1.count("(1 run of this command)") == 4 and "not run yet" not in table1
+    finals = list((tmp_path / "runs" / "table1").glob(f"*/*/{paper_page.FINAL_EVAL_NAME}"))
+    assert len(finals) == 4  # each Table I model's final evaluation, on the page's greedy-return column
     fig4 = text.split("## Fig. 4")[1].split("## Table II")[0]
     assert fig4.count("`fig4_n4/") == 4
     table2 = text.split("## Table II")[1].split("## Table III")[0]
