@@ -1,6 +1,6 @@
 """The lidar action mask built into a policy (``policy_kwargs.safety_margin``, ``sb3_eps.common.safety``): the same
 geometry as the ONNX runner's layer, the actions it plays, explores and bootstraps from, its place in a saved and an
-exported model, and its one-line error for a world without a lidar."""
+exported model, EPS's mutants acting through it, and its one-line error for a world without a lidar."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from envs.turtlebot3.robot import N_ACTIONS, N_BEAMS, ROBOT_RADIUS
 from sb3_eps import GDQ, IQL, make_vec_env
 from sb3_eps.common.safety import LidarSafetyMask, safety_geometry
 from sb3_eps.common.utils import epsilon_greedy
+from sb3_eps.eps.evaluation import EvaluationBlock
 
 SHORT_VIEW = {"action_repeat": 4, "lidar_range": 1.0}
 FULL_AHEAD, STAND_STILL = 17, 2
@@ -122,13 +123,60 @@ def test_a_masked_model_never_plays_explores_or_bootstraps_an_unsafe_action(tmp_
     venv.close()
 
 
-def test_evolution_refuses_a_masked_model_in_one_line() -> None:
+class _RecordingBlock(EvaluationBlock):
+    """Keeps the actions it plays and the observations it played them on."""
+
+    def start_recording(self, obs: np.ndarray, active: np.ndarray) -> None:
+        self.played: list[tuple[np.ndarray, int]] = []
+        self._obs = obs.copy()
+
+    def record_step(self, index: int, action: int, next_obs: np.ndarray) -> None:
+        self.played.append((self._obs[index].copy(), int(action)))
+        self._obs[index] = next_obs
+
+
+def test_eps_mutants_act_through_the_models_mask() -> None:
+    # Every individual ranks full speed ahead first. A margin no action clears leaves each step the mask's fallback
+    # (the most clearing action), found here from the observations the mutants saw; without a mask: always ahead.
+    venv = make_vec_env("MultiRobotNav-4-v0", n_envs=1, seed=0, env_kwargs=SHORT_VIEW)
+    model = GDQ("MlpPolicy", venv, seed=0)
+    always_ahead(model)
+    population = {
+        name: param.detach()[None].repeat(2, *[1] * param.dim()) for name, param in model.policy.q_net.named_parameters()
+    }
+    for margin in (None, 5.0):
+        short = {**SHORT_VIEW, "max_episode_steps": 48}  # 12 decisions
+        block = _RecordingBlock("SingleRobotNav-v0", short, 2, 1, model.policy.q_net, safety_margin=margin)
+        block.evaluate(population, [7], np.ones(2, dtype=bool))
+        obs = th.as_tensor(np.stack([o for o, _ in block.played]))
+        actions = np.array([a for _, a in block.played])
+        if margin is None:
+            assert (actions == FULL_AHEAD).all()
+        else:
+            fallback = block.safety_mask.clearance(obs).argmax(dim=1).numpy()
+            np.testing.assert_array_equal(actions, fallback)
+            assert (actions != FULL_AHEAD).any()
+        block.close()
+    venv.close()
+
+
+def test_evolution_trains_a_masked_model_and_checks_its_eps_world() -> None:
     from sb3_eps import EvolutionCallback
 
     venv = make_vec_env("MultiRobotNav-4-v0", n_envs=1, seed=0, env_kwargs=SHORT_VIEW)
-    model = GDQ("MlpPolicy", venv, policy_kwargs={"safety_margin": MARGIN}, seed=0)
-    with pytest.raises(ValueError, match=r"bare network's arg max.*without policy_kwargs\.safety_margin"):
-        model.learn(10, callback=EvolutionCallback(eval_env_id="SingleRobotNav-v0"))
+    model = GDQ("MlpPolicy", venv, policy_kwargs={"safety_margin": MARGIN}, learning_starts=0, seed=0)
+    callback = EvolutionCallback(period=40, n_workers=0, max_eps_share=None, population_size=1, n_eval_episodes=1,
+                                 n_reevaluation_episodes=0)  # fmt: skip
+    model.learn(4 * 80, callback=callback)
+    assert callback.n_rounds >= 1
+    # An EPS world whose view differs from the mask's: one line naming what differs.
+    other = EvolutionCallback(eval_env_id="SingleRobotNav-v0", eval_env_kwargs={"lidar_range": 3.5})
+    with pytest.raises(ValueError, match=r"lidar_range=3.5 but the model's worlds have lidar_range=1.0"):
+        model.learn(8, callback=other)
+    # A model whose mask was built for another robot (here: a wider body) against this EPS world: one line.
+    model.policy.safety_geometry = {**model.policy.safety_geometry, "robot_radius_m": ROBOT_RADIUS + 0.05}
+    with pytest.raises(ValueError, match=r"geometry of eval_env_id 'SingleRobotNav-v0' differs .* in robot_radius_m"):
+        model.learn(8, callback=EvolutionCallback(n_workers=0))
     venv.close()
 
 

@@ -17,7 +17,14 @@ from torch import nn
 
 from sb3_eps.common.parallel_wrappers import ticks_per_step
 from sb3_eps.eps.budget import RoundBudget, model_ticks
-from sb3_eps.eps.evaluation import EnvPool, EvaluationBlock, EvaluationFailed, agent_space, make_eval_env
+from sb3_eps.eps.evaluation import (
+    EnvPool,
+    EvaluationBlock,
+    EvaluationFailed,
+    agent_space,
+    eval_env_geometry,
+    make_eval_env,
+)
 from sb3_eps.eps.mutations import evolved_parameter_names
 from sb3_eps.eps.round import EPSRound, sample_visited_observations, visited_mask
 from sb3_eps.eps.round_log import RoundRecords
@@ -263,7 +270,14 @@ class EvolutionCallback(BaseCallback):
         arguments = (settings.eval_env_id, settings.eval_env_kwargs, settings.n_individuals, settings.n_eval_episodes)
         # A worker evaluates whole individuals, so more workers than individuals would idle.
         n_workers = (os.cpu_count() or 1) if settings.n_workers is None else settings.n_workers
-        pool = EnvPool(*arguments, template, n_workers=min(n_workers, settings.n_individuals), block_class=self.block_class)
+        mask = getattr(self.model.policy, "safety_mask", None)  # mutants act through it, as the model does
+        pool = EnvPool(
+            *arguments,
+            template,
+            n_workers=min(n_workers, settings.n_individuals),
+            block_class=self.block_class,
+            safety_margin=None if mask is None else mask.margin,
+        )
         self.round.pool = pool
         # Close the workers even when training dies with an exception (no _on_training_end then).
         self._pool_finalizer = weakref.finalize(self, pool.close)
@@ -284,11 +298,6 @@ class EvolutionCallback(BaseCallback):
             raise ValueError(
                 f"EvolutionCallback needs a model with a shared agent network at model.policy.q_net "
                 f"(IQL, GDQ, QMIX, VDN or SB3's DQN); {type(self.model).__name__} has none"
-            )
-        if getattr(policy, "safety_mask", None) is not None:
-            raise ValueError(
-                "EvolutionCallback judges mutants by the bare network's arg max, not through the policy's lidar mask: "
-                "train this model without policy_kwargs.safety_margin, or without EvolutionCallback"
             )
         buffer = getattr(self.model, "replay_buffer", None)
         if buffer is None or not hasattr(buffer, "observations") or not hasattr(buffer, "size"):
@@ -347,9 +356,24 @@ class EvolutionCallback(BaseCallback):
                         f"({theirs}): pick the evaluation world that matches the training env "
                         "(sb3_eps.eps.eps_env_id_for(training env id))"
                     )
+            self._check_safety_geometry(env)
             self._check_eval_world(env)
         finally:
             env.close()
+
+    def _check_safety_geometry(self, env: Any) -> None:
+        """A model with a lidar mask: the EPS world's lidar and actions must be the training worlds' (its mutants act
+        through the same mask)."""
+        policy = self.model.policy
+        if getattr(policy, "safety_mask", None) is None:
+            return
+        geometry = eval_env_geometry(env, self.settings.eval_env_id)
+        if geometry != policy.safety_geometry:
+            differ = sorted(key for key in geometry if geometry[key] != policy.safety_geometry.get(key))
+            raise ValueError(
+                f"the lidar mask's geometry of eval_env_id {self.settings.eval_env_id!r} differs from the model's in "
+                f"{', '.join(differ)}: give it the training worlds' lidar and decision options"
+            )
 
     def _check_eval_world(self, env: Any) -> None:
         """A subclass's checks of the evaluation world (built with ``eval_env_kwargs``); raise ``ValueError``."""

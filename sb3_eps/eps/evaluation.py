@@ -19,7 +19,9 @@ import torch as th
 from torch import nn
 from torch.func import functional_call, vmap
 
+from sb3_eps.common.export import deployment_description
 from sb3_eps.common.parallel_wrappers import TeamAsGymnasium, ticks_per_step
+from sb3_eps.common.safety import LidarSafetyMask, safety_geometry
 from sb3_eps.common.workers import Served, WorkerBlocks, WorkerError
 from sb3_eps.eps.mutations import Parameters, finite_individuals
 
@@ -57,6 +59,12 @@ def make_eval_env(env_id: str, env_kwargs: dict[str, Any] | None = None) -> gymn
     if env_id in worlds.multi_agent_ids():
         return TeamAsGymnasium(worlds.make_parallel_env(env_id, **(env_kwargs or {})))
     return gymnasium.make(env_id, **(env_kwargs or {}))
+
+
+def eval_env_geometry(env: gymnasium.Env, env_id: str) -> dict[str, Any]:
+    """The lidar and action geometry (:func:`~sb3_eps.common.safety.safety_geometry`) of an EPS world, for a model
+    with a lidar mask; :raises ValueError: for a world without a lidar (one line)."""
+    return safety_geometry(deployment_description(env), f"the EPS world {env_id!r}")
 
 
 def agent_space(env: gymnasium.Env, kind: str) -> gymnasium.Space:
@@ -99,6 +107,9 @@ class EvaluationBlock(Served):
 
     A subclass records the episodes it plays (:meth:`start_recording`, :meth:`record_step`, :meth:`recorded`), e.g.
     to turn them into replay rows; the records travel back with the answer (:attr:`PopulationResult.episodes`).
+
+    :param safety_margin: a model's lidar mask (``policy_kwargs.safety_margin``): each individual plays its best
+        allowed action, as the model does, the mask built on this world's lidar and actions (None: the arg max)
     """
 
     def __init__(
@@ -108,12 +119,16 @@ class EvaluationBlock(Served):
         n_individuals: int,
         n_episodes: int,
         network: nn.Module,
+        safety_margin: float | None = None,
     ) -> None:
         self.n_individuals, self.n_episodes = n_individuals, n_episodes
         self.envs = [make_eval_env(env_id, env_kwargs) for _ in range(n_individuals * n_episodes)]
         self.team_size = int(getattr(self.envs[0], "team_size", 0))  # 0: a single-agent env
         self.ticks_per_step = ticks_per_step(self.envs[0])
         self.forward = PopulationForward(network)
+        self.safety_mask = None
+        if safety_margin is not None:
+            self.safety_mask = LidarSafetyMask(safety_margin, eval_env_geometry(self.envs[0], env_id))
 
     def evaluate(self, population: Parameters, seeds: Sequence[int], valid: np.ndarray) -> PoolAnswer:
         """Play every episode of every ``valid`` individual greedily, all envs in lockstep; an individual whose
@@ -139,6 +154,9 @@ class EvaluationBlock(Served):
             if broken.any():
                 valid &= ~broken
                 active &= np.repeat(valid, self.n_episodes)
+            if self.safety_mask is not None:  # the best allowed action, as the model's policy plays
+                allowed = self.safety_mask.allowed(th.as_tensor(obs).reshape(len(self.envs) * agents, -1))
+                outputs = outputs.masked_fill(~allowed.reshape(outputs.shape), float("-inf"))
             actions = outputs.argmax(dim=-1).numpy()
             for index in np.flatnonzero(active):
                 action = actions[index] if self.team_size else int(actions[index, 0])
@@ -189,6 +207,7 @@ class EnvPool:
     :param network: architecture template (CPU; copied into the workers)
     :param n_workers: number of worker processes (at most ``n_individuals``; 0: the main process)
     :param block_class: the blocks' class (a subclass records the episodes, :class:`EvaluationBlock`)
+    :param safety_margin: the model's lidar mask, applied to every individual's actions (:class:`EvaluationBlock`)
     """
 
     def __init__(
@@ -200,10 +219,13 @@ class EnvPool:
         network: nn.Module,
         n_workers: int = 2,
         block_class: type[EvaluationBlock] = EvaluationBlock,
+        safety_margin: float | None = None,
     ) -> None:
         n_blocks = max(1, min(n_workers, n_individuals))
         self.blocks = [block for block in np.array_split(np.arange(n_individuals), n_blocks) if len(block)]
         common = {"env_id": env_id, "env_kwargs": env_kwargs, "n_episodes": n_episodes, "network": network}
+        if safety_margin is not None:  # only then: a block class of its own need not know the option
+            common["safety_margin"] = safety_margin
         payloads = [(block_class, {**common, "n_individuals": len(block)}) for block in self.blocks]
         # The workers build their envs while the main process goes on training; the first evaluation waits for
         # their hellos within its own deadline.
