@@ -14,6 +14,9 @@
 - ``acceptance``: rounds as the defaults run them (calibrated mutants, outcome fitness, ``--episode-counts``
   episodes, ``min_gain`` 0.05, copy 0 and the winner reevaluated on ``--fresh`` episodes), and every winner's true
   gain estimated on ``--truth`` further episodes: do accepted winners beat copy 0, and rejected ones not?
+- ``alone``: copy 0 (the model with its lidar mask, and without) played greedily by a robot alone in single-robot
+  rooms of ``--level-set`` (``SingleRobotNav-v0``, scenario ``rooms``) with the world options of the model's
+  ``config.yml`` beside it: what the ``outcome`` fitness of EPS among rooms has to select on.
 - ``margins``: EPS rounds without crossover (calibrated mutants, outcome fitness) for several numbers of
   episodes: how often a mutant wins, by how much, and whether its gain holds on fresh episodes (copy 0 and the
   winner replayed on ``--fresh`` new episodes).
@@ -25,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -125,9 +129,11 @@ def probe_mutation(model: GDQ, args: argparse.Namespace) -> None:
     )
 
 
-def play(q_net: th.nn.Module, kwargs: dict[str, Any], seeds: list[int]) -> dict[str, float]:
-    """Copy 0 alone, greedy, on the given seeds of the EPS world ``kwargs``."""
-    pool = InProcessEnvPool(EPS_ENV, kwargs, 1, len(seeds), q_net)
+def play(
+    q_net: th.nn.Module, kwargs: dict[str, Any], seeds: list[int], safety_margin: float | None = None
+) -> dict[str, float]:
+    """Copy 0 alone, greedy (through a lidar mask of ``safety_margin``), on the given seeds of the EPS world ``kwargs``."""
+    pool = InProcessEnvPool(EPS_ENV, kwargs, 1, len(seeds), q_net, safety_margin=safety_margin)
     try:
         theta = {name: value.unsqueeze(0) for name, value in network_parameters(q_net).items()}
         result = evaluate_population(pool, theta, seeds, timeout=600, fitness="outcome")
@@ -142,6 +148,30 @@ def play(q_net: th.nn.Module, kwargs: dict[str, Any], seeds: list[int]) -> dict[
         "length": float(result.lengths[0].mean()),
         "outcome_fitness": float(result.fitness[0]),
     }
+
+
+def probe_alone(model: GDQ, args: argparse.Namespace) -> None:
+    import yaml
+
+    from sb3_eps.eps.callback import SHARED_WORLD_OPTIONS
+
+    config = Path(args.model).parent / "config.yml"
+    entry = next(iter(yaml.safe_load(config.read_text()).values())) if config.is_file() else {}
+    world = {key: value for key, value in (entry.get("env_kwargs") or {}).items() if key in SHARED_WORLD_OPTIONS}
+    world.update(scenario="rooms", level_set=args.level_set, action_repeat=entry.get("env_kwargs", {}).get("action_repeat", 1))
+    seeds = [int(seed) for seed in np.random.default_rng(args.seed).integers(2**31 - 1, size=args.episodes)]
+    margin = getattr(model.policy, "safety_margin", None)
+    print(f"{EPS_ENV} {world}, {args.episodes} episodes, seed {args.seed}\n")
+    print("| copy 0 | success | collision | timeout | mean return | mean length (ticks) | outcome fitness |")
+    print("|---|---|---|---|---|---|---|")
+    for label, with_margin in (("with its mask", margin), ("bare network", None)):
+        if label == "with its mask" and margin is None:
+            continue
+        row = play(model.policy.q_net, world, seeds, with_margin)
+        print(
+            f"| {label} | {100 * row['success']:.0f} % | {100 * row['collision']:.0f} % | {100 * row['timeout']:.0f} % | "
+            f"{row['return']:.2f} | {row['length']:.0f} | {row['outcome_fitness']:.3f} |"
+        )
 
 
 def probe_worlds(model: GDQ, args: argparse.Namespace) -> None:
@@ -319,8 +349,9 @@ def probe_acceptance(model: GDQ, args: argparse.Namespace) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("model", help="a GDQ model of MultiRobotNav-4-v0 (.zip)")
-    parser.add_argument("--probe", choices=("mutation", "worlds", "quality", "acceptance", "margins"), required=True)
+    parser.add_argument("model", help="a GDQ model of MultiRobotNav-4-v0 (.zip; alone: any TurtleBot3 model)")
+    parser.add_argument("--probe", choices=("mutation", "worlds", "quality", "acceptance", "margins", "alone"), required=True)
+    parser.add_argument("--level-set", default="train", help="(alone) the rooms' level set")
     parser.add_argument("--targets", type=float, nargs="+", default=[0.05, 0.1, 0.3], help="(quality)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--ticks", type=int, default=500, help="ticks of greedy play for the observations")
@@ -340,6 +371,7 @@ def main() -> None:
         "quality": probe_quality,
         "acceptance": probe_acceptance,
         "margins": probe_margins,
+        "alone": probe_alone,
     }
     probes[args.probe](model, args)
 
