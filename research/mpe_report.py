@@ -71,8 +71,8 @@ def mean_row(seeds: list[paper_page.Seed]) -> list[str]:
     training = {key: np.mean([seed.training.get(key, math.nan) for seed in seeds]) for key in
                 ("r", "collision", "collision_after_spawn")}  # fmt: skip
     return [
-        f"**mean (SE), {len(seeds)} seeds**",
-        f"**{returns.mean():.1f} ({se:.1f})**",
+        f"**mean (SE), {len(seeds)} seed{'s' * (len(seeds) > 1)}**",
+        f"**{returns.mean():.1f}" + (f" ({se:.1f})**" if math.isfinite(se) else "**"),
         f"{returns.mean() / paper_page.EPISODE_TICKS_MPE:.2f}",
         f"{100 * final('success_rate').mean():.1f} %",
         f"{final('occupied_landmarks_mean').mean():.2f}",
@@ -93,7 +93,10 @@ def paired(first: dict[int, paper_page.Seed], base: dict[int, paper_page.Seed]) 
         return None
     diff = np.array([first[s].final_eval["team_return_mean"] - base[s].final_eval["team_return_mean"] for s in common])  # type: ignore[index]
     se = diff.std(ddof=1) / math.sqrt(len(diff)) if len(diff) > 1 else math.nan
-    return f"{diff.mean():+.1f} (SE {se:.1f}), ahead on {int((diff > 0).sum())} of {len(common)} seeds ({', '.join(map(str, common))})"
+    spread = f" (SE {se:.1f})" if math.isfinite(se) else ""
+    return (
+        f"{diff.mean():+.1f}{spread}, ahead on {int((diff > 0).sum())} of {len(common)} seeds ({', '.join(map(str, common))})"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
