@@ -469,7 +469,8 @@ def fig4_verdict(findings: Findings, n: int, algo: str) -> tuple[str, str]:
 
 def table1_verdict(findings: Findings, algo: str) -> str:
     """The paper's ordering: GDQ over IL, and each EPS variant over its base, in reward and collisions (the share
-    of training episodes with a collision, spawn overlaps left out when both cells record it)."""
+    of training episodes with a collision, spawn overlaps left out when both cells record it), on the seeds both
+    cells have (paired; the verdict says how many when one cell has seeds the other lacks)."""
     base = {"gdq": "iql", "eps_iql": "iql", "eps_gdq": "gdq"}.get(algo)
     cell = findings.table1[algo]
     if cell is None:
@@ -479,16 +480,22 @@ def table1_verdict(findings: Findings, algo: str) -> str:
     other = findings.table1[base]
     if other is None:
         return NOT_RUN
+    common = {seed.source for seed in cell.seeds} & {seed.source for seed in other.seeds}
+    if not common:
+        return NOT_RUN
 
     def mean(of: Cell, key: str) -> float:
-        return float(np.mean([seed.training.get(key, math.nan) for seed in of.seeds]))
+        return float(np.mean([seed.training.get(key, math.nan) for seed in of.seeds if seed.source in common]))
 
     if not all(math.isfinite(mean(c, key)) for c in (cell, other) for key in ("r", "collision")):
         return NOT_RUN  # a run too short to end a training episode
     spawn_out = all(math.isfinite(mean(c, "collision_after_spawn")) for c in (cell, other))
     collision = "collision_after_spawn" if spawn_out else "collision"
     holds = mean(cell, "r") > mean(other, "r") and mean(cell, collision) < mean(other, collision)
-    return "reproduced" if holds else "not reproduced"
+    verdict = "reproduced" if holds else "not reproduced"
+    if len(common) < max(len(cell.seeds), len(other.seeds)):
+        verdict += f" ({len(common)} paired seed{'s' * (len(common) > 1)} so far)"
+    return verdict
 
 
 def table2_verdict(cell: Cell | None, algo: str) -> str:

@@ -243,3 +243,18 @@ def test_table1_collisions_leave_spawn_overlaps_out_where_both_rows_record_them(
     assert paper_page.table1_verdict(findings, "eps_iql") == "reproduced"
     findings.table1["iql"].seeds[0].training.pop("collision_after_spawn")  # type: ignore[union-attr]
     assert paper_page.table1_verdict(findings, "eps_iql") == "not reproduced"
+
+
+def test_table1_verdicts_pair_the_seeds_both_rows_have() -> None:
+    def seed(name: str, r: float, collision: float) -> paper_page.Seed:
+        one = np.array([0.0])
+        return paper_page.Seed(name, one, one, one, one, training={"r": r, "collision": collision})
+
+    # IL's seed 1 is weak; GDQ has only seed 0, where IL is better: no ordering on the seed both have.
+    il = paper_page.Cell([seed("s0", -30.0, 0.2), seed("s1", -60.0, 0.5)], "synthetic")
+    gdq = paper_page.Cell([seed("s0", -31.0, 0.1)], "synthetic")
+    findings = _findings()
+    findings.table1.update(iql=il, gdq=gdq)
+    assert paper_page.table1_verdict(findings, "gdq") == "not reproduced (1 paired seed so far)"
+    gdq.seeds.append(seed("s1", -40.0, 0.3))
+    assert paper_page.table1_verdict(findings, "gdq") == "reproduced"
