@@ -157,16 +157,16 @@ def probe_alone(model: GDQ, args: argparse.Namespace) -> None:
 
     config = Path(args.model).parent / "config.yml"
     entry = next(iter(yaml.safe_load(config.read_text()).values())) if config.is_file() else {}
-    world = {key: value for key, value in (entry.get("env_kwargs") or {}).items() if key in SHARED_WORLD_OPTIONS}
-    world.update(scenario="rooms", level_set=args.level_set, action_repeat=entry.get("env_kwargs", {}).get("action_repeat", 1))
+    trained = entry.get("env_kwargs") or {}
+    world = {key: value for key, value in trained.items() if key in SHARED_WORLD_OPTIONS}
+    world.update(scenario="rooms", level_set=args.level_set, action_repeat=trained.get("action_repeat", 1))
     seeds = [int(seed) for seed in np.random.default_rng(args.seed).integers(2**31 - 1, size=args.episodes)]
     margin = getattr(model.policy, "safety_margin", None)
+    arms = ([("with its mask", margin)] if margin is not None else []) + [("bare network", None)]
     print(f"{EPS_ENV} {world}, {args.episodes} episodes, seed {args.seed}\n")
     print("| copy 0 | success | collision | timeout | mean return | mean length (ticks) | outcome fitness |")
     print("|---|---|---|---|---|---|---|")
-    for label, with_margin in (("with its mask", margin), ("bare network", None)):
-        if label == "with its mask" and margin is None:
-            continue
+    for label, with_margin in arms:
         row = play(model.policy.q_net, world, seeds, with_margin)
         print(
             f"| {label} | {100 * row['success']:.0f} % | {100 * row['collision']:.0f} % | {100 * row['timeout']:.0f} % | "

@@ -41,21 +41,33 @@ def seeds_of(runs: Path, algo: str) -> dict[int, paper_page.Seed]:
     return found
 
 
-def row(label: str, seed: paper_page.Seed) -> list[str]:
-    final, training = seed.final_eval or {}, seed.training
-    team_return = float(final["team_return_mean"])
-    crossovers = "-" if seed.eps_rounds is None else f"{seed.eps_rounds[1]} / {seed.eps_rounds[0]}"
+FINAL_KEYS = ("team_return_mean", "success_rate", "occupied_landmarks_mean", "min_dist_sum_mean",
+              "collisions_per_tick_mean", "collision_rate", "collision_after_spawn_rate")  # fmt: skip
+TRAINING_KEYS = ("r", "collision", "collision_after_spawn")
+
+
+def measures(final: dict[str, float], training: dict[str, float], success_digits: int = 0) -> list[str]:
+    """The columns from "per tick" to "over training" of a seed's (or the seeds' mean) final evaluation and
+    training means."""
     return [
-        label,
-        f"{team_return:.1f}",
-        f"{team_return / paper_page.EPISODE_TICKS_MPE:.2f}",
-        f"{100 * final['success_rate']:.0f} %",
+        f"{final['team_return_mean'] / paper_page.EPISODE_TICKS_MPE:.2f}",
+        f"{100 * final['success_rate']:.{success_digits}f} %",
         f"{final['occupied_landmarks_mean']:.2f}",
         f"{final['min_dist_sum_mean']:.2f}",
         f"{final['collisions_per_tick_mean']:.3f}",
         f"{100 * final['collision_rate']:.0f} % / {100 * final['collision_after_spawn_rate']:.0f} %",
         f"{training.get('r', math.nan):.1f}, {100 * training.get('collision', math.nan):.0f} %"
         f" ({100 * training.get('collision_after_spawn', math.nan):.0f} %)",
+    ]
+
+
+def row(label: str, seed: paper_page.Seed) -> list[str]:
+    final = seed.final_eval or {}
+    crossovers = "-" if seed.eps_rounds is None else f"{seed.eps_rounds[1]} / {seed.eps_rounds[0]}"
+    return [
+        label,
+        f"{final['team_return_mean']:.1f}",
+        *measures(final, seed.training),
         " ".join(f"{value:.0f}" for value in seed.team_return),
         crossovers,
         f"{seed.wall_s / 60:.1f}",
@@ -63,23 +75,14 @@ def row(label: str, seed: paper_page.Seed) -> list[str]:
 
 
 def mean_row(seeds: list[paper_page.Seed]) -> list[str]:
-    def final(key: str) -> np.ndarray:
-        return np.array([float(seed.final_eval[key]) for seed in seeds])  # type: ignore[index]
-
-    returns = final("team_return_mean")
+    final = {key: float(np.mean([seed.final_eval[key] for seed in seeds])) for key in FINAL_KEYS}  # type: ignore[index]
+    training = {key: float(np.mean([seed.training.get(key, math.nan) for seed in seeds])) for key in TRAINING_KEYS}
+    returns = np.array([seed.final_eval["team_return_mean"] for seed in seeds])  # type: ignore[index]
     se = returns.std(ddof=1) / math.sqrt(len(returns)) if len(returns) > 1 else math.nan
-    training = {key: np.mean([seed.training.get(key, math.nan) for seed in seeds]) for key in
-                ("r", "collision", "collision_after_spawn")}  # fmt: skip
     return [
         f"**mean (SE), {len(seeds)} seed{'s' * (len(seeds) > 1)}**",
         f"**{returns.mean():.1f}" + (f" ({se:.1f})**" if math.isfinite(se) else "**"),
-        f"{returns.mean() / paper_page.EPISODE_TICKS_MPE:.2f}",
-        f"{100 * final('success_rate').mean():.1f} %",
-        f"{final('occupied_landmarks_mean').mean():.2f}",
-        f"{final('min_dist_sum_mean').mean():.2f}",
-        f"{final('collisions_per_tick_mean').mean():.3f}",
-        f"{100 * final('collision_rate').mean():.0f} % / {100 * final('collision_after_spawn_rate').mean():.0f} %",
-        f"{training['r']:.1f}, {100 * training['collision']:.0f} % ({100 * training['collision_after_spawn']:.0f} %)",
+        *measures(final, training, success_digits=1),
         "",
         "",
         f"{np.mean([seed.wall_s for seed in seeds]) / 60:.1f}",

@@ -47,6 +47,7 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # sb3_eps sits beside research/
 
+from sb3_eps.eps.round_log import DIAGNOSTICS_NAME, read_round_log, round_counts
 from sb3_eps.grid import main as grid_main
 from sb3_eps.zoo.cli import OneLineArgumentParser
 from sb3_eps.zoo.errors import ConfigError, RunFailed, run_command
@@ -279,12 +280,13 @@ def read_training(run_dir: Path) -> tuple[dict[str, float], float]:
 
 
 def read_eps_rounds(run_dir: Path) -> tuple[int, int] | None:
-    """(rounds, crossovers) of a run's ``eps_rounds.jsonl``; None for a run without EPS."""
-    path = run_dir / "eps_rounds.jsonl"
+    """(rounds played, crossovers) of a run's round log (:func:`~sb3_eps.eps.round_log.round_counts`); None for a
+    run without EPS."""
+    path = run_dir / DIAGNOSTICS_NAME
     if not path.is_file():
         return None
-    rounds = _records(path)
-    return len(rounds), sum(bool(record.get("accepted")) for record in rounds)
+    counts = round_counts(read_round_log(path))
+    return counts["rounds"], counts["crossovers"]
 
 
 def read_run_seed(run_dir: Path) -> Seed:
@@ -1053,7 +1055,7 @@ def pick_snapshot(run_dir: Path, success: float) -> dict[str, Any] | None:
 
 
 #: What :func:`adopt` copies of a run folder (besides its config folder and its training curve).
-ADOPTED_FILES = (EVALUATIONS_NAME, "final_vs_best.txt", "eps_rounds.jsonl")
+ADOPTED_FILES = (EVALUATIONS_NAME, "final_vs_best.txt", DIAGNOSTICS_NAME)
 
 
 def adopt(item: str, run_dirs: Sequence[Path], folder: Path) -> list[Path]:

@@ -155,8 +155,8 @@ class EvaluationBlock(Served):
                 valid &= ~broken
                 active &= np.repeat(valid, self.n_episodes)
             if self.safety_mask is not None:  # the best allowed action, as the model's policy plays
-                allowed = self.safety_mask.allowed(th.as_tensor(obs).reshape(len(self.envs) * agents, -1))
-                outputs = outputs.masked_fill(~allowed.reshape(outputs.shape), float("-inf"))
+                rows = th.as_tensor(obs).reshape(len(self.envs) * agents, -1)
+                outputs = self.safety_mask.masked(rows, outputs.reshape(len(rows), -1)).reshape(outputs.shape)
             actions = outputs.argmax(dim=-1).numpy()
             for index in np.flatnonzero(active):
                 action = actions[index] if self.team_size else int(actions[index, 0])
