@@ -257,4 +257,30 @@ def test_table1_verdicts_pair_the_seeds_both_rows_have() -> None:
     findings.table1.update(iql=il, gdq=gdq)
     assert paper_page.table1_verdict(findings, "gdq") == "not reproduced (1 paired seed so far)"
     gdq.seeds.append(seed("s1", -40.0, 0.3))
-    assert paper_page.table1_verdict(findings, "gdq") == "reproduced"
+    # Paired gains: reward -1 and +20 (mean 9.5, SE 10.5), collisions 0.1 and 0.2 (mean 0.15, SE 0.05).
+    assert paper_page.table1_verdict(findings, "gdq") == "within noise in reward"
+
+
+def test_table1_orderings_count_only_beyond_twice_the_paired_standard_error() -> None:
+    def seed(name: str, r: float, collision: float) -> paper_page.Seed:
+        one = np.array([0.0])
+        return paper_page.Seed(name, one, one, one, one, training={"r": r, "collision": collision})
+
+    def verdict(il: list[tuple[float, float]], eps: list[tuple[float, float]]) -> str:
+        findings = _findings()
+        findings.table1.update(
+            iql=paper_page.Cell([seed(f"s{k}", *values) for k, values in enumerate(il)], "synthetic"),
+            eps_iql=paper_page.Cell([seed(f"s{k}", *values) for k, values in enumerate(eps)], "synthetic"),
+        )
+        return paper_page.table1_verdict(findings, "eps_iql")
+
+    il = [(-35.0, 0.25), (-34.0, 0.24), (-36.0, 0.27), (-35.5, 0.26)]
+    # Reward +1.0, +1.2, +0.8, +1.1 and collisions 2-3 points fewer on every seed: both beyond 2 SE.
+    clear = [(-34.0, 0.22), (-32.8, 0.22), (-35.2, 0.24), (-34.4, 0.23)]
+    assert verdict(il, clear) == "reproduced"
+    # The means still order as the paper's (reward +0.05, collisions -0.25 points) but the seeds disagree.
+    mixed = [(-34.6, 0.26), (-34.3, 0.23), (-35.8, 0.26), (-35.6, 0.26)]
+    assert verdict(il, mixed) == "within noise in reward and collisions"
+    # Worse on every seed: against the paper beyond the noise.
+    worse = [(-37.0, 0.30), (-36.1, 0.28), (-38.2, 0.31), (-37.3, 0.30)]
+    assert verdict(il, worse) == "not reproduced"
