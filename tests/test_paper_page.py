@@ -284,3 +284,17 @@ def test_table1_orderings_count_only_beyond_twice_the_paired_standard_error() ->
     # Worse on every seed: against the paper beyond the noise.
     worse = [(-37.0, 0.30), (-36.1, 0.28), (-38.2, 0.31), (-37.3, 0.30)]
     assert verdict(il, worse) == "not reproduced"
+
+
+def test_the_best_per_world_ignores_cells_with_fewer_seeds() -> None:
+    def cell(successes: list[float]) -> paper_page.Cell:
+        one = np.array([1.0])
+        return paper_page.Cell(
+            [paper_page.Seed(f"s{k}", one, one * value, one, one * 0) for k, value in enumerate(successes)], "synthetic"
+        )
+
+    findings = _findings()
+    findings.table1.update(gdq=cell([0.30, 0.32, 0.31]), eps_gdq=cell([0.40]))
+    assert [label for env, label, _ in paper_page.best_rows(findings) if env == paper_page.MPE] == ["GDQ"]
+    findings.table1["eps_gdq"] = cell([0.40, 0.30, 0.35])
+    assert [label for env, label, _ in paper_page.best_rows(findings) if env == paper_page.MPE] == ["EPS-GDQ"]
